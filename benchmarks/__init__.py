@@ -1,0 +1,1 @@
+"""benchmarks: the continuous benchmarking harness (suites, variants, metrics, store, reports)."""

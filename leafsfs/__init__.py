@@ -1,0 +1,1 @@
+"""leafsfs: PROP-SFS leaf reconstruction from phase-shift TLS intensity and range."""

@@ -1,0 +1,25 @@
+"""Shared console-script plumbing: run a sub-command, turn user errors into one-line messages.
+
+Every package raises one exception type for user mistakes (all subclass
+``ValueError``); the console scripts print its message and exit with status 2
+instead of showing a traceback. An interrupted command exits with status 130.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def run_main(parser: argparse.ArgumentParser, argv: list[str]) -> int:
+    """Parse ``argv``, run the selected command's ``func(args)`` and return the exit status."""
+    args = parser.parse_args(argv)
+    try:
+        status = args.func(args)
+    except KeyboardInterrupt:
+        print(f"{parser.prog}: interrupted", file=sys.stderr)
+        return 130
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        return 2
+    return int(status or 0)

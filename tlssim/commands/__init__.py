@@ -1,0 +1,1 @@
+"""Sub-commands of the ``tlssim`` console script (one module each)."""

@@ -1,0 +1,242 @@
+"""The :class:`Scan` type: the contract between simulation and reconstruction.
+
+A scan is a set of 2-D arrays on the scanner's (psi, theta) grid (rows =
+zenith ``psi``, columns = azimuth ``theta``), plus optional ground-truth
+arrays of the same shape. Reconstruction code must work when the truth is
+absent (real scans).
+
+Files
+-----
+``save``/``load`` use NPZ without pickle. Keys:
+
+- ``range`` (m, float64, NaN = no return), ``intensity`` (DN, float32, NaN =
+  no return), ``theta`` and ``psi`` (rad, float64), ``xyz`` (rows x cols x 3,
+  m, **world frame**);
+- truth (simulated scans only): ``truth_range`` (m, distance of the central
+  sub-ray), ``truth_id`` (int32, object carrying most of the returned power,
+  -1 = none), ``mixed_fraction`` (share of returned power not from that
+  object), ``incidence`` (rad, on that object), ``truth_normal`` (unit normal
+  facing the scanner);
+- ``object_names`` (string array, index = truth id), ``scanner_position``
+  (3,), ``scanner_rotation`` (3 x 3, scanner to world), ``scanner_model``
+  (JSON text of the model parameters), ``meta`` (JSON text);
+- any further per-pixel layer (e.g. ``outlier``) under its own name.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tlssim.errors import ScanError
+from tlssim.pattern import ScannerPose, beam_frame
+
+GRID_KEYS = ("range", "intensity", "theta", "psi", "xyz")
+TRUTH_KEYS = ("truth_range", "truth_id", "mixed_fraction", "incidence", "truth_normal")
+_META_KEYS = ("object_names", "scanner_position", "scanner_rotation", "scanner_model", "meta")
+
+
+@dataclass
+class Scan:
+    """A phase-shift scan on its (psi, theta) grid.
+
+    Attributes
+    ----------
+    range : ndarray, (rows, cols), float64
+        Measured distance, m; NaN where there is no return.
+    intensity : ndarray, (rows, cols), float32
+        Intensity, DN; NaN where there is no return.
+    theta, psi : ndarray, (rows, cols), float64
+        Azimuth and zenith of each pulse, rad.
+    xyz : ndarray, (rows, cols, 3), float64
+        Measured points in the world frame, m; NaN where there is no return.
+    pose : ScannerPose
+        Scanner position and orientation.
+    scanner_model : dict
+        Parameters of the scanner model that produced the scan.
+    object_names : list of str or None
+        Names of the scene objects, indexed by ``truth_id``.
+    truth_range, truth_id, mixed_fraction, incidence, truth_normal : ndarray or None
+        Ground truth (see the module docstring); ``None`` for real scans.
+    layers : dict of str to ndarray
+        Further per-pixel layers (e.g. ``outlier`` flags), saved under their names.
+    meta : dict
+        JSON-ready metadata (scene, seed, window, backend...).
+    """
+
+    range: np.ndarray
+    intensity: np.ndarray
+    theta: np.ndarray
+    psi: np.ndarray
+    xyz: np.ndarray
+    pose: ScannerPose = field(default_factory=ScannerPose)
+    scanner_model: dict = field(default_factory=dict)
+    object_names: list[str] | None = None
+    truth_range: np.ndarray | None = None
+    truth_id: np.ndarray | None = None
+    mixed_fraction: np.ndarray | None = None
+    incidence: np.ndarray | None = None
+    truth_normal: np.ndarray | None = None
+    layers: dict[str, np.ndarray] = field(default_factory=dict)
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        shape = np.shape(self.range)
+        if len(shape) != 2:
+            raise ScanError(f"scan range must be a 2-D (psi, theta) grid, got shape {shape}")
+        for key in GRID_KEYS + TRUTH_KEYS + tuple(self.layers):
+            value = self.layers[key] if key in self.layers else getattr(self, key)
+            if value is None:
+                continue
+            expected = shape + (3,) if key in ("xyz", "truth_normal") else shape
+            if key in self.layers:
+                ok = np.shape(value)[:2] == shape
+            else:
+                ok = np.shape(value) == expected
+            if not ok:
+                raise ScanError(f"scan array {key!r} has shape {np.shape(value)}, expected {expected}")
+        clash = sorted(set(self.layers) & set(GRID_KEYS + TRUTH_KEYS + _META_KEYS))
+        if clash:
+            raise ScanError(f"extra layers may not reuse reserved scan keys: {clash}")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Grid shape ``(rows, cols)``."""
+        return self.range.shape
+
+    @property
+    def valid(self) -> np.ndarray:
+        """Boolean grid of pulses with a return."""
+        return np.isfinite(self.range)
+
+    @property
+    def has_truth(self) -> bool:
+        """Whether the scan carries ground-truth arrays (simulated scans do)."""
+        return self.truth_id is not None
+
+    def points(self) -> np.ndarray:
+        """Returned points as an ``(n, 3)`` array, world frame, m."""
+        return self.xyz[self.valid]
+
+    def save(self, path) -> Path:
+        """Write the scan as NPZ (compressed, no pickle); returns the path."""
+        path = Path(path)
+        arrays = {key: getattr(self, key) for key in GRID_KEYS + TRUTH_KEYS if getattr(self, key) is not None}
+        arrays.update(self.layers)
+        arrays["scanner_position"] = self.pose.position
+        arrays["scanner_rotation"] = self.pose.rotation
+        arrays["scanner_model"] = np.array(json.dumps(self.scanner_model))
+        arrays["meta"] = np.array(json.dumps(self.meta))
+        if self.object_names is not None:
+            arrays["object_names"] = np.array(self.object_names, dtype=str)
+        return write_npz(path, arrays)
+
+    @classmethod
+    def load(cls, path) -> "Scan":
+        """Read a scan written by :meth:`save`.
+
+        Raises
+        ------
+        ScanError
+            If the file is missing, not an NPZ archive, or lacks or misshapes
+            required arrays (the message names the file and the problem).
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise ScanError(f"{path}: no such scan file")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {key: data[key] for key in data.files}
+        except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
+            raise ScanError(f"{path}: not a readable NPZ scan ({exc})") from None
+        missing = [key for key in GRID_KEYS if key not in arrays]
+        if missing:
+            raise ScanError(f"{path}: missing scan arrays {missing}")
+        try:
+            model = json.loads(str(arrays.pop("scanner_model", "{}")))
+            meta = json.loads(str(arrays.pop("meta", "{}")))
+            pose = ScannerPose(arrays.pop("scanner_position", np.zeros(3)), arrays.pop("scanner_rotation", np.eye(3)))
+            names = arrays.pop("object_names", None)
+            fields = {key: arrays.pop(key) for key in GRID_KEYS + TRUTH_KEYS if key in arrays}
+            return cls(**fields, pose=pose, scanner_model=model, meta=meta,
+                       object_names=None if names is None else [str(n) for n in names], layers=arrays)
+        except (json.JSONDecodeError, TypeError) as exc:
+            raise ScanError(f"{path}: malformed scan metadata ({exc})") from None
+        except ScanError as exc:
+            raise ScanError(f"{path}: {exc}") from None
+
+    def to_ply(self, path) -> Path:
+        """Write the returned points as a binary PLY point cloud (world frame).
+
+        Vertex properties: ``x, y, z`` (float64, m), ``intensity`` (float32,
+        DN), ``row, col`` (int32, grid position) and, for simulated scans,
+        ``truth_id`` (int32) and ``mixed_fraction`` (float32).
+        """
+        valid = self.valid
+        rows, cols = np.nonzero(valid)
+        columns = [("x", "<f8", self.xyz[valid, 0]), ("y", "<f8", self.xyz[valid, 1]), ("z", "<f8", self.xyz[valid, 2]),
+                   ("intensity", "<f4", self.intensity[valid]), ("row", "<i4", rows), ("col", "<i4", cols)]
+        if self.has_truth:
+            columns += [("truth_id", "<i4", self.truth_id[valid]), ("mixed_fraction", "<f4", self.mixed_fraction[valid])]
+        return write_ply_points(path, columns)
+
+
+def write_npz(path, arrays: dict[str, np.ndarray]) -> Path:
+    """Write arrays as a compressed NPZ whose bytes depend only on the arrays.
+
+    ``numpy.savez`` stamps the current time into the archive; here every
+    member gets a fixed date so that the same data gives the same file. The
+    file is written under a temporary name and renamed, so an interrupted
+    write never leaves a truncated scan behind.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".partial")
+    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+        for name, value in arrays.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            with archive.open(info, "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
+    tmp.replace(path)
+    return path
+
+
+_PLY_TYPES = {"<f8": "double", "<f4": "float", "<i4": "int", "<u1": "uchar"}
+
+
+def write_ply_points(path, columns) -> Path:
+    """Write a binary little-endian PLY point cloud.
+
+    Parameters
+    ----------
+    path : str or Path
+        Output file.
+    columns : list of (name, numpy dtype string, ndarray)
+        Vertex properties, each a 1-D array of the same length; dtypes among
+        ``<f8, <f4, <i4, <u1``.
+    """
+    path = Path(path)
+    count = len(columns[0][2])
+    table = np.empty(count, dtype=[(name, dtype) for name, dtype, _ in columns])
+    for name, _, values in columns:
+        table[name] = values
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {count}"]
+    header += [f"property {_PLY_TYPES[dtype]} {name}" for name, dtype, _ in columns]
+    header.append("end_header\n")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as handle:
+        handle.write("\n".join(header).encode("ascii"))
+        handle.write(table.tobytes())
+    return path
+
+
+def grid_to_xyz(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, pose: ScannerPose) -> np.ndarray:
+    """World coordinates of grid measurements, m (NaN where ``range_m`` is NaN)."""
+    axis, _, _ = beam_frame(theta, psi)
+    local = axis * range_m[..., None]
+    return local @ pose.rotation.T + pose.position

@@ -1,0 +1,228 @@
+"""Scan simulation: scene + scanner set-up -> :class:`~tlssim.scan.Scan`.
+
+The scan grid is traced in chunks of whole columns (fixed azimuth, all
+zenith rows, in the order the zenith mirror sweeps them) so that memory stays
+bounded; each chunk's sub-rays form one Dr.Jit wavefront
+(:meth:`tlssim.backend.TraceScene.trace`). Per pulse, the phasor sums give the
+distance (:mod:`tlssim.ranging`), and the sub-ray returns give the truth
+(dominant object, mixed fraction, incidence). The detector chain then turns
+the summed returns into range and intensity (:mod:`tlssim.detector`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from scenes.scene import Scene
+from tlssim.backend import SubrayHits, TraceScene, select_backend
+from tlssim.beam import sample_beam
+from tlssim.detector import PulseReturns, detect
+from tlssim.errors import ScanError
+from tlssim.pattern import ScannerPose, ScanWindow, grid_directions, rotation_from_yaw_pitch_roll
+from tlssim.ranging import unwrap_distance
+from tlssim.scan import Scan
+from tlssim.scanner import ScannerModel, get_preset
+
+#: Default number of sub-rays traced per wavefront (bounds memory).
+CHUNK_SUBRAYS = 1 << 21
+
+_SECTION_KEYS = ("preset", "position", "orientation", "window")
+
+
+@dataclass(frozen=True)
+class ScanSetup:
+    """Everything about the scanner for one scan: model, pose and window."""
+
+    model: ScannerModel
+    pose: ScannerPose
+    window: ScanWindow
+
+
+def setup_from_section(section: dict, preset: str | None = None, **overrides) -> ScanSetup:
+    """Build a :class:`ScanSetup` from a scene file's ``scanner`` section.
+
+    Parameters
+    ----------
+    section : dict
+        Keys ``preset``, ``position`` (m), ``orientation`` (``yaw_deg``,
+        ``pitch_deg``, ``roll_deg``), ``window`` (``theta_deg``, ``psi_deg``,
+        optional ``step_deg``) and any :class:`ScannerModel` field as an
+        override (e.g. ``step_deg``, ``divergence_deg``).
+    preset : str, optional
+        Preset to use instead of the section's (default ``faro-ls880``).
+    **overrides
+        Scanner-model fields overriding both the preset and the section.
+
+    Raises
+    ------
+    ScanError
+        On unknown keys or invalid values (the message says which).
+    """
+    section = dict(section or {})
+    name = preset or section.get("preset", "faro-ls880")
+    model_fields = {k: v for k, v in section.items() if k not in _SECTION_KEYS}
+    model = get_preset(name, **{**model_fields, **overrides})
+    orientation = section.get("orientation") or {}
+    if not isinstance(orientation, dict) or set(orientation) - {"yaw_deg", "pitch_deg", "roll_deg"}:
+        raise ScanError(f"scanner orientation must be a mapping of yaw_deg, pitch_deg, roll_deg; got {orientation!r}")
+    pose = ScannerPose(section.get("position", [0.0, 0.0, 0.0]), rotation_from_yaw_pitch_roll(**orientation))
+    window = section.get("window")
+    if not isinstance(window, dict) or not {"theta_deg", "psi_deg"} <= set(window):
+        raise ScanError(f"scanner window must give theta_deg and psi_deg ranges in degrees, got {window!r}")
+    unknown = set(window) - {"theta_deg", "psi_deg", "step_deg"}
+    if unknown:
+        raise ScanError(f"unknown window field(s) {sorted(unknown)}; allowed: theta_deg, psi_deg, step_deg")
+    window = ScanWindow(window["theta_deg"], window["psi_deg"], window.get("step_deg", model.step_deg))
+    window.check_within(model)
+    return ScanSetup(model, pose, window)
+
+
+def simulate(scene: Scene, setup: ScanSetup, seed: int = 0, backend: str = "auto",
+             progress: bool = True, chunk_subrays: int = CHUNK_SUBRAYS) -> Scan:
+    """Simulate a phase-shift scan of ``scene``.
+
+    Parameters
+    ----------
+    scene : Scene
+        What to scan.
+    setup : ScanSetup
+        Scanner model, pose and window.
+    seed : int
+        Seed of every random draw (same seed, same bytes).
+    backend : {"auto", "llvm", "cuda"}
+        Ray-tracing backend.
+    progress : bool
+        Show a progress bar.
+    chunk_subrays : int
+        Sub-rays per wavefront (memory bound: about 100 bytes each).
+
+    Returns
+    -------
+    Scan
+        Measured range, intensity and points with the truth of every pulse.
+    """
+    model, pose, window = setup.model, setup.pose, setup.window
+    window.check_within(model)
+    used_backend = select_backend(backend)
+    vertices, faces, face_object = scene.merged_mesh()
+    reflectance = np.array([o.material.reflectance for o in scene.objects])
+    traced = TraceScene(vertices, faces, face_object, reflectance, pose.position)
+    beam = sample_beam(model.n_subrays, model.beam_profile)
+
+    theta_axis, psi_axis = window.angles()
+    rows, cols = len(psi_axis), len(theta_axis)
+    beam_rng, detector_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
+    spin = beam_rng.uniform(0.0, 2.0 * math.pi, size=(cols, rows))
+
+    # Column-major (theta, psi) accumulators, transposed to (psi, theta) at the end.
+    distance = np.full((cols, rows), np.nan)
+    amplitude = np.zeros((cols, rows))
+    truth = {key: np.full((cols, rows) + shape, fill, dtype) for key, shape, fill, dtype in _TRUTH_LAYOUT}
+
+    cols_per_chunk = max(1, chunk_subrays // (rows * beam.count))
+    with tqdm(total=rows * cols, unit="pulse", unit_scale=True, disable=not progress,
+              desc=f"scan {scene.name or 'scene'}") as bar:
+        for c0 in range(0, cols, cols_per_chunk):
+            c1 = min(cols, c0 + cols_per_chunk)
+            theta = np.repeat(theta_axis[c0:c1], rows)
+            psi = np.tile(psi_axis, c1 - c0)
+            hits = traced.trace(model, beam, pose, theta, psi, spin[c0:c1].ravel())
+            dist, amp = _pulse_returns(hits, model)
+            distance[c0:c1] = dist.reshape(c1 - c0, rows)
+            amplitude[c0:c1] = amp.reshape(c1 - c0, rows)
+            for key, value in pulse_truth(hits, traced.face_normals).items():
+                truth[key][c0:c1] = value.reshape((c1 - c0, rows) + value.shape[1:])
+            bar.update(len(theta))
+
+    def grid(a):
+        return np.ascontiguousarray(np.swapaxes(a, 0, 1))
+
+    returns = PulseReturns(distance_m=grid(distance), amplitude=grid(amplitude))
+    range_m, intensity = detect(model, returns, detector_rng)
+    theta_grid, psi_grid = np.meshgrid(theta_axis, psi_axis)
+    return Scan(
+        range=range_m,
+        intensity=intensity,
+        theta=theta_grid,
+        psi=psi_grid,
+        xyz=pose.position + range_m[..., None] * grid_directions(theta_axis, psi_axis, pose.rotation),
+        pose=pose,
+        scanner_model=model.to_dict(),
+        object_names=scene.object_names,
+        meta={"scene": scene.name, "seed": int(seed), "window": window.to_dict(), "backend": used_backend,
+              "frame": "world"},
+        **{key: grid(value) for key, value in truth.items()},
+    )
+
+
+_TRUTH_LAYOUT = (
+    ("truth_range", (), np.nan, np.float64),
+    ("truth_id", (), -1, np.int32),
+    ("mixed_fraction", (), np.nan, np.float32),
+    ("incidence", (), np.nan, np.float32),
+    ("truth_normal", (3,), np.nan, np.float32),
+)
+
+
+def _pulse_returns(hits: SubrayHits, model: ScannerModel) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pulse distance (phasor phase) and amplitude (phasor magnitude at the lowest frequency)."""
+    distance = unwrap_distance(hits.phasors, model.mod_freqs_hz)
+    amplitude = np.hypot(*hits.phasors[0])
+    return np.where(amplitude > 0, distance, np.nan), amplitude
+
+
+def pulse_truth(hits: SubrayHits, face_normals: np.ndarray) -> dict[str, np.ndarray]:
+    """Ground truth of each pulse from its sub-ray returns.
+
+    Parameters
+    ----------
+    hits : SubrayHits
+        Traced sub-rays of ``n`` pulses.
+    face_normals : ndarray, shape (F, 3)
+        Unit normal of every triangle of the traced mesh.
+
+    Returns
+    -------
+    dict
+        ``truth_range`` (central sub-ray distance, m), ``truth_id`` (object
+        with the largest returned power), ``mixed_fraction`` (power share of
+        the other objects), ``incidence`` (rad) and ``truth_normal`` (facing
+        the scanner), the last two taken on the sub-ray of the dominant object
+        nearest to the beam centre. NaN / -1 where nothing returned power.
+    """
+    dominant = hits.object_high.copy()
+    share = np.where(dominant >= 0, hits.total_power, 0.0)
+    first, first_prim = hits.first, hits.first_prim
+    mixed = np.nonzero((dominant >= 0) & (hits.object_low != dominant))[0]
+    if len(mixed):
+        obj, power, prim = hits.object_id[mixed], hits.power[mixed], hits.prim[mixed]
+        returned = (obj >= 0) & (power > 0)
+        rows = np.arange(len(mixed))
+        # Power of the object of every sub-ray, summed over the pulse; the best wins.
+        per_candidate = np.einsum("mjk,mk->mj", obj[:, :, None] == obj[:, None, :], np.where(returned, power, 0.0))
+        per_candidate[~returned] = -1.0
+        best = per_candidate.argmax(axis=1)
+        dominant[mixed] = obj[rows, best]
+        share[mixed] = per_candidate[rows, best]
+        first = first.copy()
+        first[mixed] = np.argmax((obj == dominant[mixed][:, None]) & returned, axis=1)
+        first_prim = first_prim.copy()
+        first_prim[mixed] = prim[rows, first[mixed]]
+
+    has = dominant >= 0
+    normal = face_normals[first_prim]
+    facing = np.sum(normal * hits.axis, axis=1)
+    normal = np.where(facing[:, None] > 0, -normal, normal)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mixed_fraction = np.clip(1.0 - share / hits.total_power, 0.0, 1.0)
+    return {
+        "truth_range": np.where(np.isfinite(hits.central_t), hits.central_t, np.nan),
+        "truth_id": np.where(has, dominant, -1).astype(np.int32),
+        "mixed_fraction": np.where(has, mixed_fraction, np.nan),
+        "incidence": np.where(has, np.arccos(np.clip(np.abs(facing), 0.0, 1.0)), np.nan),
+        "truth_normal": np.where(has[:, None], normal, np.nan),
+    }

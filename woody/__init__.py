@@ -1,0 +1,1 @@
+"""woody: STEP tube extraction and cylinder-following reconstruction of woody structure."""
