@@ -16,3 +16,8 @@ def load(spec: str) -> Scene:
     return build(spec)
 
 __all__ = ["Material", "Scene", "SceneError", "SceneObject", "build", "describe", "load", "names", "register"]
+
+# Modules that register further built-in scenes (imported for their side effect).
+BUILTIN_MODULES: tuple[str, ...] = ()
+for _module in BUILTIN_MODULES:
+    __import__(_module)
