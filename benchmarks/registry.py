@@ -1,0 +1,204 @@
+"""The registry of reconstruction variants: every method the benchmark compares, in one place.
+
+A :class:`Variant` is a named method with default parameters. Leaf variants
+take a scan and the mask of one leaf's points and return a
+:class:`VariantOutput`: the output point of every pixel (NaN where the
+method dropped it or did not reconstruct it) and, where the method estimates
+them, the leaf traits. Families:
+
+- ``raw``: no correction (the measured points);
+- ``filter``: the outlier-removal baselines of :mod:`leafsfs.baselines`;
+- ``prop-sfs``: the PROP-SFS variants of :func:`leafsfs.reconstruct`,
+  registered only when the leafsfs package provides that function.
+
+Raw and filtered clouds get their leaf traits from
+:func:`leafsfs.baselines.leaf_traits` (range-image mesh with an edge cap).
+New variants are added to :func:`_register_builtins` (or, from other code,
+with :func:`register_variant`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from benchmarks.errors import BenchError
+
+
+@dataclass
+class VariantOutput:
+    """What a leaf variant returns for one leaf.
+
+    Attributes
+    ----------
+    xyz : ndarray, (rows, cols, 3)
+        Output point of every pixel, world frame, m; NaN where the pixel was
+        removed or not reconstructed. Only the leaf's masked pixels are read.
+    traits : dict or None
+        Leaf traits estimated by the method: ``area_m2``, ``elevation_deg``,
+        ``azimuth_deg`` (midrib), optionally ``normal``.
+    stats : dict
+        Further method-specific numbers stored with the metrics (e.g.
+        ``rppp_1``), JSON-ready.
+    """
+
+    xyz: np.ndarray
+    traits: dict | None = None
+    stats: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Variant:
+    """A named reconstruction method with its default parameters.
+
+    Attributes
+    ----------
+    name : str
+        Registry name (used on the command line and in the store).
+    family : str
+        ``raw``, ``filter``, ``prop-sfs`` or ``woody``.
+    run : callable
+        ``run(scan, mask, **params) -> VariantOutput``.
+    params : dict
+        Default parameters (JSON-ready).
+    description : str
+        One line.
+    """
+
+    name: str
+    family: str
+    run: Callable[..., VariantOutput]
+    params: dict
+    description: str
+
+    def with_params(self, **changes) -> "Variant":
+        """A copy with some parameters changed.
+
+        Raises
+        ------
+        BenchError
+            If a parameter name is unknown (the message lists the allowed ones).
+        """
+        unknown = sorted(set(changes) - set(self.params))
+        if unknown:
+            raise BenchError(f"variant {self.name!r} has no parameter(s) {unknown}; "
+                             f"allowed: {sorted(self.params) or 'none'}")
+        return dataclasses.replace(self, params={**self.params, **changes})
+
+    def __call__(self, scan, mask) -> VariantOutput:
+        return self.run(scan, mask, **self.params)
+
+
+_VARIANTS: dict[str, Variant] = {}
+_UNAVAILABLE: dict[str, str] = {}
+
+
+def register_variant(variant: Variant) -> Variant:
+    """Add ``variant`` to the registry (names are unique)."""
+    if variant.name in _VARIANTS:
+        raise BenchError(f"variant {variant.name!r} is registered twice")
+    _VARIANTS[variant.name] = variant
+    return variant
+
+
+def variant_names() -> list[str]:
+    """Names of the registered variants, in registration order."""
+    return list(_VARIANTS)
+
+
+def get_variant(name: str) -> Variant:
+    """The registered variant ``name``.
+
+    Raises
+    ------
+    BenchError
+        If no variant has that name (the message lists them, and says why
+        known methods are missing).
+    """
+    if name not in _VARIANTS:
+        missing = "".join(f"; {n} is unavailable: {why}" for n, why in _UNAVAILABLE.items())
+        raise BenchError(f"unknown variant {name!r}; registered: {', '.join(variant_names())}{missing}")
+    return _VARIANTS[name]
+
+
+def unavailable() -> dict[str, str]:
+    """Families of methods that are not registered here, with the reason."""
+    return dict(_UNAVAILABLE)
+
+
+def resolve(names: list[str] | None = None, overrides: dict[str, dict] | None = None) -> list[Variant]:
+    """The variants to run, with parameter overrides applied.
+
+    Parameters
+    ----------
+    names : list of str, optional
+        Variant names (default: every registered variant).
+    overrides : dict, optional
+        ``{variant name: {parameter: value}}``.
+    """
+    names = variant_names() if not names else list(dict.fromkeys(names))
+    overrides = overrides or {}
+    stray = sorted(set(overrides) - set(names))
+    if stray:
+        raise BenchError(f"parameter overrides given for variants that are not run: {stray}")
+    return [get_variant(n).with_params(**overrides.get(n, {})) for n in names]
+
+
+def _raw(scan, mask, mesh_max_edge_m):
+    from leafsfs.baselines import leaf_traits
+
+    kept = mask & scan.valid
+    return VariantOutput(np.where(kept[..., None], scan.xyz, np.nan), leaf_traits(scan, kept, mesh_max_edge_m))
+
+
+def _filter_variant(name: str, func: Callable, description: str, **params) -> Variant:
+    def run(scan, mask, mesh_max_edge_m, **filter_params):
+        from leafsfs.baselines import leaf_traits
+
+        kept = func(scan, mask, **filter_params)
+        return VariantOutput(np.where(kept[..., None], scan.xyz, np.nan), leaf_traits(scan, kept, mesh_max_edge_m))
+
+    return Variant(name, "filter", run, {**params, "mesh_max_edge_m": MESH_MAX_EDGE_M}, description)
+
+
+#: Edge cap of the range-image mesh that gives raw and filtered clouds their leaf area, m.
+MESH_MAX_EDGE_M = 0.01
+
+
+def _register_builtins() -> None:
+    from leafsfs import baselines
+
+    register_variant(Variant("raw", "raw", _raw, {"mesh_max_edge_m": MESH_MAX_EDGE_M},
+                             "measured points, no correction"))
+    register_variant(_filter_variant("sor", baselines.statistical_outlier_removal,
+                                     "statistical outlier removal (PCL/Open3D), k=8, 2 sd", k=8, std_ratio=2.0))
+    register_variant(_filter_variant("radius", baselines.radius_outlier_removal,
+                                     "radius outlier removal: >= 8 neighbours within 3 sample spacings",
+                                     radius_spacings=3.0, min_neighbours=8, radius_m=None))
+    register_variant(_filter_variant("shadow", baselines.shadow_filter,
+                                     "veiling/shadow angle filter on the range image (ROS/PCL), 10 deg",
+                                     min_angle_deg=10.0))
+    register_variant(_filter_variant("stray-point", baselines.stray_point_filter,
+                                     "FARO SCENE stray-point rule: 3x3 cell, 2 cm, 50 %",
+                                     window_px=3, max_range_diff_m=0.02, min_share=0.5))
+    register_variant(_filter_variant("intensity", baselines.intensity_filter,
+                                     "dark-point removal: 100 DN below the leaf's median intensity",
+                                     below_median_dn=100.0, min_dn=None))
+    _note_missing()
+
+
+def _note_missing() -> None:
+    """Record the method families whose packages do not provide them yet."""
+    import leafsfs
+    import woody
+
+    if not hasattr(leafsfs, "reconstruct"):
+        _UNAVAILABLE["prop-sfs"] = "leafsfs.reconstruct does not exist yet"
+    if not (hasattr(woody, "step") and hasattr(woody, "follow_cylinders")):
+        _UNAVAILABLE["woody"] = "woody.step / woody.follow_cylinders do not exist yet"
+
+
+_register_builtins()

@@ -1,0 +1,259 @@
+"""Running a suite: cases in parallel on this machine or on a Dask cluster, results into the store.
+
+:func:`run_case` is the unit of work: it rebuilds a case's scene, simulates
+the scan (deterministic from the case seed), runs each requested variant on
+every target leaf and scores it. It takes and returns JSON-ready data, so the
+same function runs inline, in a local process pool (spawned processes: the
+Dr.Jit JIT does not survive ``fork``) or on Dask workers.
+
+:func:`execute` sends the cases that are not yet in the store for a run,
+writes each case's rows in one transaction as soon as it finishes, and
+shows a progress bar. A stopped run resumes from the store: finished
+(case, variant) pairs are never redone.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import hashlib
+import json
+import multiprocessing
+import os
+import time
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+
+from tqdm.auto import tqdm
+
+from benchmarks import scoring
+from benchmarks.errors import BenchError
+from benchmarks.generators import build_scene
+from benchmarks.registry import Variant, get_variant
+from benchmarks.store import Store, git_commit
+from benchmarks.suite import Case, Suite
+
+_CLEAR_REFS = Path("/proc/self/clear_refs")
+
+
+def _rss_mb(field: str) -> float | None:
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith(field + ":"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
+def _reset_peak_rss() -> bool:
+    try:
+        _CLEAR_REFS.write_text("5")
+        return True
+    except OSError:
+        return False
+
+
+def measured(func, *args):
+    """Call ``func(*args)``; return its result, wall time (s) and peak memory above the start (MB).
+
+    Peak memory is the growth of the process's resident-set high-water mark
+    (Linux ``VmHWM``, reset through ``/proc/self/clear_refs`` before the
+    call); it is ``None`` where the kernel does not offer that. It counts
+    every allocation of the process (numpy, Dr.Jit), so it is meaningful
+    when one case runs per process (local pools, Dask workers with one
+    thread).
+    """
+    start_rss = _rss_mb("VmRSS") if _reset_peak_rss() else None
+    start = time.perf_counter()
+    result = func(*args)
+    elapsed = time.perf_counter() - start
+    peak = _rss_mb("VmHWM") if start_rss is not None else None
+    return result, elapsed, None if peak is None else max(peak - start_rss, 0.0)
+
+
+def variant_specs(variants: list[Variant]) -> list[dict]:
+    """JSON-ready ``{name, params}`` of each variant (what workers receive)."""
+    return [{"name": v.name, "params": v.params} for v in variants]
+
+
+def run_case(case: dict, variants: list[dict]) -> list[dict]:
+    """Simulate one case and score every variant on its target leaves.
+
+    Parameters
+    ----------
+    case : dict
+        :meth:`benchmarks.suite.Case.to_dict` of the case.
+    variants : list of dict
+        ``{"name", "params"}`` of the variants to run (looked up in the
+        registry of the process that runs the case).
+
+    Returns
+    -------
+    list of dict
+        One row per variant for :meth:`benchmarks.store.Store.add_results`;
+        a variant that fails on the case gets a row with its ``error``.
+    """
+    from tlssim.simulate import setup_from_section, simulate
+
+    case = Case.from_dict(case)
+    rows = []
+    try:
+        scene = build_scene(case.scene)
+        setup = setup_from_section(scene.scanner, **case.scanner)
+        scan, simulate_s, _ = measured(lambda: simulate(scene, setup, seed=case.seed, progress=False))
+        leaves = scoring.prepare_leaves(scene, scan, None if case.targets is None else list(case.targets))
+    except Exception as exc:  # noqa: BLE001 - a broken case is recorded, not fatal to the run
+        message = _message(exc)
+        return [_row(case, spec, spec.get("family", ""), {"leaves": []}, None, None, None, message)
+                for spec in variants]
+    for spec in variants:
+        try:
+            variant = get_variant(spec["name"]).with_params(**spec["params"])
+            scores, runtime, peaks = [], 0.0, []
+            for leaf in leaves:
+                output, elapsed, peak = measured(variant, scan, leaf.mask)
+                runtime += elapsed
+                peaks.append(peak)
+                scores.append(scoring.score_leaf(leaf, scene, scan, output))
+            peak = None if not peaks or any(p is None for p in peaks) else max(peaks)
+            rows.append(_row(case, spec, variant.family, {"leaves": scores}, runtime, peak, simulate_s, None))
+        except Exception as exc:  # noqa: BLE001 - a failing variant is recorded, the others still run
+            rows.append(_row(case, spec, spec.get("family", ""), {"leaves": []}, None, None, simulate_s,
+                             _message(exc)))
+    return rows
+
+
+def _message(exc: BaseException) -> str:
+    if isinstance(exc, ValueError):
+        return f"{type(exc).__name__}: {exc}"
+    return "".join(traceback.format_exception(exc)[-3:]).strip()
+
+
+def _row(case: Case, spec: dict, family: str, metrics: dict, runtime, peak, simulate_s, error) -> dict:
+    return {"case_name": case.name, "variant": spec["name"], "family": family, "params": spec["params"],
+            "case_spec": case.to_dict(), "metrics": metrics, "runtime_s": runtime, "peak_mem_mb": peak,
+            "simulate_s": simulate_s, "error": error}
+
+
+@dataclass
+class RunOutcome:
+    """What :func:`execute` did."""
+
+    run_id: str
+    resumed: bool
+    cases_run: int
+    cases_skipped: int
+    rows_added: int
+    elapsed_s: float
+
+
+def run_config(suite: Suite, variants: list[Variant]) -> tuple[dict, str]:
+    """Configuration of a run (suite digest, variants and parameters) and its digest."""
+    config = {"suite": suite.name, "suite_source": suite.source, "suite_digest": suite.digest(),
+              "cases": len(suite.cases), "variants": variant_specs(variants)}
+    return config, hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()
+
+
+def execute(suite: Suite, variants: list[Variant], store: Store, workers: int | None = None,
+            scheduler: str | None = None, resume: str | bool = True, progress: bool = True,
+            notes: dict | None = None) -> RunOutcome:
+    """Run every case of ``suite`` with ``variants`` and store the results.
+
+    Parameters
+    ----------
+    suite : Suite
+        The cases.
+    variants : list of Variant
+        The variants (with their parameters).
+    store : Store
+        Where results go.
+    workers : int, optional
+        Local worker processes (default: the processor count; 1 runs the
+        cases in this process). Ignored with ``scheduler``.
+    scheduler : str, optional
+        Address of a Dask distributed scheduler (``tcp://host:port``) to
+        send the cases to instead.
+    resume : bool or str
+        ``True``: continue the latest unfinished run with the same
+        configuration and code commit, if any; ``False``: always start a
+        new run; a run id: continue that run.
+    progress : bool
+        Show a progress bar.
+    notes : dict, optional
+        Notes stored with a new run.
+
+    Returns
+    -------
+    RunOutcome
+    """
+    if not variants:
+        raise BenchError("no variant to run")
+    config, digest = run_config(suite, variants)
+    commit = git_commit()
+    if isinstance(resume, str):
+        run_id = store.resolve(resume)
+        if store.run_info(run_id)["config_digest"] != digest:
+            raise BenchError(f"run {run_id} was started with another suite or other variants; "
+                             "resume it with the same --suite, --variants and --set, or start a new run")
+    else:
+        run_id = store.find_resumable(digest, commit) if resume else None
+    resumed = run_id is not None
+    if run_id is None:
+        run_id = store.create_run(suite.name, suite.digest(), config, digest, commit, notes)
+    done = store.done_pairs(run_id)
+    specs = variant_specs(variants)
+    todo = []
+    for case in suite.cases:
+        missing = [s for s in specs if (case.name, s["name"]) not in done]
+        if missing:
+            todo.append((case.to_dict(), missing))
+    start = time.perf_counter()
+    added = 0
+    with tqdm(total=len(suite.cases), initial=len(suite.cases) - len(todo), unit="case", disable=not progress,
+              desc=f"{suite.name} ({run_id})") as bar:
+        for rows in _dispatch(todo, workers, scheduler):
+            added += store.add_results(run_id, rows)
+            bar.update(1)
+    if len(store.done_pairs(run_id)) == len(suite.cases) * len(specs):
+        store.finish_run(run_id)
+    return RunOutcome(run_id, resumed, len(todo), len(suite.cases) - len(todo), added,
+                      time.perf_counter() - start)
+
+
+def _dispatch(todo: list[tuple[dict, list[dict]]], workers: int | None, scheduler: str | None):
+    """Yield the rows of each case as it finishes (inline, process pool or Dask)."""
+    if not todo:
+        return
+    if scheduler:
+        yield from _dispatch_dask(todo, scheduler)
+        return
+    workers = min(workers or os.cpu_count() or 1, len(todo))
+    if workers <= 1:
+        for case, specs in todo:
+            yield run_case(case, specs)
+        return
+    with cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = [pool.submit(run_case, case, specs) for case, specs in todo]
+        try:
+            for future in cf.as_completed(futures):
+                yield future.result()
+        finally:
+            for future in futures:
+                future.cancel()
+
+
+def _dispatch_dask(todo: list[tuple[dict, list[dict]]], address: str):
+    from distributed import Client, as_completed
+
+    try:
+        client = Client(address, timeout="30s")
+    except (OSError, TimeoutError) as exc:
+        raise BenchError(f"cannot reach the Dask scheduler at {address!r} ({exc})") from None
+    with client:
+        futures = [client.submit(run_case, case, specs, pure=False) for case, specs in todo]
+        try:
+            for future in as_completed(futures):
+                yield future.result()
+        finally:
+            client.cancel(futures)

@@ -1,0 +1,206 @@
+"""Scoring a variant's output on the leaves of a simulated scan against the scene truth.
+
+:func:`prepare_leaves` computes, once per case, what every variant is scored
+against: for each target leaf its points (the pulses with at least 10 % of
+their power from it), the distance of each measured point to the true
+surface of the object it is attributed to, the range noise and the outlier
+thresholds. :func:`score_leaf` then scores one variant's output on one leaf
+with the definitions of :mod:`benchmarks.metrics`. :func:`summarize`
+aggregates per-leaf scores over a suite.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from benchmarks import metrics
+from benchmarks.errors import BenchError
+from benchmarks.registry import VariantOutput
+
+#: Pure returns (used for the range noise and the intensity) have less than this power share from other objects.
+PURE_MIXED_FRACTION = 1e-3
+
+
+@dataclass
+class LeafTruth:
+    """What the variants are scored against on one leaf.
+
+    Attributes
+    ----------
+    object_id : int
+        Scene object id of the leaf.
+    name : str
+        Object name.
+    truth : dict
+        The object's truth fields (``area_m2``, ``elevation_deg``, ... for leaves).
+    mask : ndarray of bool, (rows, cols)
+        The leaf's points: returns with at least ``min_share`` of their power from it.
+    own : ndarray of bool, (n,)
+        Which of the masked points the leaf dominates (``truth_id`` is the leaf).
+    attributed : ndarray of int, (n,)
+        Object each masked point is attributed to (its ``truth_id``).
+    distance : ndarray, (n,)
+        Signed distance of each measured point to its object's true surface, m.
+    taus : dict of str to float
+        Outlier thresholds by label (``auto``: max(3 σ, 2 mm); ``1cm``), m.
+    scan_stats : dict
+        Properties of the scan on this leaf (range, incidence, noise, intensity, density).
+    """
+
+    object_id: int
+    name: str
+    truth: dict
+    mask: np.ndarray
+    own: np.ndarray
+    attributed: np.ndarray
+    distance: np.ndarray
+    taus: dict
+    scan_stats: dict
+
+
+def footprint_reach_px(scan, distance_m: float) -> int:
+    """How many pixels the beam footprint reaches at ``distance_m``: twice the 1/e² radius over the spacing."""
+    model = scan.scanner_model
+    radius = model["beam_waist_radius_m"] + distance_m * math.tan(math.radians(model["divergence_deg"]))
+    step = min(abs(float(scan.theta[0, 1] - scan.theta[0, 0])) if scan.shape[1] > 1 else math.inf,
+               abs(float(scan.psi[1, 0] - scan.psi[0, 0])) if scan.shape[0] > 1 else math.inf)
+    return int(math.ceil(2.0 * radius / (distance_m * step))) + 1
+
+
+def attributed_distance(points: np.ndarray, object_ids: np.ndarray, scene) -> np.ndarray:
+    """Signed distance of each point to the true surface of its object (``object_ids``), m."""
+    out = np.full(len(points), np.nan)
+    for oid in np.unique(object_ids):
+        sel = object_ids == oid
+        obj = scene.objects[int(oid)]
+        out[sel] = metrics.surface_distance(points[sel], obj.vertices, obj.faces, signed=True)
+    return out
+
+
+def target_ids(scene, targets: list[str] | None = None) -> list[int]:
+    """Object ids to score: the named ``targets``, or every object of type ``leaf``."""
+    names = scene.object_names
+    if targets is None:
+        return [i for i, o in enumerate(scene.objects) if o.type == "leaf"]
+    unknown = sorted(set(targets) - set(names))
+    if unknown:
+        raise BenchError(f"scene {scene.name!r} has no object(s) {unknown}; objects: {names}")
+    return [names.index(t) for t in targets]
+
+
+def prepare_leaves(scene, scan, targets: list[str] | None = None,
+                   min_share: float = metrics.MIN_POWER_SHARE) -> list[LeafTruth]:
+    """Truth of every target leaf of a simulated scan.
+
+    Parameters
+    ----------
+    scene : Scene
+        The scanned scene (rebuilt from the case description).
+    scan : tlssim.Scan
+        The simulated scan (with truth arrays).
+    targets : list of str, optional
+        Object names to score (default: every leaf).
+    min_share : float
+        Smallest power share from the leaf for a point to count on it.
+
+    Returns
+    -------
+    list of LeafTruth
+        One per target seen by the scan (targets without a return are skipped).
+    """
+    if not scan.has_truth:
+        raise BenchError("scoring needs a simulated scan with truth arrays")
+    leaves = []
+    valid = scan.valid
+    for oid in target_ids(scene, targets):
+        own_grid = valid & (scan.truth_id == oid)
+        if not own_grid.any():
+            continue
+        distance_m = float(np.median(scan.range[own_grid]))
+        share = metrics.leaf_power_share(scan.truth_id, scan.mixed_fraction, oid,
+                                         footprint_reach_px(scan, distance_m))
+        mask = valid & (share >= min_share)
+        attributed = scan.truth_id[mask]
+        distance = attributed_distance(scan.xyz[mask], attributed, scene)
+        own = attributed == oid
+        pure = own & (scan.mixed_fraction[mask] < PURE_MIXED_FRACTION)
+        sigma = metrics.robust_sigma(distance[pure])
+        obj = scene.objects[oid]
+        area = obj.truth.get("area_m2")
+        stats = {
+            "range_m": distance_m,
+            "incidence_deg": float(np.degrees(np.median(scan.incidence[own_grid]))),
+            "sigma_range_m": sigma,
+            "intensity_dn": float(np.median(scan.intensity[mask][pure])) if pure.any() else math.nan,
+            "n_own": int(own.sum()),
+            "points_per_cm2": int(own.sum()) / (area * 1e4) if area else math.nan,
+        }
+        leaves.append(LeafTruth(oid, obj.name, obj.truth, mask, own, attributed, distance,
+                                {"auto": metrics.auto_tau(sigma), "1cm": metrics.TAU_TRUE_M}, stats))
+    return leaves
+
+
+def score_leaf(leaf: LeafTruth, scene, scan, output: VariantOutput) -> dict:
+    """Scores of one variant's output on one leaf.
+
+    Returns
+    -------
+    dict
+        JSON-ready: the leaf's name, id and object type, its scan properties; ``tau_m``; per threshold the
+        outlier scores of :func:`benchmarks.metrics.outlier_scores` (the
+        ``auto`` threshold unsuffixed, τ = 1 cm with the suffix ``_1cm``);
+        ``surface_rmse_m`` and ``completeness`` (share of the leaf's own
+        pulses with an output point within τ); leaf-trait errors where both
+        the truth and the method give the trait; the method's own stats.
+    """
+    measured = scan.xyz[leaf.mask]
+    out = np.asarray(output.xyz)[leaf.mask]
+    kept = np.isfinite(out).all(axis=1)
+    moved = kept & (np.abs(out - measured) > 1e-9).any(axis=1)
+    distance = leaf.distance.copy()
+    distance[moved] = attributed_distance(out[moved], leaf.attributed[moved], scene)
+    before, after = np.abs(leaf.distance), np.abs(distance)
+    scores = {"leaf": leaf.name, "object_id": leaf.object_id, "object_type": scene.objects[leaf.object_id].type,
+              **leaf.scan_stats, "tau_m": leaf.taus["auto"]}
+    for label, tau in leaf.taus.items():
+        suffix = "" if label == "auto" else f"_{label}"
+        for key, value in metrics.outlier_scores(before > tau, kept, after > tau).items():
+            scores[key + suffix] = value
+    scores["surface_rmse_m"] = metrics.rms(distance[kept])
+    own = max(int(leaf.own.sum()), 1)
+    scores["completeness"] = int((leaf.own & kept & (after <= leaf.taus["auto"])).sum()) / own
+    scores.update(trait_errors(leaf.truth, output.traits))
+    scores.update(output.stats)
+    return _json_ready(scores)
+
+
+def trait_errors(truth: dict, traits: dict | None) -> dict:
+    """Area, elevation and azimuth errors where both the truth and the estimate have them."""
+    if not traits:
+        return {}
+    errors = {}
+    if truth.get("area_m2") and np.isfinite(traits.get("area_m2", math.nan)):
+        errors.update({"area_m2": traits["area_m2"], "area_true_m2": truth["area_m2"],
+                       "area_abs_err_m2": traits["area_m2"] - truth["area_m2"],
+                       "area_rel_err": metrics.relative_error(traits["area_m2"], truth["area_m2"])})
+    keys = ("elevation_deg", "azimuth_deg")
+    if all(k in truth for k in keys) and all(np.isfinite(traits.get(k, math.nan)) for k in keys):
+        el, az = metrics.axis_angle_errors(traits["elevation_deg"], traits["azimuth_deg"],
+                                           truth["elevation_deg"], truth["azimuth_deg"])
+        errors.update({"elevation_err_deg": el, "azimuth_err_deg": az})
+    return errors
+
+
+def _json_ready(scores: dict) -> dict:
+    """Plain Python numbers; NaN becomes None (JSON has no NaN)."""
+    clean = {}
+    for key, value in scores.items():
+        if isinstance(value, (np.generic,)):
+            value = value.item()
+        if isinstance(value, float) and not math.isfinite(value):
+            value = None
+        clean[key] = value
+    return clean

@@ -1,0 +1,132 @@
+"""Aggregating stored results: one summary row per suite × variant, and the headline table.
+
+Per-leaf scores (see :func:`benchmarks.scoring.score_leaf`) are pooled over
+every case of a run:
+
+- ``rop_before``, ``rop_after``: mean over leaves of the per-leaf ROP;
+  ``rop_reduction`` = 1 − rop_after / rop_before (the same with ``_1cm``);
+- ``good_points_lost``, ``outliers_restored``, ``good_points_damaged``,
+  ``completeness``: mean over leaves;
+- ``area_rel_err_median``: median over leaves of |relative area error|
+  (``area_rel_err_bias``: median of the signed error);
+  ``elevation_err_median_deg``, ``azimuth_err_median_deg``: medians of the
+  absolute angle errors; ``surface_rmse_m``: median over leaves;
+- ``runtime_s``: median wall time of the variant on one case (all its
+  leaves); ``runtime_total_s``: sum over cases; ``peak_mem_mb``: largest
+  peak over cases;
+- ``diameter_err_median_m``, ``volume_rel_err``: woody metrics (``None``
+  until woody variants are registered).
+
+A metric that does not apply (no leaf with that truth, or a variant that
+does not estimate it) is ``None``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: The goal of the project (issue 7): a PROP-SFS variant with this ROP reduction and median |area error|.
+GOAL_ROP_REDUCTION = 0.90
+GOAL_AREA_REL_ERR = 0.05
+
+#: Keys of a summary row, in display order.
+SUMMARY_KEYS = ("suite", "variant", "family", "n_cases", "n_leaves", "n_errors", "rop_before", "rop_after",
+                "rop_reduction", "rop_before_1cm", "rop_after_1cm", "rop_reduction_1cm", "good_points_lost",
+                "outliers_restored", "good_points_damaged", "completeness", "surface_rmse_m",
+                "area_rel_err_median", "area_rel_err_bias", "elevation_err_median_deg", "azimuth_err_median_deg",
+                "diameter_err_median_m", "volume_rel_err", "runtime_s", "runtime_total_s", "peak_mem_mb")
+
+#: The headline table: (column title, summary key, format).
+HEADLINE = (("variant", "variant", "{}"), ("ROP after", "rop_after", "{:.3f}"),
+            ("ROP red.", "rop_reduction", "{:.0%}"), ("good lost", "good_points_lost", "{:.1%}"),
+            ("|area err| med", "area_rel_err_median", "{:.1%}"), ("elev err", "elevation_err_median_deg", "{:.1f}°"),
+            ("azim err", "azimuth_err_median_deg", "{:.1f}°"), ("runtime/case", "runtime_s", "{:.3f} s"))
+
+
+def leaf_scores(rows: list[dict]) -> list[dict]:
+    """Every per-leaf score of result rows, with ``case`` and ``variant`` added."""
+    return [{"case": r["case_name"], "variant": r["variant"], **leaf}
+            for r in rows if not r["error"] for leaf in r["metrics"]["leaves"]]
+
+
+def _values(leaves: list[dict], key: str, absolute: bool = False) -> np.ndarray:
+    values = np.array([leaf[key] for leaf in leaves if leaf.get(key) is not None], dtype=float)
+    return np.abs(values) if absolute else values
+
+
+def _mean(leaves, key):
+    values = _values(leaves, key)
+    return float(values.mean()) if len(values) else None
+
+
+def _median(leaves, key, absolute=False):
+    values = _values(leaves, key, absolute)
+    return float(np.median(values)) if len(values) else None
+
+
+def _reduction(before, after):
+    return None if before is None or after is None or before <= 0 else 1.0 - after / before
+
+
+def summarize(rows: list[dict], suite: str) -> list[dict]:
+    """One summary row per variant of a run's result rows (variants in first-seen order)."""
+    summary = []
+    for variant in dict.fromkeys(r["variant"] for r in rows):
+        mine = [r for r in rows if r["variant"] == variant]
+        ok = [r for r in mine if not r["error"]]
+        leaves = leaf_scores(ok)
+        row = {"suite": suite, "variant": variant, "family": mine[0]["family"], "n_cases": len(mine),
+               "n_leaves": len(leaves), "n_errors": len(mine) - len(ok)}
+        for suffix in ("", "_1cm"):
+            before, after = _mean(leaves, "rop_before" + suffix), _mean(leaves, "rop_after" + suffix)
+            row.update({f"rop_before{suffix}": before, f"rop_after{suffix}": after,
+                        f"rop_reduction{suffix}": _reduction(before, after)})
+        for key in ("good_points_lost", "outliers_restored", "good_points_damaged", "completeness"):
+            row[key] = _mean(leaves, key)
+        row["surface_rmse_m"] = _median(leaves, "surface_rmse_m")
+        row["area_rel_err_median"] = _median(leaves, "area_rel_err", absolute=True)
+        row["area_rel_err_bias"] = _median(leaves, "area_rel_err")
+        row["elevation_err_median_deg"] = _median(leaves, "elevation_err_deg")
+        row["azimuth_err_median_deg"] = _median(leaves, "azimuth_err_deg")
+        row["diameter_err_median_m"] = None
+        row["volume_rel_err"] = None
+        runtimes = [r["runtime_s"] for r in ok if r["runtime_s"] is not None]
+        peaks = [r["peak_mem_mb"] for r in ok if r["peak_mem_mb"] is not None]
+        row["runtime_s"] = float(np.median(runtimes)) if runtimes else None
+        row["runtime_total_s"] = float(np.sum(runtimes)) if runtimes else None
+        row["peak_mem_mb"] = float(max(peaks)) if peaks else None
+        summary.append({key: row[key] for key in SUMMARY_KEYS})
+    return summary
+
+
+def goal_status(summary: list[dict], unavailable: dict[str, str] | None = None) -> str:
+    """One sentence on whether a PROP-SFS variant meets the project goal on these results."""
+    goal = (f"goal: a PROP-SFS variant with ROP reduction >= {GOAL_ROP_REDUCTION:.0%} and median |area error| "
+            f"<= {GOAL_AREA_REL_ERR:.0%}")
+    candidates = [r for r in summary if r["family"] == "prop-sfs"]
+    if not candidates:
+        why = (unavailable or {}).get("prop-sfs", "no PROP-SFS variant was run")
+        return f"{goal}: NOT MET - no PROP-SFS variant in this run ({why})"
+    met = [r["variant"] for r in candidates
+           if (r["rop_reduction"] or 0) >= GOAL_ROP_REDUCTION
+           and r["area_rel_err_median"] is not None and r["area_rel_err_median"] <= GOAL_AREA_REL_ERR]
+    if met:
+        return f"{goal}: MET by {', '.join(met)}"
+    best = max(candidates, key=lambda r: r["rop_reduction"] or -math.inf)
+    return (f"{goal}: NOT MET - best PROP-SFS variant {best['variant']}: ROP reduction "
+            f"{_fmt(best['rop_reduction'], '{:.0%}')}, median |area error| {_fmt(best['area_rel_err_median'], '{:.1%}')}")
+
+
+def _fmt(value, fmt: str) -> str:
+    return "n/a" if value is None else fmt.format(value)
+
+
+def headline_table(summary: list[dict]) -> str:
+    """The headline table as aligned plain text (one line per variant)."""
+    cells = [[title for title, _, _ in HEADLINE]]
+    cells += [[_fmt(row[key], fmt) for _, key, fmt in HEADLINE] for row in summary]
+    widths = [max(len(line[i]) for line in cells) for i in range(len(HEADLINE))]
+    return "\n".join("  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(line, widths)))
+                     for line in cells)
