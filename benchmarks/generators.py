@@ -333,3 +333,39 @@ def leaf_cluster(n_leaves: int = 5, distance_m: float = 1.5, depth_spread_m: flo
     deepest = max(c[0] for c in centers) + 0.05
     wall = background_wall(leaves, deepest + background_gap_m, background_reflectance)
     return Scene(leaves + [wall], scanner_window(leaves))
+
+
+@generator("analytic-surface", "an analytic test surface of the PROP-SFS thesis (scenes.surfaces: hemisphere, "
+                               "ellipsoid, cone, saddles, ...) facing the scanner, in front of a background wall")
+def analytic_surface(surface: str = "hemisphere", distance_m: float = 1.5, size_m: float = 0.08,
+                     surface_params: dict | None = None, resolution: int = 101,
+                     reflectance: float = LEAF_REFLECTANCE, background_gap_m: float | None = 0.5,
+                     background_reflectance: float = 0.3) -> Scene:
+    """One analytic surface of :mod:`scenes.surfaces`, its +z axis towards the scanner.
+
+    Parameters
+    ----------
+    surface : str
+        Surface name (``scenes.surfaces.SURFACE_NAMES``).
+    distance_m : float
+        Distance from the scanner to the surface's base point, m.
+    size_m : float
+        World size of the longest side of the surface's domain, m (8 cm: leaf size).
+    surface_params : dict, optional
+        Parameters of the surface (radians for angles).
+    resolution : int
+        Mesh vertices per axis (101 keeps facets under a quarter of the
+        footprint for an 8 cm surface beyond 1 m).
+    reflectance : float
+        Lambertian reflectance of the surface.
+    background_gap_m, background_reflectance : float
+        Wall behind the surface (``None``: no wall).
+    """
+    from scenes.surfaces import surface_object
+
+    obj = surface_object(surface, distance_m, size_m, params=surface_params, resolution=resolution,
+                         material=Material("leaf", float(reflectance)))
+    objects = [obj]
+    if background_gap_m is not None:
+        objects.append(background_wall(objects, distance_m + background_gap_m, background_reflectance))
+    return Scene(objects, scanner_window([obj]))

@@ -42,25 +42,27 @@ MAD_TO_SIGMA = 1.4826
 
 #: Work sizes of :func:`surface_distance` (memory bounds).
 _CHUNK_PAIRS = 2_000_000
-_CHUNK_POINTS = 4096
-#: Points with more candidate triangles than this in the centroid ball are handled by the plane bound.
-_NEAR_CANDIDATES = 64
+#: Smallest cluster size of :func:`surface_distance` (clusters hold up to max(16, sqrt(F)) triangles,
+#: which balances the box tests, points x clusters, against the triangle tests inside kept clusters).
+_CLUSTER_SIZE = 16
 
 
 def surface_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
                      signed: bool = False) -> np.ndarray:
     """Exact distance from points to a triangle mesh.
 
-    The distance to the triangle of the nearest centroid is an upper bound
-    ``u`` of the answer; a triangle can only be closer when a lower bound of
-    its distance does not exceed ``u``. Points near the surface take their
-    candidates from a KD-tree of centroids (centroid within ``u + R``, ``R``
-    the largest centroid-to-vertex radius); points far from it, for which
-    that ball holds most of the mesh, test every triangle with the tighter
-    bound ``sqrt(h² + max(0, l − R_t)²)`` (``h`` the distance to the
-    triangle's plane, ``l`` the in-plane distance to its centroid, ``R_t``
-    its radius). Point–triangle distances use
-    :func:`trimesh.triangles.closest_point`.
+    The triangles are grouped into compact clusters (recursive median splits
+    of their centroids, about √F triangles each) with an oriented bounding
+    box each. The distance to the triangle of the nearest
+    centroid is an upper bound ``u`` of a point's answer; a cluster whose box
+    lies farther than ``u`` cannot hold a closer triangle, so only the
+    triangles of the other clusters are tested exactly with
+    :func:`trimesh.triangles.closest_point`. Oriented boxes keep the bound
+    tight for points far from a flat or gently curved surface (mixed points
+    behind a leaf), where bounding spheres would keep the whole mesh. Within
+    the kept clusters, a cheap per-triangle bound (plane distance and
+    in-plane distance to the triangle's circumscribing disc) leaves only a
+    few triangles per point to test exactly.
 
     Parameters
     ----------
@@ -87,41 +89,80 @@ def surface_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray
     radius = np.linalg.norm(triangles - centroids[:, None], axis=2).max(axis=1)
     cross = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
     length = np.linalg.norm(cross, axis=1, keepdims=True)
-    normal = np.divide(cross, length, out=np.zeros_like(cross), where=length > 0)
-    tree = cKDTree(centroids)
-    _, nearest = tree.query(points)
+    unit_normal = np.divide(cross, length, out=np.zeros_like(cross), where=length > 0)
+    _, nearest = cKDTree(centroids).query(points)
     best = np.linalg.norm(closest_point(triangles[nearest], points) - points, axis=1)
     best_face = nearest.copy()
-
-    def update(p: np.ndarray, f: np.ndarray) -> None:
-        d = np.linalg.norm(closest_point(triangles[f], points[p]) - points[p], axis=1)
-        order = np.lexsort((d, p))
-        first = order[np.r_[True, p[order][1:] != p[order][:-1]]]
-        better = d[first] < best[p[first]]
-        best[p[first][better]] = d[first][better]
-        best_face[p[first][better]] = f[first][better]
-
-    ball = best + radius.max() + 1e-12
-    count = tree.query_ball_point(points, ball, return_length=True)
-    near = np.nonzero(count <= _NEAR_CANDIDATES)[0]
-    for lo in range(0, len(near), _CHUNK_POINTS):
-        chunk = near[lo:lo + _CHUNK_POINTS]
-        candidates = tree.query_ball_point(points[chunk], ball[chunk])
-        update(np.repeat(chunk, count[chunk]), np.concatenate([np.asarray(c, dtype=np.int64) for c in candidates]))
-    far = np.nonzero(count > _NEAR_CANDIDATES)[0]
-    step = max(1, _CHUNK_PAIRS // len(triangles))
-    for lo in range(0, len(far), step):
-        chunk = far[lo:lo + step]
-        offset = points[chunk, None, :] - centroids[None]
-        h = np.einsum("pfk,fk->pf", offset, normal)
-        l = np.sqrt(np.maximum(np.einsum("pfk,pfk->pf", offset, offset) - h * h, 0.0))
-        bound = np.sqrt(h * h + np.maximum(l - radius[None], 0.0) ** 2)
-        p, f = np.nonzero(bound <= best[chunk, None] + 1e-12)
-        update(chunk[p], f)
+    order, starts, counts, center, axes, half = _clusters(triangles, centroids)
+    step = max(1, _CHUNK_PAIRS // len(starts))
+    for lo in range(0, len(points), step):
+        chunk = np.arange(lo, min(lo + step, len(points)))
+        # Distance to every box: per box axis j, |p·a_j - c·a_j| beyond the half extent (three GEMMs).
+        gap2 = np.zeros((len(chunk), len(starts)))
+        for j in range(3):
+            along = points[chunk] @ axes[:, j].T - np.einsum("ck,ck->c", center, axes[:, j])
+            gap2 += np.maximum(np.abs(along) - half[:, j], 0.0) ** 2
+        p, c = np.nonzero(gap2 <= (best[chunk, None] * (1 + 1e-9) + 1e-12) ** 2)
+        # Expand (point, cluster) pairs to (point, triangle) pairs ...
+        p = np.repeat(chunk[p], counts[c])
+        offsets = np.arange(len(p)) - np.repeat(np.cumsum(counts[c]) - counts[c], counts[c])
+        f = order[np.repeat(starts[c], counts[c]) + offsets]
+        # ... and keep those whose triangle may be closer: sqrt(h² + max(0, l - R)²) bounds the
+        # distance (h: to the triangle's plane, l: in-plane to its centroid, R: its radius).
+        offset = points[p] - centroids[f]
+        h = np.einsum("ij,ij->i", offset, unit_normal[f])
+        lateral = np.sqrt(np.maximum(np.einsum("ij,ij->i", offset, offset) - h * h, 0.0))
+        keep = h * h + np.maximum(lateral - radius[f], 0.0) ** 2 <= (best[p] * (1 + 1e-9) + 1e-12) ** 2
+        p, f = p[keep], f[keep]
+        for sub in range(0, len(p), _CHUNK_PAIRS):
+            pp, ff = p[sub:sub + _CHUNK_PAIRS], f[sub:sub + _CHUNK_PAIRS]
+            d = np.linalg.norm(closest_point(triangles[ff], points[pp]) - points[pp], axis=1)
+            first = np.lexsort((d, pp))
+            first = first[np.r_[True, pp[first][1:] != pp[first][:-1]]]
+            better = d[first] < best[pp[first]]
+            best[pp[first][better]] = d[first][better]
+            best_face[pp[first][better]] = ff[first][better]
     if not signed:
         return best
     side = np.einsum("ij,ij->i", points - closest_point(triangles[best_face], points), cross[best_face])
     return np.where(side < 0, -best, best)
+
+
+def _clusters(triangles: np.ndarray, centroids: np.ndarray):
+    """Clusters of triangles with oriented bounding boxes.
+
+    Returns
+    -------
+    order : ndarray of int
+        Triangle ids grouped by cluster.
+    starts, counts : ndarray of int
+        Where each cluster's ids start in ``order`` and how many there are.
+    center, axes, half : ndarray
+        Box centre (C, 3), axes as rows (C, 3, 3) and half extents (C, 3).
+    """
+    size = max(_CLUSTER_SIZE, int(math.sqrt(len(triangles))))
+    groups, stack = [], [np.arange(len(triangles))]
+    while stack:
+        ids = stack.pop()
+        if len(ids) <= size:
+            groups.append(ids)
+            continue
+        c = centroids[ids]
+        split = np.argsort(c[:, np.argmax(np.ptp(c, axis=0))])
+        stack += [ids[split[: len(ids) // 2]], ids[split[len(ids) // 2:]]]
+    counts = np.array([len(g) for g in groups])
+    starts = np.cumsum(counts) - counts
+    center, axes, half = np.zeros((len(groups), 3)), np.zeros((len(groups), 3, 3)), np.zeros((len(groups), 3))
+    for k, ids in enumerate(groups):
+        corners = triangles[ids].reshape(-1, 3)
+        mean = corners.mean(axis=0)
+        frame = np.linalg.eigh(np.cov((corners - mean).T) if len(corners) > 1 else np.eye(3))[1].T
+        local = (corners - mean) @ frame.T
+        low, high = local.min(axis=0), local.max(axis=0)
+        center[k] = mean + ((low + high) / 2) @ frame
+        axes[k] = frame
+        half[k] = (high - low) / 2
+    return np.concatenate(groups), starts, counts, center, axes, half
 
 
 def robust_sigma(values: np.ndarray) -> float:

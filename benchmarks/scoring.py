@@ -80,11 +80,15 @@ def attributed_distance(points: np.ndarray, object_ids: np.ndarray, scene) -> np
     return out
 
 
+#: Object types scored when a case names no targets: leaves, and the analytic test surfaces.
+TARGET_TYPES = ("leaf", "surface")
+
+
 def target_ids(scene, targets: list[str] | None = None) -> list[int]:
-    """Object ids to score: the named ``targets``, or every object of type ``leaf``."""
+    """Object ids to score: the named ``targets``, or every object of a type in :data:`TARGET_TYPES`."""
     names = scene.object_names
     if targets is None:
-        return [i for i, o in enumerate(scene.objects) if o.type == "leaf"]
+        return [i for i, o in enumerate(scene.objects) if o.type in TARGET_TYPES]
     unknown = sorted(set(targets) - set(names))
     if unknown:
         raise BenchError(f"scene {scene.name!r} has no object(s) {unknown}; objects: {names}")
@@ -102,7 +106,7 @@ def prepare_leaves(scene, scan, targets: list[str] | None = None,
     scan : tlssim.Scan
         The simulated scan (with truth arrays).
     targets : list of str, optional
-        Object names to score (default: every leaf).
+        Object names to score (default: every leaf and analytic surface).
     min_share : float
         Smallest power share from the leaf for a point to count on it.
 

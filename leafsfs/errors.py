@@ -2,4 +2,4 @@
 
 
 class SfsError(ValueError):
-    """A scan, mask, calibration or parameter given to leafsfs is invalid; the message says what and what is allowed."""
+    """A PROP-SFS input, parameter or calibration problem; the message says what and what is allowed."""
