@@ -112,3 +112,15 @@ def test_generator_errors():
         build_scene({"generator": "plate-leaf", "incidence_deg": 95})
     with pytest.raises(BenchError, match="builtin"):
         build_scene({"distance_m": 3})
+
+
+def test_analytic_surface_is_a_default_target():
+    from benchmarks.scoring import target_ids
+
+    scene = build_scene({"generator": "analytic-surface", "surface": "cone", "distance_m": 2.0, "size_m": 0.06})
+    surface, wall = scene.objects
+    assert surface.type == "surface" and surface.truth["surface"] == "cone"
+    assert target_ids(scene) == [0]
+    assert np.linalg.norm(surface.vertices, axis=1).min() == pytest.approx(2.0 - 0.06 / 2 * math.tan(math.pi / 6), rel=1e-3)
+    with pytest.raises(BenchError, match="analytic-surface"):
+        build_scene({"generator": "analytic-surface", "surface": "teapot"})
