@@ -147,46 +147,41 @@ def resolve(names: list[str] | None = None, overrides: dict[str, dict] | None = 
     return [get_variant(n).with_params(**overrides.get(n, {})) for n in names]
 
 
-def _raw(scan, mask, mesh_max_edge_m):
-    from leafsfs.baselines import leaf_traits
-
-    kept = mask & scan.valid
-    return VariantOutput(np.where(kept[..., None], scan.xyz, np.nan), leaf_traits(scan, kept, mesh_max_edge_m))
+#: Edge cap of the range-image mesh that gives raw and filtered clouds their leaf area, m.
+MESH_MAX_EDGE_M = 0.01
 
 
-def _filter_variant(name: str, func: Callable, description: str, **params) -> Variant:
+def _removal_variant(name: str, family: str, func: Callable, description: str, **params) -> Variant:
+    """A variant that keeps a subset of the measured points (``func(scan, mask, **params) -> kept``)."""
+
     def run(scan, mask, mesh_max_edge_m, **filter_params):
         from leafsfs.baselines import leaf_traits
 
         kept = func(scan, mask, **filter_params)
         return VariantOutput(np.where(kept[..., None], scan.xyz, np.nan), leaf_traits(scan, kept, mesh_max_edge_m))
 
-    return Variant(name, "filter", run, {**params, "mesh_max_edge_m": MESH_MAX_EDGE_M}, description)
-
-
-#: Edge cap of the range-image mesh that gives raw and filtered clouds their leaf area, m.
-MESH_MAX_EDGE_M = 0.01
+    return Variant(name, family, run, {**params, "mesh_max_edge_m": MESH_MAX_EDGE_M}, description)
 
 
 def _register_builtins() -> None:
     from leafsfs import baselines
 
-    register_variant(Variant("raw", "raw", _raw, {"mesh_max_edge_m": MESH_MAX_EDGE_M},
-                             "measured points, no correction"))
-    register_variant(_filter_variant("sor", baselines.statistical_outlier_removal,
-                                     "statistical outlier removal (PCL/Open3D), k=8, 2 sd", k=8, std_ratio=2.0))
-    register_variant(_filter_variant("radius", baselines.radius_outlier_removal,
-                                     "radius outlier removal: >= 8 neighbours within 3 sample spacings",
-                                     radius_spacings=3.0, min_neighbours=8, radius_m=None))
-    register_variant(_filter_variant("shadow", baselines.shadow_filter,
-                                     "veiling/shadow angle filter on the range image (ROS/PCL), 10 deg",
-                                     min_angle_deg=10.0))
-    register_variant(_filter_variant("stray-point", baselines.stray_point_filter,
-                                     "FARO SCENE stray-point rule: 3x3 cell, 2 cm, 50 %",
-                                     window_px=3, max_range_diff_m=0.02, min_share=0.5))
-    register_variant(_filter_variant("intensity", baselines.intensity_filter,
-                                     "dark-point removal: 100 DN below the leaf's median intensity",
-                                     below_median_dn=100.0, min_dn=None))
+    register_variant(_removal_variant("raw", "raw", lambda scan, mask: mask & scan.valid,
+                                      "measured points, no correction"))
+    register_variant(_removal_variant("sor", "filter", baselines.statistical_outlier_removal,
+                                      "statistical outlier removal (PCL/Open3D), k=8, 2 sd", k=8, std_ratio=2.0))
+    register_variant(_removal_variant("radius", "filter", baselines.radius_outlier_removal,
+                                      "radius outlier removal: >= 8 neighbours within 3 sample spacings",
+                                      radius_spacings=3.0, min_neighbours=8, radius_m=None))
+    register_variant(_removal_variant("shadow", "filter", baselines.shadow_filter,
+                                      "veiling/shadow angle filter on the range image (ROS/PCL), 10 deg",
+                                      min_angle_deg=10.0))
+    register_variant(_removal_variant("stray-point", "filter", baselines.stray_point_filter,
+                                      "FARO SCENE stray-point rule: 3x3 cell, 2 cm, 50 %",
+                                      window_px=3, max_range_diff_m=0.02, min_share=0.5))
+    register_variant(_removal_variant("intensity", "filter", baselines.intensity_filter,
+                                      "dark-point removal: 100 DN below the leaf's median intensity",
+                                      below_median_dn=100.0, min_dn=None))
     _note_missing()
 
 

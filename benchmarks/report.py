@@ -121,11 +121,7 @@ def plot_before_after(case_spec: dict, variants: list[dict]) -> Figure:
     for index, spec in enumerate(variants):
         axes = figure.add_subplot(rows, columns, index + 1)
         output = get_variant(spec["name"]).with_params(**spec["params"])(scan, leaf.mask)
-        out = output.xyz[leaf.mask]
-        kept = np.isfinite(out).all(axis=1)
-        distance = leaf.distance.copy()
-        moved = kept & (np.abs(out - measured) > 1e-9).any(axis=1)
-        distance[moved] = scoring.attributed_distance(out[moved], leaf.attributed[moved], scene)
+        out, kept, distance = scoring.output_distance(leaf, scene, scan, output)
         good = kept & (np.abs(distance) <= leaf.taus["auto"])
         axes.scatter(measured[~kept, 1], measured[~kept, 0] - depth, s=1, color="lightgrey", label="removed")
         axes.scatter(out[good, 1], out[good, 0] - depth, s=1, color="tab:green", label="within τ")

@@ -147,6 +147,27 @@ def prepare_leaves(scene, scan, targets: list[str] | None = None,
     return leaves
 
 
+def output_distance(leaf: LeafTruth, scene, scan, output: VariantOutput):
+    """A variant's output points on a leaf and their signed distance to the truth.
+
+    Returns
+    -------
+    points : ndarray, (n, 3)
+        Output point of each of the leaf's masked pixels (NaN where dropped).
+    kept : ndarray of bool, (n,)
+        Pixels the variant kept.
+    distance : ndarray, (n,)
+        Signed distance of each output point to the true surface of its
+        object, m (recomputed only for moved points).
+    """
+    points = np.asarray(output.xyz)[leaf.mask]
+    kept = np.isfinite(points).all(axis=1)
+    moved = kept & (np.abs(points - scan.xyz[leaf.mask]) > 1e-9).any(axis=1)
+    distance = leaf.distance.copy()
+    distance[moved] = attributed_distance(points[moved], leaf.attributed[moved], scene)
+    return points, kept, distance
+
+
 def score_leaf(leaf: LeafTruth, scene, scan, output: VariantOutput) -> dict:
     """Scores of one variant's output on one leaf.
 
@@ -160,12 +181,7 @@ def score_leaf(leaf: LeafTruth, scene, scan, output: VariantOutput) -> dict:
         pulses with an output point within τ); leaf-trait errors where both
         the truth and the method give the trait; the method's own stats.
     """
-    measured = scan.xyz[leaf.mask]
-    out = np.asarray(output.xyz)[leaf.mask]
-    kept = np.isfinite(out).all(axis=1)
-    moved = kept & (np.abs(out - measured) > 1e-9).any(axis=1)
-    distance = leaf.distance.copy()
-    distance[moved] = attributed_distance(out[moved], leaf.attributed[moved], scene)
+    _, kept, distance = output_distance(leaf, scene, scan, output)
     before, after = np.abs(leaf.distance), np.abs(distance)
     scores = {"leaf": leaf.name, "object_id": leaf.object_id, "object_type": scene.objects[leaf.object_id].type,
               **leaf.scan_stats, "tau_m": leaf.taus["auto"]}
