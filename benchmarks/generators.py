@@ -282,9 +282,9 @@ def plate_leaf(distance_m: float = 1.5, incidence_deg: float = 0.0, axis: str = 
     return Scene(objects, scanner_window([leaf]))
 
 
-@generator("leaf-cluster", "several flat elliptic leaves at random depths, tilts and sizes that occlude one "
+@generator("plate-cluster", "several flat elliptic leaves at random depths, tilts and sizes that occlude one "
                            "another, in front of a background wall (seeded layout)")
-def leaf_cluster(n_leaves: int = 5, distance_m: float = 1.5, depth_spread_m: float = 0.15,
+def plate_cluster(n_leaves: int = 5, distance_m: float = 1.5, depth_spread_m: float = 0.15,
                  lateral_spread_m: float = 0.05, max_incidence_deg: float = 60.0, seed: int = 0,
                  background_gap_m: float = 0.5, background_reflectance: float = 0.3) -> Scene:
     """A cluster of leaves of pear size (length 6.5 ± 0.5 cm) that partly hide one another.
@@ -306,7 +306,7 @@ def leaf_cluster(n_leaves: int = 5, distance_m: float = 1.5, depth_spread_m: flo
         Wall behind the deepest leaf.
     """
     if not (isinstance(n_leaves, int) and n_leaves >= 1):
-        raise BenchError(f"leaf-cluster n_leaves must be a positive integer, got {n_leaves!r}")
+        raise BenchError(f"plate-cluster n_leaves must be a positive integer, got {n_leaves!r}")
     rng = np.random.default_rng(seed)
     leaves: list[SceneObject] = []
     centers: list[np.ndarray] = []
@@ -314,7 +314,7 @@ def leaf_cluster(n_leaves: int = 5, distance_m: float = 1.5, depth_spread_m: flo
     while len(leaves) < n_leaves:
         attempts += 1
         if attempts > 1000:
-            raise BenchError(f"leaf-cluster: cannot place {n_leaves} leaves without overlap; widen the spreads")
+            raise BenchError(f"plate-cluster: cannot place {n_leaves} leaves without overlap; widen the spreads")
         length = max(0.02, rng.normal(PEAR_LENGTH_M, 0.005))
         center = np.array([distance_m + rng.uniform(-0.5, 0.5) * depth_spread_m,
                            rng.normal(0.0, lateral_spread_m), rng.normal(0.0, lateral_spread_m)])

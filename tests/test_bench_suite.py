@@ -71,7 +71,7 @@ def test_builtin_suites_hold_what_they_promise():
     incidences = {c.scene["incidence_deg"] for c in single}
     assert min(distances) == 0.8 and max(distances) == 5.0
     assert min(incidences) == 0 and max(incidences) == 80
-    assert any(c.scene.get("generator") == "leaf-cluster" for c in standard.cases)
+    assert any(c.scene.get("generator") == "plate-cluster" for c in standard.cases)
 
 
 def test_plate_leaf_truth_matches_its_pose():
@@ -95,10 +95,10 @@ def test_plate_leaf_truth_matches_its_pose():
     assert wall.vertices[:, 0].min() == pytest.approx(2.5)
 
 
-def test_leaf_cluster_is_deterministic_and_seeded():
-    a = build_scene({"generator": "leaf-cluster", "n_leaves": 4, "seed": 3})
-    b = build_scene({"generator": "leaf-cluster", "n_leaves": 4, "seed": 3})
-    c = build_scene({"generator": "leaf-cluster", "n_leaves": 4, "seed": 4})
+def test_plate_cluster_is_deterministic_and_seeded():
+    a = build_scene({"generator": "plate-cluster", "n_leaves": 4, "seed": 3})
+    b = build_scene({"generator": "plate-cluster", "n_leaves": 4, "seed": 3})
+    c = build_scene({"generator": "plate-cluster", "n_leaves": 4, "seed": 4})
     assert [o.name for o in a.objects] == ["leaf-01", "leaf-02", "leaf-03", "leaf-04", "background"]
     assert all(np.array_equal(x.vertices, y.vertices) for x, y in zip(a.objects, b.objects))
     assert not np.array_equal(a.objects[0].vertices, c.objects[0].vertices)
