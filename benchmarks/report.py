@@ -22,8 +22,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from benchmarks import scoring, summary, sweeps
-from benchmarks.generators import build_scene
 from benchmarks.registry import get_variant, unavailable
+from benchmarks.runner import simulate_case
 from benchmarks.store import Store
 from benchmarks.suite import Case
 
@@ -107,11 +107,8 @@ def plot_before_after(case_spec: dict, variants: list[dict]) -> Figure:
     The case is re-simulated; points are coloured by what the variant left:
     within τ of the truth (green), outliers (red), removed (grey).
     """
-    from tlssim.simulate import setup_from_section, simulate
-
     case = Case.from_dict(case_spec)
-    scene = build_scene(case.scene)
-    scan = simulate(scene, setup_from_section(scene.scanner, **case.scanner), seed=case.seed, progress=False)
+    scene, scan = simulate_case(case)
     leaf = scoring.prepare_leaves(scene, scan, None if case.targets is None else list(case.targets))[0]
     columns = min(4, len(variants))
     rows = math.ceil(len(variants) / columns)

@@ -77,6 +77,24 @@ def variant_specs(variants: list[Variant]) -> list[dict]:
     return [{"name": v.name, "params": v.params} for v in variants]
 
 
+def simulate_case(case: Case):
+    """Rebuild a case's scene and simulate its scan (deterministic from the case).
+
+    The case's ``scanner`` entries override the scene's scanner section
+    (window, pose) and the scanner model's fields.
+
+    Returns
+    -------
+    scene : Scene
+    scan : tlssim.Scan
+    """
+    from tlssim.simulate import setup_from_section, simulate
+
+    scene = build_scene(case.scene)
+    return scene, simulate(scene, setup_from_section({**scene.scanner, **case.scanner}), seed=case.seed,
+                           progress=False)
+
+
 def run_case(case: dict, variants: list[dict]) -> list[dict]:
     """Simulate one case and score every variant on its target leaves.
 
@@ -94,14 +112,10 @@ def run_case(case: dict, variants: list[dict]) -> list[dict]:
         One row per variant for :meth:`benchmarks.store.Store.add_results`;
         a variant that fails on the case gets a row with its ``error``.
     """
-    from tlssim.simulate import setup_from_section, simulate
-
     case = Case.from_dict(case)
     rows = []
     try:
-        scene = build_scene(case.scene)
-        setup = setup_from_section(scene.scanner, **case.scanner)
-        scan, simulate_s, _ = measured(lambda: simulate(scene, setup, seed=case.seed, progress=False))
+        (scene, scan), simulate_s, _ = measured(simulate_case, case)
         leaves = scoring.prepare_leaves(scene, scan, None if case.targets is None else list(case.targets))
     except Exception as exc:  # noqa: BLE001 - a broken case is recorded, not fatal to the run
         message = _message(exc)

@@ -42,6 +42,8 @@ from tlssim.scanner import ScannerModel
 SUITE_DIR = Path(__file__).parent / "suites"
 
 _CASE_KEYS = {"name", "scene", "scanner", "seed", "targets", "vary"}
+#: Scanner-section keys a case may override besides the scanner-model fields.
+_SECTION_KEYS = {"preset", "position", "orientation", "window"}
 
 
 @dataclass(frozen=True)
@@ -55,7 +57,9 @@ class Case:
     scene : dict
         Scene description (``builtin`` or ``generator`` with parameters).
     scanner : dict
-        Scanner-model overrides (e.g. ``step_deg``, ``divergence_deg``).
+        Overrides of the scene's scanner section: window, position,
+        orientation, preset, and scanner-model fields (e.g. ``step_deg``,
+        ``divergence_deg``).
     seed : int
         Seed of the simulation.
     targets : tuple of str or None
@@ -171,7 +175,7 @@ def parse_suite(data, source: str = "") -> Suite:
 
 
 def _check_scanner(overrides: dict) -> None:
-    allowed = {f.name for f in dataclasses.fields(ScannerModel)} - {"name"}
+    allowed = ({f.name for f in dataclasses.fields(ScannerModel)} - {"name"}) | _SECTION_KEYS
     unknown = sorted(set(overrides) - allowed)
     if unknown:
         raise BenchError(f"unknown scanner override(s) {unknown}; allowed: {sorted(allowed)}")

@@ -230,3 +230,13 @@ def test_main_job_end_to_end(tiny_path, tmp_path, capsys):
     document = json.loads((out / "report.json").read_text())
     assert [s["kind"] for s in document["sweeps"]] == ["distance", "incidence"]
     assert all(len(s["table"]) >= 5 for s in document["sweeps"])
+
+
+def test_case_scanner_overrides_reach_the_window_and_the_model():
+    from benchmarks.runner import simulate_case
+    from benchmarks.suite import Case
+
+    window = {"theta_deg": [-0.1, 0.1], "psi_deg": [89.9, 90.1]}
+    _, scan = simulate_case(Case("k", {"builtin": "knife-edge"}, {"window": window, "step_deg": 0.036}, 0))
+    assert scan.shape == (6, 6)
+    assert scan.scanner_model["step_deg"] == 0.036
