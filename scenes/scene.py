@@ -76,6 +76,9 @@ class SceneObject:
     group : str, optional
         Name of the scene-file entry the object was expanded from (defaults to
         ``name``).
+    face_labels : ndarray, shape (F,), optional
+        Integer label of every triangle (e.g. blade / petiole of a leaf); the
+        label names are listed in ``truth["labels"]``.
     """
 
     name: str
@@ -85,6 +88,7 @@ class SceneObject:
     material: Material
     truth: dict = field(default_factory=dict)
     group: str = ""
+    face_labels: np.ndarray | None = None
 
     def __post_init__(self):
         self.vertices = np.asarray(self.vertices, dtype=np.float64)
@@ -100,6 +104,11 @@ class SceneObject:
             raise SceneError(f"{where}: vertices contain NaN or infinite coordinates")
         if self.faces.min() < 0 or self.faces.max() >= len(self.vertices):
             raise SceneError(f"{where}: face indices must lie in [0, {len(self.vertices) - 1}]")
+        if self.face_labels is not None:
+            self.face_labels = np.asarray(self.face_labels, dtype=np.int32)
+            if self.face_labels.shape != (len(self.faces),):
+                raise SceneError(f"{where}: face_labels must have one entry per face ({len(self.faces)}), "
+                                 f"got shape {self.face_labels.shape}")
         if not np.any(self.face_areas() > 0):
             raise SceneError(f"{where}: the mesh is degenerate (all triangles have zero area)")
 
