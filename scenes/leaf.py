@@ -25,14 +25,16 @@ The leaf is then put in its **canonical frame**: origin at the blade's area
 centroid, +x along the midrib chord (blade base to apex), +z on the adaxial
 side with the mean normal in the x-z plane. Scene poses place that frame.
 
-**Facet rule.** The blade is a structured grid of ``n_u`` rows (cosine
-spacing, denser at the tips) by ``n_v`` columns, with ``n_u = ⌈π L / 2f⌉``
-and ``n_v = 2 ⌈W / f⌉`` so that no facet edge exceeds ``f``; single leaves
+**Facet rule.** The blade is a structured grid of ``n_u`` rows by ``n_v``
+columns (fans at the base and apex). Rows cut each leaf's margin into equal
+arcs of at most ``f`` (so they are denser where the outline turns, at a
+rounded base), and ``n_v = 2 ⌈W / f⌉``: grid sides never exceed ``f`` (cell
+diagonals ``√2 f``, up to ``2 f`` where the width changes fastest); single leaves
 use ``f`` = :func:`~scenes.primitives.facet_size_m` at their distance (1/4 of
 the beam footprint diameter). Populations (trees, orchards) may use a
 coarser ``f`` to keep the triangle count manageable.
 
-**Truth** (:func:`leaf_truth`, from the final 3-D mesh): one-sided blade area,
+**Truth** (:func:`leaf_truths`, from the final 3-D mesh): one-sided blade area,
 area-weighted mean unit normal of the adaxial side, midrib-chord elevation
 and azimuth, the 3-D outline polygon, blade length and half-width. The mesh's
 per-face labels (``LEAF_LABELS``) tell blade from petiole triangles.
@@ -56,6 +58,7 @@ import numpy as np
 from scipy import integrate
 
 from scenes.errors import SceneError
+from scenes.primitives import cross
 from scenes.scene import Material, SceneObject
 
 #: Names of the per-face labels of a leaf mesh (``SceneObject.face_labels`` indexes this tuple).
@@ -160,59 +163,106 @@ PEAR_LENGTH_M = (0.0647, 0.005)
 PEAR_HALF_WIDTH_M = (0.0219, 0.0038)
 
 
-def sample_pear_leaf(rng: np.random.Generator, size_factor: float = 1.0) -> LeafShape:
-    """A random Conference pear leaf.
+def sample_pear_leaves(rng: np.random.Generator, size_factors) -> list[LeafShape]:
+    """Random Conference pear leaves, one per entry of ``size_factors``.
 
     Blade length and half-width are normal with the lab means and sds (times
-    ``size_factor``), clipped to 60-140 % of the mean and the half-width to at
-    most half the length. Assumed shape ranges: base exponent U(0.6, 0.85),
-    apex exponent U(1.0, 1.3), bend U(0, 0.6) rad, roll U(-0.1, 0.5) rad,
-    twist N(0, 0.12) rad, wrinkle amplitude U(0.1, 0.4) mm, wavelength
-    U(8, 14) mm, phase U(0, 2π).
+    the leaf's size factor, e.g. a shoot-position or population effect),
+    clipped to 60-140 % of the mean; the half-width is at most half the
+    length. Assumed shape ranges: base exponent U(0.6, 0.85), apex exponent
+    U(1.0, 1.3), bend U(0, 0.6) rad, roll U(-0.1, 0.5) rad, twist N(0, 0.12)
+    rad, wrinkle amplitude U(0.1, 0.4) mm, wavelength U(8, 14) mm, phase
+    U(0, 2π).
 
     Parameters
     ----------
     rng : numpy.random.Generator
-        Source of randomness (same state, same leaf).
-    size_factor : float
-        Scale of the length and width draws (e.g. a shoot-position effect).
+        Source of randomness (same state, same leaves).
+    size_factors : array_like, shape (N,)
+        Scale of each leaf's length, width and petiole.
     """
-    length = size_factor * PEAR_LENGTH_M[0] * np.clip(rng.normal(1.0, PEAR_LENGTH_M[1] / PEAR_LENGTH_M[0]), 0.6, 1.4)
-    half_width = size_factor * PEAR_HALF_WIDTH_M[0] * np.clip(
-        rng.normal(1.0, PEAR_HALF_WIDTH_M[1] / PEAR_HALF_WIDTH_M[0]), 0.6, 1.4)
-    shape = rng.uniform([0.6, 1.0, 0.0, -0.1, 0.0001, 0.008, 0.0], [0.85, 1.3, 0.6, 0.5, 0.0004, 0.014, 2 * np.pi])
-    return LeafShape(
-        length_m=float(length), half_width_m=float(min(half_width, 0.5 * length)),
-        base_exponent=float(shape[0]), apex_exponent=float(shape[1]), bend=float(shape[2]), roll=float(shape[3]),
-        twist=float(rng.normal(0.0, 0.12)), wrinkle_amplitude_m=float(shape[4]),
-        wrinkle_wavelength_m=float(shape[5]), wrinkle_phase=float(shape[6]),
-        petiole_length_m=PEAR.petiole_length_m * size_factor, petiole_radius_m=PEAR.petiole_radius_m,
-    )
+    size = np.atleast_1d(np.asarray(size_factors, dtype=float))
+    n = len(size)
+    length = size * PEAR_LENGTH_M[0] * np.clip(rng.normal(1.0, PEAR_LENGTH_M[1] / PEAR_LENGTH_M[0], n), 0.6, 1.4)
+    half_width = size * PEAR_HALF_WIDTH_M[0] * np.clip(
+        rng.normal(1.0, PEAR_HALF_WIDTH_M[1] / PEAR_HALF_WIDTH_M[0], n), 0.6, 1.4)
+    shape = rng.uniform([0.6, 1.0, 0.0, -0.1, 0.0001, 0.008, 0.0], [0.85, 1.3, 0.6, 0.5, 0.0004, 0.014, 2 * np.pi],
+                        (n, 7))
+    twist = rng.normal(0.0, 0.12, n)
+    return [LeafShape(length_m=float(length[i]), half_width_m=float(min(half_width[i], 0.5 * length[i])),
+                      base_exponent=float(shape[i, 0]), apex_exponent=float(shape[i, 1]), bend=float(shape[i, 2]),
+                      roll=float(shape[i, 3]), twist=float(twist[i]), wrinkle_amplitude_m=float(shape[i, 4]),
+                      wrinkle_wavelength_m=float(shape[i, 5]), wrinkle_phase=float(shape[i, 6]),
+                      petiole_length_m=PEAR.petiole_length_m * float(size[i]), petiole_radius_m=PEAR.petiole_radius_m)
+            for i in range(n)]
+
+
+def sample_pear_leaf(rng: np.random.Generator, size_factor: float = 1.0) -> LeafShape:
+    """One random Conference pear leaf (see :func:`sample_pear_leaves`)."""
+    return sample_pear_leaves(rng, [size_factor])[0]
+
+
+def _stack(shapes, key) -> np.ndarray:
+    return np.array([getattr(shape, key) for shape in shapes], dtype=float)[:, None]
+
+
+def _widths(shapes: list[LeafShape], s) -> np.ndarray:
+    """Half-widths ``(N, M)`` of ``N`` leaves at relative positions ``s`` (``(M,)`` or ``(N, M)``), m."""
+    s = np.clip(np.asarray(s, dtype=float), 0.0, 1.0)
+    a, b = _stack(shapes, "base_exponent"), _stack(shapes, "apex_exponent")
+    depth, teeth = _stack(shapes, "serration_depth"), _stack(shapes, "serration_teeth")
+    peak = (a / (a + b)) ** a * (b / (a + b)) ** b
+    margin = 1.0 - depth * 0.5 * (1.0 - np.cos(2 * np.pi * teeth * s))
+    return _stack(shapes, "half_width_m") * margin * s**a * (1.0 - s) ** b / peak
 
 
 def width_profile(shape: LeafShape, s) -> np.ndarray:
     """Blade half-width ``w(s)`` at relative positions ``s = u / L`` in [0, 1], m."""
-    s = np.clip(np.asarray(s, dtype=float), 0.0, 1.0)
-    a, b = shape.base_exponent, shape.apex_exponent
-    peak = (a / (a + b)) ** a * (b / (a + b)) ** b
-    teeth = 1.0 - shape.serration_depth * 0.5 * (1.0 - np.cos(2 * np.pi * shape.serration_teeth * s))
-    return shape.half_width_m * teeth * s**a * (1.0 - s) ** b / peak
+    return _widths([shape], np.atleast_1d(s))[0]
 
 
 def blade_area_m2(shape: LeafShape) -> float:
     """Exact one-sided area of the flat blade, ``2 ∫ w(u) du``, m² (by adaptive quadrature)."""
-    value, _ = integrate.quad(lambda s: width_profile(shape, s), 0.0, 1.0,
+    value, _ = integrate.quad(lambda s: width_profile(shape, s)[0], 0.0, 1.0,
                               limit=50 + 20 * shape.serration_teeth, epsabs=0.0, epsrel=1e-10)
     return 2.0 * shape.length_m * value
 
 
-def leaf_resolution(length_m: float, half_width_m: float, facet_m: float) -> tuple[int, int]:
-    """Grid ``(n_u, n_v)`` of a blade whose facets are at most ``facet_m`` (see the facet rule)."""
-    if not (facet_m > 0 and math.isfinite(facet_m)):
-        raise SceneError(f"leaf facet_m must be a positive number (m), got {facet_m!r}")
-    n_u = max(6, math.ceil(math.pi * length_m / (2 * facet_m)))
-    n_v = 2 * max(2, math.ceil(half_width_m / facet_m))
+#: Fine positions along the midrib (denser at the tips) on which margin arc lengths are measured.
+_FINE_S = 0.5 * (1.0 - np.cos(np.pi * np.linspace(0.0, 1.0, 1025)))
+
+
+def _margin_arc(shapes: list[LeafShape]) -> np.ndarray:
+    """Cumulative arc length ``(N, M)`` of each leaf's flat margin ``(u, w(u))`` at :data:`_FINE_S`, m."""
+    step = np.hypot(_stack(shapes, "length_m") * np.diff(_FINE_S), np.diff(_widths(shapes, _FINE_S), axis=1))
+    return np.concatenate([np.zeros((len(shapes), 1)), np.cumsum(step, axis=1)], axis=1)
+
+
+def leaf_grids(shapes: list[LeafShape], facet_m) -> tuple[np.ndarray, np.ndarray]:
+    """Grids ``(n_u, n_v)`` of blades whose margin and grid spacing stay within ``facet_m`` (the facet rule).
+
+    ``n_u`` rows split the margin into arcs of at most ``facet_m`` (which also
+    bounds the spacing along the midrib), ``n_v`` columns split the widest
+    row into steps of at most ``facet_m``.
+    """
+    facet = np.broadcast_to(np.asarray(facet_m, dtype=float), (len(shapes),))
+    if not np.all((facet > 0) & np.isfinite(facet)):
+        raise SceneError(f"leaf facet must be a positive number (m), got {facet_m!r}")
+    n_u = np.maximum(6, np.ceil(_margin_arc(shapes)[:, -1] / facet)).astype(int)
+    n_v = 2 * np.maximum(2, np.ceil(_stack(shapes, "half_width_m")[:, 0] / facet)).astype(int)
     return n_u, n_v
+
+
+def leaf_resolution(shape: LeafShape, facet_m: float) -> tuple[int, int]:
+    """Grid ``(n_u, n_v)`` of one blade (see :func:`leaf_grids`)."""
+    n_u, n_v = leaf_grids([shape], facet_m)
+    return int(n_u[0]), int(n_v[0])
+
+
+def _row_positions(shapes: list[LeafShape], n_u: int) -> np.ndarray:
+    """Relative positions ``(N, n_u + 1)`` of the grid rows: equal arc lengths of each leaf's margin."""
+    arc = _margin_arc(shapes)
+    return np.array([np.interp(np.linspace(0.0, a[-1], n_u + 1), a, _FINE_S) for a in arc])
 
 
 @dataclass(frozen=True)
@@ -225,18 +275,12 @@ class LeafTemplate:
 
     n_u: int
     n_v: int
-    s: np.ndarray        # (Vb,) relative position along the midrib of each blade vertex
-    t: np.ndarray        # (Vb,) relative lateral position in [-1, 1]
+    t: np.ndarray        # (Vb,) relative lateral position in [-1, 1] of each blade vertex
     row: np.ndarray      # (Vb,) row index into the n_u + 1 rows (0 = base, n_u = apex)
-    s_rows: np.ndarray   # (n_u + 1,)
     faces: np.ndarray    # (F, 3) blade faces then petiole faces
     labels: np.ndarray   # (F,) BLADE or PETIOLE
     outline: np.ndarray  # vertex indices of the margin polygon (closed implicitly)
     apex: int
-
-    @property
-    def n_blade_vertices(self) -> int:
-        return len(self.s)
 
 
 @lru_cache(maxsize=64)
@@ -244,14 +288,12 @@ def leaf_template(n_u: int, n_v: int, petiole: bool = True) -> LeafTemplate:
     """The mesh topology of a blade of ``n_u x n_v`` cells (plus an optional petiole)."""
     if n_u < 2 or n_v < 2 or n_v % 2:
         raise SceneError(f"leaf grid needs n_u >= 2 and an even n_v >= 2, got {n_u} x {n_v}")
-    s_rows = 0.5 * (1.0 - np.cos(np.pi * np.arange(n_u + 1) / n_u))
     cols = n_v + 1
     t_cols = np.linspace(-1.0, 1.0, cols)
     interior = np.arange(1, n_u)
-    s = np.concatenate([[0.0], np.repeat(s_rows[interior], cols), [1.0]])
     t = np.concatenate([[0.0], np.tile(t_cols, n_u - 1), [0.0]])
     row = np.concatenate([[0], np.repeat(interior, cols), [n_u]])
-    apex = len(s) - 1
+    apex = len(t) - 1
 
     grid = 1 + np.arange((n_u - 1) * cols).reshape(n_u - 1, cols)  # rows along s (x), columns along t (y)
     a, b = grid[:-1, :-1].ravel(), grid[:-1, 1:].ravel()
@@ -264,7 +306,7 @@ def leaf_template(n_u: int, n_v: int, petiole: bool = True) -> LeafTemplate:
     blade = np.concatenate(quads + [base_fan, apex_fan]).astype(np.int64)
     faces, labels = [blade], [np.full(len(blade), BLADE)]
     if petiole:
-        ring = len(s) + np.arange(2 * PETIOLE_SIDES).reshape(2, PETIOLE_SIDES)
+        ring = len(t) + np.arange(2 * PETIOLE_SIDES).reshape(2, PETIOLE_SIDES)
         nxt = np.roll(ring, -1, axis=1)
         tube = np.concatenate([np.stack([ring[0], ring[1], nxt[1]], 1), np.stack([ring[0], nxt[1], nxt[0]], 1)])
         faces.append(tube)
@@ -272,11 +314,7 @@ def leaf_template(n_u: int, n_v: int, petiole: bool = True) -> LeafTemplate:
     step = max(1, math.ceil((n_u - 1) / 32))
     left, right = grid[::step, 0], grid[::step, -1]
     outline = np.concatenate([[0], right, [apex], left[::-1]])
-    return LeafTemplate(n_u, n_v, s, t, row, s_rows, np.concatenate(faces), np.concatenate(labels), outline, apex)
-
-
-def _stack(shapes, key) -> np.ndarray:
-    return np.array([getattr(shape, key) for shape in shapes], dtype=float)[:, None]
+    return LeafTemplate(n_u, n_v, t, row, np.concatenate(faces), np.concatenate(labels), outline, apex)
 
 
 def leaf_vertices(shapes: list[LeafShape], template: LeafTemplate) -> tuple[np.ndarray, np.ndarray]:
@@ -289,13 +327,10 @@ def leaf_vertices(shapes: list[LeafShape], template: LeafTemplate) -> tuple[np.n
     petiole_base : ndarray, shape (N, 3)
         Free end of the petiole (the blade base if there is none), canonical frame.
     """
-    s, t = template.s[None, :], template.t[None, :]
+    s_rows = _row_positions(shapes, template.n_u)
+    s, t = s_rows[:, template.row], template.t[None, :]
     length, half_width = _stack(shapes, "length_m"), _stack(shapes, "half_width_m")
-    a, b = _stack(shapes, "base_exponent"), _stack(shapes, "apex_exponent")
-    depth, teeth = _stack(shapes, "serration_depth"), _stack(shapes, "serration_teeth")
-    peak = (a / (a + b)) ** a * (b / (a + b)) ** b
-    w = half_width * (1 - depth * 0.5 * (1 - np.cos(2 * np.pi * teeth * s))) * s**a * (1 - s) ** b / peak
-    u, v = length * s, t * w
+    u, v = length * s, t * _widths(shapes, s)
 
     # Wrinkles along the local normal, then roll (wrap the cross-section on a circle), then twist.
     wrinkle = _stack(shapes, "wrinkle_amplitude_m") * np.sin(
@@ -309,7 +344,6 @@ def leaf_vertices(shapes: list[LeafShape], template: LeafTemplate) -> tuple[np.n
 
     # Bend: midrib polyline from chords of exact length at the mid-row tangent elevation -bend s².
     bend = _stack(shapes, "bend")
-    s_rows = template.s_rows[None, :]
     s_mid = 0.5 * (s_rows[:, 1:] + s_rows[:, :-1])
     theta_mid = -bend * s_mid**2
     du = length * np.diff(s_rows, axis=1)
@@ -335,55 +369,55 @@ def _to_canonical(vertices, petiole_base, template):
     """Move leaves to their canonical frames (centroid origin, chord +x, mean normal in x-z, +z adaxial)."""
     blade_faces = template.faces[template.labels == BLADE]
     tri = vertices[:, blade_faces]
-    cross = np.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
-    area = 0.5 * np.linalg.norm(cross, axis=-1)
+    crossed = cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
+    area = 0.5 * np.linalg.norm(crossed, axis=-1)
     centroid = np.einsum("nf,nfk->nk", area, tri.mean(axis=2)) / area.sum(axis=1, keepdims=True)
     ex = vertices[:, template.apex] - vertices[:, 0]
     ex /= np.linalg.norm(ex, axis=-1, keepdims=True)
-    normal = cross.sum(axis=1)
+    normal = crossed.sum(axis=1)
     ez = normal - np.sum(normal * ex, axis=-1, keepdims=True) * ex
     ez /= np.linalg.norm(ez, axis=-1, keepdims=True)
-    ey = np.cross(ez, ex)
+    ey = cross(ez, ex)
     rows = np.stack([ex, ey, ez], axis=1)  # (N, 3, 3): world-to-canonical
     canonical = np.einsum("nij,nvj->nvi", rows, vertices - centroid[:, None])
     return canonical, np.einsum("nij,nj->ni", rows, petiole_base - centroid)
 
 
-def leaf_truth(vertices: np.ndarray, template: LeafTemplate, shape: LeafShape) -> dict:
-    """Ground truth of one leaf from its final (world) vertices.
+def leaf_truths(vertices: np.ndarray, template: LeafTemplate, shapes: list[LeafShape]) -> list[dict]:
+    """Ground truth of leaves from their final (world) vertices ``(N, V, 3)`` (vectorised).
 
     Returns
     -------
-    dict
-        ``area_m2`` (one-sided blade area of the mesh), ``normal`` (unit,
-        area-weighted mean of the adaxial blade normals), ``elevation_deg``
-        (midrib chord, base to apex, above horizontal, [-90, 90]),
-        ``azimuth_deg`` (its azimuth from +x counter-clockwise, [0, 360)),
-        ``outline`` (3-D margin polygon), ``length_m``, ``half_width_m``,
-        ``labels`` (names of the per-face labels).
+    list of dict
+        Per leaf: ``area_m2`` (one-sided blade area of the mesh), ``normal``
+        (unit, area-weighted mean of the adaxial blade normals),
+        ``elevation_deg`` (midrib chord, base to apex, above horizontal,
+        [-90, 90]), ``azimuth_deg`` (its azimuth from +x counter-clockwise,
+        [0, 360)), ``outline`` (3-D margin polygon, m), ``length_m``,
+        ``half_width_m`` and ``labels`` (names of the per-face labels).
     """
-    blade_faces = template.faces[template.labels == BLADE]
-    tri = vertices[blade_faces]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    normal = cross.sum(axis=0)
-    normal /= np.linalg.norm(normal)
-    chord = vertices[template.apex] - vertices[0]
-    chord /= np.linalg.norm(chord)
-    return {
-        "area_m2": float(0.5 * np.linalg.norm(cross, axis=1).sum()),
-        "normal": normal.tolist(),
-        "elevation_deg": float(np.degrees(np.arcsin(np.clip(chord[2], -1.0, 1.0)))),
-        "azimuth_deg": float(np.degrees(np.arctan2(chord[1], chord[0])) % 360.0),
-        "outline": np.round(vertices[template.outline], 7).tolist(),
-        "length_m": shape.length_m,
-        "half_width_m": shape.half_width_m,
-        "labels": list(LEAF_LABELS),
-    }
+    tri = vertices[:, template.faces[template.labels == BLADE]]
+    crossed = cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
+    area = 0.5 * np.linalg.norm(crossed, axis=-1).sum(axis=1)
+    normal = crossed.sum(axis=1)
+    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    chord = vertices[:, template.apex] - vertices[:, 0]
+    chord /= np.linalg.norm(chord, axis=-1, keepdims=True)
+    elevation = np.degrees(np.arcsin(np.clip(chord[:, 2], -1.0, 1.0)))
+    azimuth = np.degrees(np.arctan2(chord[:, 1], chord[:, 0])) % 360.0
+    outline = np.round(vertices[:, template.outline], 7)
+    return [{"area_m2": float(area[i]), "normal": normal[i].tolist(), "elevation_deg": float(elevation[i]),
+             "azimuth_deg": float(azimuth[i]), "outline": outline[i].tolist(), "length_m": shape.length_m,
+             "half_width_m": shape.half_width_m, "labels": list(LEAF_LABELS)} for i, shape in enumerate(shapes)]
 
 
-def leaf_objects(shapes: list[LeafShape], rotations, translations, names: list[str], materials: list[Material],
-                 facet_m: float, group: str = "", extra_truth: list[dict] | None = None) -> list[SceneObject]:
+def leaf_objects(shapes: list[LeafShape], rotations, positions, names: list[str], materials: list[Material],
+                 facet_m, group: str | list[str] = "", extra_truth: list[dict] | None = None,
+                 anchor: str = "centroid") -> list[SceneObject]:
     """Leaves placed in the world, one :class:`SceneObject` each (vectorised over leaves).
+
+    Leaves whose grids come out the same (see :func:`leaf_resolution`) are
+    built together.
 
     Parameters
     ----------
@@ -391,46 +425,56 @@ def leaf_objects(shapes: list[LeafShape], rotations, translations, names: list[s
         One per leaf.
     rotations : array_like, shape (N, 3, 3)
         Canonical-to-world rotation of each leaf.
-    translations : array_like, shape (N, 3)
-        World position of each leaf's canonical origin (blade centroid), m.
+    positions : array_like, shape (N, 3)
+        World position of each leaf's anchor, m.
     names, materials : list
         Object name and material of each leaf.
-    facet_m : float
-        Largest facet size, m, for the largest leaf (all leaves share one grid).
-    group : str
-        Group of the objects.
+    facet_m : float or array_like, shape (N,)
+        Largest facet size of each leaf, m.
+    group : str or list of str
+        Group of the objects (one for all, or one per leaf).
     extra_truth : list of dict, optional
         Additional truth fields per leaf.
+    anchor : {"centroid", "petiole"}
+        What ``positions`` locate: the blade's area centroid (the canonical
+        origin) or the free end of the petiole.
     """
-    if not shapes:
-        return []
-    length = max(shape.length_m for shape in shapes)
-    half_width = max(shape.half_width_m for shape in shapes)
-    template = leaf_template(*leaf_resolution(length, half_width, facet_m),
-                             petiole=any(shape.petiole_length_m > 0 for shape in shapes))
-    local, _ = leaf_vertices(shapes, template)
-    world = np.einsum("nij,nvj->nvi", np.asarray(rotations, float), local) + np.asarray(translations, float)[:, None]
-    objects = []
-    for i, shape in enumerate(shapes):
-        truth = leaf_truth(world[i], template, shape)
-        if extra_truth:
-            truth.update(extra_truth[i])
-        objects.append(SceneObject(names[i], "leaf", world[i], template.faces, materials[i], truth=truth,
-                                   group=group, face_labels=template.labels))
+    if anchor not in ("centroid", "petiole"):
+        raise SceneError(f"leaf anchor must be 'centroid' or 'petiole', got {anchor!r}")
+    rotations, positions = np.asarray(rotations, float), np.asarray(positions, float)
+    keys = list(zip(*(k.tolist() for k in leaf_grids(shapes, facet_m))))
+    objects: list[SceneObject | None] = [None] * len(shapes)
+    for key in sorted(set(keys)):
+        members = [i for i, k in enumerate(keys) if k == key]
+        batch = [shapes[i] for i in members]
+        template = leaf_template(*key, petiole=any(shape.petiole_length_m > 0 for shape in batch))
+        local, petiole_base = leaf_vertices(batch, template)
+        rot = rotations[members]
+        shift = positions[members]
+        if anchor == "petiole":
+            shift = shift - np.einsum("nij,nj->ni", rot, petiole_base)
+        world = np.einsum("nij,nvj->nvi", rot, local) + shift[:, None]
+        for j, (i, truth) in enumerate(zip(members, leaf_truths(world, template, batch))):
+            if extra_truth:
+                truth.update(extra_truth[i])
+            objects[i] = SceneObject(names[i], "leaf", world[j], template.faces, materials[i], truth=truth,
+                                     group=group if isinstance(group, str) else group[i],
+                                     face_labels=template.labels)
     return objects
 
 
 def leaf_frame(normal, midrib) -> np.ndarray:
-    """Canonical-to-world rotation putting the leaf's +z along ``normal`` and +x along ``midrib``.
+    """Canonical-to-world rotation(s) putting a leaf's +z along ``normal`` and +x along ``midrib``.
 
-    ``midrib`` is projected onto the plane perpendicular to ``normal``.
+    ``midrib`` is projected onto the plane perpendicular to ``normal``; both
+    may be ``(3,)`` or ``(N, 3)`` (then the result is ``(N, 3, 3)``).
     """
     n = np.asarray(normal, dtype=float)
-    n = n / np.linalg.norm(n)
+    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
     m = np.asarray(midrib, dtype=float)
-    m = m - np.dot(m, n) * n
-    norm = np.linalg.norm(m)
-    if norm < 1e-9:
-        raise SceneError(f"leaf midrib direction {midrib!r} is parallel to its normal {normal!r}")
-    m /= norm
-    return np.stack([m, np.cross(n, m), n], axis=1)
+    m = m - np.sum(m * n, axis=-1, keepdims=True) * n
+    norm = np.linalg.norm(m, axis=-1, keepdims=True)
+    if np.any(norm < 1e-9):
+        raise SceneError("a leaf's midrib direction is parallel to its normal")
+    m = m / norm
+    return np.stack([m, cross(n, m), n], axis=-1)

@@ -7,6 +7,14 @@ import numpy as np
 from scenes.errors import SceneError
 
 
+def cross(a, b) -> np.ndarray:
+    """Cross product of 3-vectors along the last axis (``np.cross`` without its per-call overhead)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+
+
 def orthonormal_frame(normal, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Right-handed frame ``(u, v, n)`` with ``n`` along ``normal`` and ``v`` as close to ``up`` as possible.
 
@@ -102,7 +110,7 @@ def square_to_disk(u, v) -> tuple[np.ndarray, np.ndarray]:
 FACET_FRACTION = 0.25
 
 
-def facet_size_m(distance_m: float, scanner: dict | None = None, fraction: float = FACET_FRACTION) -> float:
+def facet_size_m(distance_m, scanner: dict | None = None, fraction: float = FACET_FRACTION):
     """Facet (triangle edge) size that the scanner cannot see at ``distance_m``.
 
     The rule: facets no larger than ``fraction`` (default 1/4) of the 1/e²
@@ -114,7 +122,7 @@ def facet_size_m(distance_m: float, scanner: dict | None = None, fraction: float
 
     Parameters
     ----------
-    distance_m : float
+    distance_m : float or ndarray
         Distance from the scanner, m.
     scanner : dict, optional
         The scene's scanner section (its ``preset`` and any
@@ -128,4 +136,4 @@ def facet_size_m(distance_m: float, scanner: dict | None = None, fraction: float
     scanner = scanner or {}
     beam = {k: scanner[k] for k in ("beam_waist_radius_m", "divergence_deg") if k in scanner}
     model = get_preset(scanner.get("preset", "faro-ls880"), **beam)
-    return fraction * 2.0 * model.beam_radius_m(max(float(distance_m), 0.0))
+    return fraction * 2.0 * model.beam_radius_m(np.maximum(np.asarray(distance_m, dtype=float), 0.0))

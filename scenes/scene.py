@@ -14,11 +14,13 @@ Objects that come from the same scene-file entry share a ``group`` name.
 from __future__ import annotations
 
 import dataclasses
+from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from scenes.errors import SceneError
+from scenes.primitives import cross
 
 
 @dataclass(frozen=True)
@@ -124,7 +126,7 @@ class SceneObject:
 
     def _face_cross(self) -> np.ndarray:
         v = self.vertices[self.faces]
-        return np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+        return cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
 
 
 @dataclass
@@ -141,15 +143,18 @@ class Scene:
         The simulator interprets it; the scene package does not.
     name : str, optional
         Scene name.
+    spec : dict, optional
+        The description the scene was built from (see
+        :mod:`scenes.scenefile`); ``None`` for scenes assembled from meshes.
     """
 
     objects: list[SceneObject]
     scanner: dict = field(default_factory=dict)
     name: str = ""
+    spec: dict | None = None
 
     def __post_init__(self):
-        names = [o.name for o in self.objects]
-        duplicated = sorted({n for n in names if names.count(n) > 1})
+        duplicated = sorted(n for n, k in Counter(o.name for o in self.objects).items() if k > 1)
         if duplicated:
             raise SceneError(f"scene {self.name!r}: object names must be unique, repeated: {duplicated}")
 
@@ -196,4 +201,6 @@ class Scene:
 
     def with_scanner(self, **changes) -> "Scene":
         """A copy of the scene whose scanner section is updated with ``changes``."""
-        return dataclasses.replace(self, scanner={**self.scanner, **changes})
+        scanner = {**self.scanner, **changes}
+        spec = None if self.spec is None else {**self.spec, "scanner": scanner}
+        return dataclasses.replace(self, scanner=scanner, spec=spec)
