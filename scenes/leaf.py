@@ -229,7 +229,7 @@ def blade_area_m2(shape: LeafShape) -> float:
 
 
 #: Fine positions along the midrib (denser at the tips) on which margin arc lengths are measured.
-_FINE_S = 0.5 * (1.0 - np.cos(np.pi * np.linspace(0.0, 1.0, 1025)))
+_FINE_S = 0.5 * (1.0 - np.cos(np.pi * np.linspace(0.0, 1.0, 257)))
 
 
 def _margin_arc(shapes: list[LeafShape]) -> np.ndarray:
@@ -238,17 +238,19 @@ def _margin_arc(shapes: list[LeafShape]) -> np.ndarray:
     return np.concatenate([np.zeros((len(shapes), 1)), np.cumsum(step, axis=1)], axis=1)
 
 
-def leaf_grids(shapes: list[LeafShape], facet_m) -> tuple[np.ndarray, np.ndarray]:
+def leaf_grids(shapes: list[LeafShape], facet_m, arc: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Grids ``(n_u, n_v)`` of blades whose margin and grid spacing stay within ``facet_m`` (the facet rule).
 
     ``n_u`` rows split the margin into arcs of at most ``facet_m`` (which also
     bounds the spacing along the midrib), ``n_v`` columns split the widest
-    row into steps of at most ``facet_m``.
+    row into steps of at most ``facet_m``. ``arc`` is :func:`_margin_arc` of
+    the shapes if already known.
     """
     facet = np.broadcast_to(np.asarray(facet_m, dtype=float), (len(shapes),))
     if not np.all((facet > 0) & np.isfinite(facet)):
         raise SceneError(f"leaf facet must be a positive number (m), got {facet_m!r}")
-    n_u = np.maximum(6, np.ceil(_margin_arc(shapes)[:, -1] / facet)).astype(int)
+    arc = _margin_arc(shapes) if arc is None else arc
+    n_u = np.maximum(6, np.ceil(arc[:, -1] / facet)).astype(int)
     n_v = 2 * np.maximum(2, np.ceil(_stack(shapes, "half_width_m")[:, 0] / facet)).astype(int)
     return n_u, n_v
 
@@ -259,9 +261,8 @@ def leaf_resolution(shape: LeafShape, facet_m: float) -> tuple[int, int]:
     return int(n_u[0]), int(n_v[0])
 
 
-def _row_positions(shapes: list[LeafShape], n_u: int) -> np.ndarray:
+def _row_positions(arc: np.ndarray, n_u: int) -> np.ndarray:
     """Relative positions ``(N, n_u + 1)`` of the grid rows: equal arc lengths of each leaf's margin."""
-    arc = _margin_arc(shapes)
     return np.array([np.interp(np.linspace(0.0, a[-1], n_u + 1), a, _FINE_S) for a in arc])
 
 
@@ -317,8 +318,11 @@ def leaf_template(n_u: int, n_v: int, petiole: bool = True) -> LeafTemplate:
     return LeafTemplate(n_u, n_v, t, row, np.concatenate(faces), np.concatenate(labels), outline, apex)
 
 
-def leaf_vertices(shapes: list[LeafShape], template: LeafTemplate) -> tuple[np.ndarray, np.ndarray]:
+def leaf_vertices(shapes: list[LeafShape], template: LeafTemplate,
+                  arc: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Vertices of many leaves sharing one template, in their canonical frames (vectorised).
+
+    ``arc`` is :func:`_margin_arc` of the shapes if already known.
 
     Returns
     -------
@@ -327,7 +331,7 @@ def leaf_vertices(shapes: list[LeafShape], template: LeafTemplate) -> tuple[np.n
     petiole_base : ndarray, shape (N, 3)
         Free end of the petiole (the blade base if there is none), canonical frame.
     """
-    s_rows = _row_positions(shapes, template.n_u)
+    s_rows = _row_positions(_margin_arc(shapes) if arc is None else arc, template.n_u)
     s, t = s_rows[:, template.row], template.t[None, :]
     length, half_width = _stack(shapes, "length_m"), _stack(shapes, "half_width_m")
     u, v = length * s, t * _widths(shapes, s)
@@ -442,13 +446,14 @@ def leaf_objects(shapes: list[LeafShape], rotations, positions, names: list[str]
     if anchor not in ("centroid", "petiole"):
         raise SceneError(f"leaf anchor must be 'centroid' or 'petiole', got {anchor!r}")
     rotations, positions = np.asarray(rotations, float), np.asarray(positions, float)
-    keys = list(zip(*(k.tolist() for k in leaf_grids(shapes, facet_m))))
+    arc = _margin_arc(shapes)
+    keys = list(zip(*(k.tolist() for k in leaf_grids(shapes, facet_m, arc))))
     objects: list[SceneObject | None] = [None] * len(shapes)
     for key in sorted(set(keys)):
         members = [i for i, k in enumerate(keys) if k == key]
         batch = [shapes[i] for i in members]
         template = leaf_template(*key, petiole=any(shape.petiole_length_m > 0 for shape in batch))
-        local, petiole_base = leaf_vertices(batch, template)
+        local, petiole_base = leaf_vertices(batch, template, arc[members])
         rot = rotations[members]
         shift = positions[members]
         if anchor == "petiole":
