@@ -20,7 +20,7 @@ from scenes.fields import Fields
 from scenes.leaf import PEAR, leaf_objects, sample_pear_leaf
 from scenes.materials import material_from_spec
 from scenes.pose import Pose, pose_from_spec
-from scenes.primitives import facet_size_m, rectangle
+from scenes.primitives import cross, facet_size_m, rectangle
 from scenes.scene import Material, SceneObject
 from scenes.shapes import box_mesh, disk_mesh, ellipsoid_mesh, frustum_volume, tube_mesh
 from scenes.surfaces import SURFACE_NAMES, get_surface, surface_mesh, surface_parameters, surface_truth
@@ -197,7 +197,7 @@ def build_mesh(f: Fields, name: str, ctx: Context):
     if not np.all(np.isfinite(vertices)):
         raise f.error("file", f"{path.name} has NaN or infinite vertex coordinates")
     tri = vertices[faces]
-    good = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1) > 0
+    good = np.linalg.norm(cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1) > 0
     if not good.any():
         raise f.error("file", f"{path.name} is degenerate: all {len(faces)} triangles have zero area")
     pose = _pose(f, ctx)
@@ -340,13 +340,11 @@ def build_mitsuba(f: Fields, name: str, ctx: Context):
     from scenes.mitsuba_xml import load_mitsuba_shapes
 
     path = _resolve(f, ctx, (".xml",))
-    override = f.raw("material", None)
+    override = _material(f, default=None)
     pose = _pose(f, ctx)
     objects = []
     for shape_name, vertices, faces, material in load_mitsuba_shapes(path, f.where):
-        if override is not None:
-            material = material_from_spec(override, f"{f.where}: field 'material'")
-        objects.append(SceneObject(f"{name}/{shape_name}", "mesh", pose.apply(vertices), faces, material,
+        objects.append(SceneObject(f"{name}/{shape_name}", "mesh", pose.apply(vertices), faces, override or material,
                                    truth={"file": path.name, "shape": shape_name}, group=name))
     return objects
 

@@ -36,6 +36,7 @@ class Fields:
         self.data, self.where, self.used = data, where, set()
 
     def __contains__(self, key) -> bool:
+        self.used.add(key)  # asking about a field makes it a known (allowed) one
         return key in self.data
 
     def error(self, key: str, message: str) -> SceneError:

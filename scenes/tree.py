@@ -130,6 +130,18 @@ class OrderParams:
     directions: tuple = ()
     from_surface: bool = False
 
+    def __post_init__(self):
+        checks = {"length_m": self.length_m > 0, "radius": self.radius > 0, "tip_ratio": 0 <= self.tip_ratio <= 1,
+                  "length_sd": self.length_sd >= 0, "angle_sd_deg": self.angle_sd_deg >= 0,
+                  "segments": self.segments >= 1, "children": self.children >= 0, "whorl": self.whorl >= 1,
+                  "span": len(self.span) == 2 and 0 <= self.span[0] <= self.span[1] <= 1,
+                  "directions": all(len(d) == 3 and np.linalg.norm(d) > 0 for d in self.directions)}
+        bad = [k for k, ok in checks.items() if not ok]
+        if bad:
+            raise SceneError(f"invalid tree growth parameter(s) {bad}: lengths and radii must be positive, "
+                             f"tip_ratio in [0, 1], counts >= 1 (children >= 0), span within [0, 1], "
+                             f"directions non-zero 3-vectors; got {self}")
+
 
 @dataclass(frozen=True)
 class TreePreset:
@@ -305,7 +317,7 @@ def grow_tree(preset: TreePreset | str, seed: int, leaf_count: int | None = None
             raise SceneError(f"unknown tree override {key!r}; use order<k>_<field> with k < {len(orders)} and a "
                              f"field of OrderParams")
         k = int(head[5:])
-        orders[k] = dataclasses.replace(orders[k], **{name: value})
+        orders[k] = dataclasses.replace(orders[k], **{name: _checked_override(key, getattr(orders[k], name), value)})
     rng = np.random.default_rng(seed)
     cylinders: list[dict] = []
     trunk = np.asarray(orders[0].directions[0] if orders[0].directions else (0.0, 0.0, 1.0), dtype=float)
@@ -316,6 +328,24 @@ def grow_tree(preset: TreePreset | str, seed: int, leaf_count: int | None = None
     if count > 0:
         _add_leaves(model, preset, count, leaf_angle_distribution or preset.leaf_angle_distribution, rng)
     return model
+
+
+def _checked_override(key: str, default, value):
+    """``value`` if it has the type of the field's ``default`` (lists become tuples)."""
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if isinstance(default, bool):
+        ok, what = isinstance(value, bool), "true or false"
+    elif isinstance(default, int):
+        ok, what = number and float(value) == int(value), "an integer"
+        value = int(value) if ok else value
+    elif isinstance(default, float):
+        ok, what = number, "a number"
+    else:
+        ok, what = isinstance(value, (list, tuple)), "a list"
+        value = tuple(value) if ok else value
+    if not ok:
+        raise SceneError(f"tree override {key!r} must be {what}, got {value!r}")
+    return value
 
 
 def get_tree_preset(name: str) -> TreePreset:
@@ -502,3 +532,35 @@ def tree_objects(model: TreeModel, pose: Pose, group: str, *, bark: str | Materi
     leaves = LeafBatch()
     leaves.add_tree(model, pose, group, leaf_material, rng)
     return [wood] + leaves.objects(leaf_facet_m)
+
+
+def centreline(cylinders: list[dict], spacing_m: float = 0.01) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Dense samples along the axes of truth cylinders (woody spec C.1: every 1 cm, with the local radius).
+
+    Parameters
+    ----------
+    cylinders : list of dict
+        Truth cylinders (``docs/contracts.md`` format).
+    spacing_m : float
+        Largest distance between consecutive samples along a cylinder, m;
+        both ends of every cylinder are sampled.
+
+    Returns
+    -------
+    points : ndarray, shape (K, 3)
+        Axis points, m.
+    radius : ndarray, shape (K,)
+        Radius at each point (linear taper), m.
+    cylinder_id : ndarray, shape (K,)
+        Id of the cylinder each point belongs to.
+    """
+    if not spacing_m > 0:
+        raise SceneError(f"centreline spacing_m must be positive, got {spacing_m!r}")
+    points, radius, ids = [], [], []
+    for c in cylinders:
+        start, end = np.asarray(c["start"], float), np.asarray(c["end"], float)
+        t = np.linspace(0.0, 1.0, max(2, math.ceil(np.linalg.norm(end - start) / spacing_m) + 1))
+        points.append(start + t[:, None] * (end - start))
+        radius.append(c["radius_m"] + t * (c["radius_end_m"] - c["radius_m"]))
+        ids.append(np.full(len(t), c["id"]))
+    return np.concatenate(points), np.concatenate(radius), np.concatenate(ids)

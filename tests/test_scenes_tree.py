@@ -8,8 +8,8 @@ import pytest
 from scenes import SceneError, scene_from_spec
 from scenes.pose import Pose
 from scenes.shapes import SAGITTA_M, frusta, polygon_sides
-from scenes.tree import (LEAF_ANGLE_DISTRIBUTIONS, PRESETS, grow_tree, sample_leaf_inclination, tree_objects,
-                         wood_mesh)
+from scenes.tree import (LEAF_ANGLE_DISTRIBUTIONS, PRESETS, centreline, grow_tree, sample_leaf_inclination,
+                         tree_objects, wood_mesh)
 
 CYLINDER_KEYS = {"id", "parent", "order", "branch", "start", "end", "radius_m", "radius_end_m"}
 
@@ -167,3 +167,23 @@ def test_orchard_row_geometry_counts_and_ranges():
     # Near leaves are meshed finer than far ones (facet follows the footprint).
     near, far = np.argmin(distance), np.argmax(distance)
     assert len(leaves[near].faces) / leaves[near].truth["area_m2"] > len(leaves[far].faces) / leaves[far].truth["area_m2"]
+
+
+def test_tree_overrides_are_type_checked():
+    longer = grow_tree("cylinder", 0, order0_length_m=3)
+    assert np.linalg.norm(np.subtract(longer.cylinders[0]["end"], longer.cylinders[0]["start"])) == pytest.approx(3.0)
+    with pytest.raises(SceneError, match="'order0_segments' must be an integer, got 2.5"):
+        grow_tree("cylinder", 0, order0_segments=2.5)
+    with pytest.raises(SceneError, match="'order0_radius' must be a number, got 'thick'"):
+        grow_tree("cylinder", 0, order0_radius="thick")
+
+
+def test_centreline_samples_every_centimetre():
+    cylinders = grow_tree("cylinder", 0).cylinders + [
+        {"id": 1, "parent": 0, "order": 1, "branch": 1, "start": [0, 0, 1], "end": [0.3, 0, 1], "radius_m": 0.1,
+         "radius_end_m": 0.05}]
+    points, radius, ids = centreline(cylinders, 0.01)
+    assert np.count_nonzero(ids == 0) == 201 and np.count_nonzero(ids == 1) == 31
+    assert np.all(np.linalg.norm(np.diff(points[ids == 1], axis=0), axis=1) <= 0.01 + 1e-12)
+    np.testing.assert_allclose(radius[ids == 0], 0.5)
+    np.testing.assert_allclose(radius[ids == 1][[0, 15, 30]], [0.1, 0.075, 0.05])
