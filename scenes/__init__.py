@@ -12,7 +12,7 @@ def load(spec: str | Path) -> Scene:
     """A scene from a built-in name (see :func:`names`) or a YAML scene file.
 
     A string that names a built-in scene builds it; anything else is read as
-    a scene file path.
+    a scene file path (YAML).
 
     Raises
     ------
@@ -23,8 +23,9 @@ def load(spec: str | Path) -> Scene:
     if isinstance(spec, str) and spec in names():
         return build(spec)
     path = Path(spec)
-    if not path.is_file():
-        raise SceneError(f"{str(spec)!r} is neither a built-in scene ({', '.join(names())}) nor a scene file")
+    if not path.is_file() and path.suffix.lower() not in (".yaml", ".yml") and len(path.parts) == 1:
+        raise SceneError(f"unknown built-in scene {str(spec)!r}; available: {', '.join(names())} "
+                         "(or give a scene file path)")
     return load_scene_file(path)
 
 

@@ -223,8 +223,10 @@ def test_file_level_errors(tmp_path):
     assert "object #2 'a' (disk): field 'name': 'a' is already used by object #1" in message
     message = _error(tmp_path, "bogus: 1\nobjects:\n  - {name: a, type: sphere, radius: 1}\n")
     assert "unknown field(s) ['bogus']" in message
-    with pytest.raises(SceneError, match="neither a built-in scene .* nor a scene file"):
+    with pytest.raises(SceneError, match="unknown built-in scene 'no-such-scene'; available: .*leaf-1.5m"):
         scenes.load("no-such-scene")
+    with pytest.raises(SceneError, match="scene file '.*missing.yaml' not found"):
+        scenes.load(str(tmp_path / "missing.yaml"))
     with pytest.raises(SceneError, match="built from meshes"):
         save_scene(scenes.build("knife-edge"), tmp_path / "k.yaml")
 
