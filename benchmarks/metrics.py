@@ -42,27 +42,181 @@ MAD_TO_SIGMA = 1.4826
 
 #: Work sizes of :func:`surface_distance` (memory bounds).
 _CHUNK_PAIRS = 2_000_000
-#: Smallest cluster size of :func:`surface_distance` (clusters hold up to max(16, sqrt(F)) triangles,
-#: which balances the box tests, points x clusters, against the triangle tests inside kept clusters).
-_CLUSTER_SIZE = 16
+#: Triangles per leaf of the hierarchy of :class:`SurfaceDistance`, and points per chunk of a query.
+_LEAF_SIZE = 8
+_CHUNK_POINTS = 32768
+
+
+class SurfaceDistance:
+    """Exact distance from points to one triangle mesh (the mesh is prepared once, queried often).
+
+    The mesh gets a bounding-volume hierarchy: recursive median splits of
+    the triangle centroids down to :data:`_LEAF_SIZE` triangles, with an
+    oriented bounding box per node (oriented boxes stay tight around flat
+    or gently curved patches, so points far from a leaf, such as mixed
+    points behind it, prune as well as points on it). A point starts from
+    the exact distance ``u`` to the triangle of its nearest centroid and
+    descends the hierarchy level by level, keeping only the nodes whose box
+    lies within ``u``; in the leaves it keeps only triangles whose bound
+    ``sqrt(h² + max(0, l − R)²)`` (``h``: distance to the triangle's plane,
+    ``l``: in-plane distance to its centroid, ``R``: its radius) is within
+    ``u``, and tests those exactly with :func:`trimesh.triangles.closest_point`.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+        Mesh vertices, m.
+    faces : ndarray, shape (F, 3)
+        Triangles.
+    """
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
+        self.triangles = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
+        self.centroids = self.triangles.mean(axis=1)
+        self.radius = np.linalg.norm(self.triangles - self.centroids[:, None], axis=2).max(axis=1)
+        self.cross = np.cross(self.triangles[:, 1] - self.triangles[:, 0], self.triangles[:, 2] - self.triangles[:, 0])
+        length = np.linalg.norm(self.cross, axis=1, keepdims=True)
+        self.unit_normal = np.divide(self.cross, length, out=np.zeros_like(self.cross), where=length > 0)
+        self.centroid_tree = cKDTree(self.centroids)
+        self.order, self.start, self.count, self.children, level = _hierarchy(self.centroids)
+        self.axes, self.offset, self.half = _oriented_boxes(self.triangles[self.order], self.start, self.count, level)
+
+    def __call__(self, points: np.ndarray, signed: bool = False) -> np.ndarray:
+        """Distance of ``points`` (n, 3) to the mesh, m; signed by the side of the closest triangle if asked."""
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        _, face = self.centroid_tree.query(points)
+        face = np.asarray(face, dtype=np.int64).reshape(-1)
+        best = np.linalg.norm(closest_point(self.triangles[face], points) - points, axis=1)
+        for lo in range(0, len(points), _CHUNK_POINTS):
+            p = np.arange(lo, min(lo + _CHUNK_POINTS, len(points)))
+            node = np.zeros(len(p), dtype=np.int64)
+            while len(p):
+                local = np.einsum("ij,ikj->ik", points[p], self.axes[node]) - self.offset[node]
+                near = (np.maximum(np.abs(local) - self.half[node], 0.0) ** 2).sum(axis=1) <= _slack(best[p]) ** 2
+                p, node = p[near], node[near]
+                leaf = self.children[node, 0] < 0
+                positions, owner = _ranges(self.start[node[leaf]], self.start[node[leaf]] + self.count[node[leaf]])
+                self._test(points, p[leaf][owner], self.order[positions], best, face)
+                p = np.repeat(p[~leaf], 2)
+                node = self.children[node[~leaf]].ravel()
+        if not signed:
+            return best
+        side = np.einsum("ij,ij->i", points - closest_point(self.triangles[face], points), self.cross[face])
+        return np.where(side < 0, -best, best)
+
+    def _test(self, points, p, f, best, face) -> None:
+        """Test triangles ``f`` for points ``p`` (pairs); update ``best`` and ``face`` in place."""
+        offset = points[p] - self.centroids[f]
+        h = np.einsum("ij,ij->i", offset, self.unit_normal[f])
+        lateral = np.sqrt(np.maximum(np.einsum("ij,ij->i", offset, offset) - h * h, 0.0))
+        keep = h * h + np.maximum(lateral - self.radius[f], 0.0) ** 2 <= _slack(best[p]) ** 2
+        p, f = p[keep], f[keep]
+        if len(p) == 0:
+            return
+        d = np.linalg.norm(closest_point(self.triangles[f], points[p]) - points[p], axis=1)
+        first = np.lexsort((d, p))
+        first = first[np.r_[True, p[first][1:] != p[first][:-1]]]
+        better = d[first] < best[p[first]]
+        best[p[first][better]] = d[first][better]
+        face[p[first][better]] = f[first][better]
+
+
+def _ranges(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Concatenated positions ``lo[i] .. hi[i] - 1`` and the index ``i`` of each."""
+    counts = hi - lo
+    owner = np.repeat(np.arange(len(lo)), counts)
+    return np.repeat(lo, counts) + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts), owner
+
+
+def _reduce(ufunc, values: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """``ufunc`` reduced over consecutive runs of ``counts`` rows of ``values`` (every count >= 1)."""
+    return ufunc.reduceat(values, np.cumsum(counts) - counts, axis=0)
+
+
+def _hierarchy(centroids: np.ndarray):
+    """Median-split hierarchy of triangles, built level by level (one sort per level).
+
+    Returns
+    -------
+    order : ndarray of int, (F,)
+        Triangle ids; every node covers a contiguous range of it.
+    start, count : ndarray of int, (N,)
+        Range of each node in ``order`` (node 0 is the root).
+    children : ndarray of int, (N, 2)
+        Child nodes (-1 for leaves).
+    level : ndarray of int, (N,)
+        Depth of each node (nodes of one level cover disjoint ranges).
+    """
+    n = len(centroids)
+    order = np.arange(n)
+    start, count, level = [np.array([0])], [np.array([n])], [np.array([0])]
+    children = [np.full((1, 2), -1)]
+    total = 1
+    active = np.array([0]) if n > _LEAF_SIZE else np.zeros(0, dtype=int)
+    depth = 0
+    while len(active):
+        s, c = np.concatenate(start)[active], np.concatenate(count)[active]
+        positions, owner = _ranges(s, s + c)
+        points = centroids[order[positions]]
+        axis = np.argmax(_reduce(np.maximum, points, c) - _reduce(np.minimum, points, c), axis=1)
+        order[positions] = order[positions[np.lexsort((points[np.arange(len(owner)), axis[owner]], owner))]]
+        half = c // 2
+        ids = total + np.arange(2 * len(active))
+        all_children = np.concatenate(children)
+        all_children[active] = ids.reshape(-1, 2)
+        child_start = np.stack([s, s + half], axis=1).ravel()
+        child_count = np.stack([half, c - half], axis=1).ravel()
+        children = [all_children, np.full((len(ids), 2), -1)]
+        start.append(child_start)
+        count.append(child_count)
+        depth += 1
+        level.append(np.full(len(ids), depth))
+        total += len(ids)
+        active = ids[child_count > _LEAF_SIZE]
+    return order, np.concatenate(start), np.concatenate(count), np.concatenate(children), np.concatenate(level)
+
+
+def _oriented_boxes(triangles: np.ndarray, start: np.ndarray, count: np.ndarray, level: np.ndarray):
+    """Oriented bounding box of every node from the vertices of its triangles (in hierarchy order).
+
+    The axes are the principal axes of the node's vertices (from prefix sums
+    of coordinates and their products); the extents are exact.
+
+    Returns
+    -------
+    axes : ndarray, (N, 3, 3)
+        Box axes as rows.
+    offset : ndarray, (N, 3)
+        Box centre along each axis.
+    half : ndarray, (N, 3)
+        Half extents.
+    """
+    corners = triangles.reshape(-1, 3)
+    first = np.concatenate([np.zeros((1, 3)), np.cumsum(corners, axis=0)])
+    second = np.concatenate([np.zeros((1, 3, 3)), np.cumsum(corners[:, :, None] * corners[:, None, :], axis=0)])
+    lo, hi = 3 * start, 3 * (start + count)
+    size = (hi - lo)[:, None]
+    mean = (first[hi] - first[lo]) / size
+    covariance = (second[hi] - second[lo]) / size[:, :, None] - mean[:, :, None] * mean[:, None, :]
+    axes = np.swapaxes(np.linalg.eigh(covariance)[1], 1, 2)
+    low, high = np.zeros((len(start), 3)), np.zeros((len(start), 3))
+    for depth in range(level.max() + 1):  # nodes of one level hold disjoint vertices
+        nodes = np.nonzero(level == depth)[0]
+        positions, owner = _ranges(lo[nodes], hi[nodes])
+        along = np.einsum("ij,ikj->ik", corners[positions], axes[nodes[owner]])
+        low[nodes] = _reduce(np.minimum, along, hi[nodes] - lo[nodes])
+        high[nodes] = _reduce(np.maximum, along, hi[nodes] - lo[nodes])
+    return axes, (low + high) / 2, (high - low) / 2
+
+
+def _slack(bound):
+    """An upper bound widened by rounding error, so that ties are always tested exactly."""
+    return bound * (1 + 1e-9) + 1e-12
 
 
 def surface_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
                      signed: bool = False) -> np.ndarray:
-    """Exact distance from points to a triangle mesh.
-
-    The triangles are grouped into compact clusters (recursive median splits
-    of their centroids, about √F triangles each) with an oriented bounding
-    box each. The distance to the triangle of the nearest
-    centroid is an upper bound ``u`` of a point's answer; a cluster whose box
-    lies farther than ``u`` cannot hold a closer triangle, so only the
-    triangles of the other clusters are tested exactly with
-    :func:`trimesh.triangles.closest_point`. Oriented boxes keep the bound
-    tight for points far from a flat or gently curved surface (mixed points
-    behind a leaf), where bounding spheres would keep the whole mesh. Within
-    the kept clusters, a cheap per-triangle bound (plane distance and
-    in-plane distance to the triangle's circumscribing disc) leaves only a
-    few triangles per point to test exactly.
+    """Exact distance from points to a triangle mesh, m (see :class:`SurfaceDistance`).
 
     Parameters
     ----------
@@ -79,90 +233,8 @@ def surface_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray
     Returns
     -------
     ndarray, shape (n,)
-        Distance, m.
     """
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    if len(points) == 0:
-        return np.zeros(0)
-    triangles = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
-    centroids = triangles.mean(axis=1)
-    radius = np.linalg.norm(triangles - centroids[:, None], axis=2).max(axis=1)
-    cross = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
-    length = np.linalg.norm(cross, axis=1, keepdims=True)
-    unit_normal = np.divide(cross, length, out=np.zeros_like(cross), where=length > 0)
-    _, nearest = cKDTree(centroids).query(points)
-    best = np.linalg.norm(closest_point(triangles[nearest], points) - points, axis=1)
-    best_face = nearest.copy()
-    order, starts, counts, center, axes, half = _clusters(triangles, centroids)
-    step = max(1, _CHUNK_PAIRS // len(starts))
-    for lo in range(0, len(points), step):
-        chunk = np.arange(lo, min(lo + step, len(points)))
-        # Distance to every box: per box axis j, |p·a_j - c·a_j| beyond the half extent (three GEMMs).
-        gap2 = np.zeros((len(chunk), len(starts)))
-        for j in range(3):
-            along = points[chunk] @ axes[:, j].T - np.einsum("ck,ck->c", center, axes[:, j])
-            gap2 += np.maximum(np.abs(along) - half[:, j], 0.0) ** 2
-        p, c = np.nonzero(gap2 <= (best[chunk, None] * (1 + 1e-9) + 1e-12) ** 2)
-        # Expand (point, cluster) pairs to (point, triangle) pairs ...
-        p = np.repeat(chunk[p], counts[c])
-        offsets = np.arange(len(p)) - np.repeat(np.cumsum(counts[c]) - counts[c], counts[c])
-        f = order[np.repeat(starts[c], counts[c]) + offsets]
-        # ... and keep those whose triangle may be closer: sqrt(h² + max(0, l - R)²) bounds the
-        # distance (h: to the triangle's plane, l: in-plane to its centroid, R: its radius).
-        offset = points[p] - centroids[f]
-        h = np.einsum("ij,ij->i", offset, unit_normal[f])
-        lateral = np.sqrt(np.maximum(np.einsum("ij,ij->i", offset, offset) - h * h, 0.0))
-        keep = h * h + np.maximum(lateral - radius[f], 0.0) ** 2 <= (best[p] * (1 + 1e-9) + 1e-12) ** 2
-        p, f = p[keep], f[keep]
-        for sub in range(0, len(p), _CHUNK_PAIRS):
-            pp, ff = p[sub:sub + _CHUNK_PAIRS], f[sub:sub + _CHUNK_PAIRS]
-            d = np.linalg.norm(closest_point(triangles[ff], points[pp]) - points[pp], axis=1)
-            first = np.lexsort((d, pp))
-            first = first[np.r_[True, pp[first][1:] != pp[first][:-1]]]
-            better = d[first] < best[pp[first]]
-            best[pp[first][better]] = d[first][better]
-            best_face[pp[first][better]] = ff[first][better]
-    if not signed:
-        return best
-    side = np.einsum("ij,ij->i", points - closest_point(triangles[best_face], points), cross[best_face])
-    return np.where(side < 0, -best, best)
-
-
-def _clusters(triangles: np.ndarray, centroids: np.ndarray):
-    """Clusters of triangles with oriented bounding boxes.
-
-    Returns
-    -------
-    order : ndarray of int
-        Triangle ids grouped by cluster.
-    starts, counts : ndarray of int
-        Where each cluster's ids start in ``order`` and how many there are.
-    center, axes, half : ndarray
-        Box centre (C, 3), axes as rows (C, 3, 3) and half extents (C, 3).
-    """
-    size = max(_CLUSTER_SIZE, int(math.sqrt(len(triangles))))
-    groups, stack = [], [np.arange(len(triangles))]
-    while stack:
-        ids = stack.pop()
-        if len(ids) <= size:
-            groups.append(ids)
-            continue
-        c = centroids[ids]
-        split = np.argsort(c[:, np.argmax(np.ptp(c, axis=0))])
-        stack += [ids[split[: len(ids) // 2]], ids[split[len(ids) // 2:]]]
-    counts = np.array([len(g) for g in groups])
-    starts = np.cumsum(counts) - counts
-    center, axes, half = np.zeros((len(groups), 3)), np.zeros((len(groups), 3, 3)), np.zeros((len(groups), 3))
-    for k, ids in enumerate(groups):
-        corners = triangles[ids].reshape(-1, 3)
-        mean = corners.mean(axis=0)
-        frame = np.linalg.eigh(np.cov((corners - mean).T) if len(corners) > 1 else np.eye(3))[1].T
-        local = (corners - mean) @ frame.T
-        low, high = local.min(axis=0), local.max(axis=0)
-        center[k] = mean + ((low + high) / 2) @ frame
-        axes[k] = frame
-        half[k] = (high - low) / 2
-    return np.concatenate(groups), starts, counts, center, axes, half
+    return SurfaceDistance(vertices, faces)(points, signed)
 
 
 def robust_sigma(values: np.ndarray) -> float:

@@ -113,12 +113,12 @@ def plot_before_after(case_spec: dict, variants: list[dict]) -> Figure:
     columns = min(4, len(variants))
     rows = math.ceil(len(variants) / columns)
     figure = Figure(figsize=(3.2 * columns, 3.0 * rows), layout="constrained")
-    measured = scan.xyz[leaf.mask]
+    measured = leaf.scan.xyz[leaf.mask]
     depth = np.median(measured[leaf.own, 0])
     for index, spec in enumerate(variants):
         axes = figure.add_subplot(rows, columns, index + 1)
-        output = get_variant(spec["name"]).with_params(**spec["params"])(scan, leaf.mask)
-        out, kept, distance = scoring.output_distance(leaf, scene, scan, output)
+        output = get_variant(spec["name"]).with_params(**spec["params"])(leaf.scan, leaf.mask)
+        out, kept, distance = scoring.output_distance(leaf, output)
         good = kept & (np.abs(distance) <= leaf.taus["auto"])
         axes.scatter(measured[~kept, 1], measured[~kept, 0] - depth, s=1, color="lightgrey", label="removed")
         axes.scatter(out[good, 1], out[good, 0] - depth, s=1, color="tab:green", label="within τ")

@@ -126,10 +126,10 @@ def run_case(case: dict, variants: list[dict]) -> list[dict]:
             variant = get_variant(spec["name"]).with_params(**spec["params"])
             scores, runtime, peaks = [], 0.0, []
             for leaf in leaves:
-                output, elapsed, peak = measured(variant, scan, leaf.mask)
+                output, elapsed, peak = measured(variant, leaf.scan, leaf.mask)
                 runtime += elapsed
                 peaks.append(peak)
-                scores.append(scoring.score_leaf(leaf, scene, scan, output))
+                scores.append(scoring.score_leaf(leaf, output))
             peak = None if not peaks or any(p is None for p in peaks) else max(peaks)
             rows.append(_row(case, spec, variant.family, {"leaves": scores}, runtime, peak, simulate_s, None))
         except Exception as exc:  # noqa: BLE001 - a failing variant is recorded, the others still run

@@ -11,6 +11,7 @@ aggregates per-leaf scores over a suite.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -19,9 +20,12 @@ import numpy as np
 from benchmarks import metrics
 from benchmarks.errors import BenchError
 from benchmarks.registry import VariantOutput
+from tlssim.scan import GRID_KEYS, TRUTH_KEYS
 
 #: Pure returns (used for the range noise and the intensity) have less than this power share from other objects.
 PURE_MIXED_FRACTION = 1e-3
+#: Pixels kept around a leaf's points when its part of the scan is cut out for the variants.
+CROP_MARGIN_PX = 8
 
 
 @dataclass
@@ -32,11 +36,14 @@ class LeafTruth:
     ----------
     object_id : int
         Scene object id of the leaf.
-    name : str
-        Object name.
+    name, object_type : str
+        Object name and type.
     truth : dict
         The object's truth fields (``area_m2``, ``elevation_deg``, ... for leaves).
-    mask : ndarray of bool, (rows, cols)
+    scan : tlssim.Scan
+        The part of the scan around the leaf (the leaf's points plus
+        :data:`CROP_MARGIN_PX` pixels), which the variants receive.
+    mask : ndarray of bool, shape of ``scan``
         The leaf's points: returns with at least ``min_share`` of their power from it.
     own : ndarray of bool, (n,)
         Which of the masked points the leaf dominates (``truth_id`` is the leaf).
@@ -48,17 +55,36 @@ class LeafTruth:
         Outlier thresholds by label (``auto``: max(3 σ, 2 mm); ``1cm``), m.
     scan_stats : dict
         Properties of the scan on this leaf (range, incidence, noise, intensity, density).
+    surfaces : TruthSurfaces
+        Distances to the scene's true surfaces (shared by the leaves of a scan).
     """
 
     object_id: int
     name: str
+    object_type: str
     truth: dict
+    scan: object
     mask: np.ndarray
     own: np.ndarray
     attributed: np.ndarray
     distance: np.ndarray
     taus: dict
     scan_stats: dict
+    surfaces: TruthSurfaces
+
+
+def crop_scan(scan, rows: slice, cols: slice):
+    """The part ``[rows, cols]`` of a scan's grid, as a scan (arrays are views, not copies)."""
+    window = (rows, cols)
+    arrays = {key: getattr(scan, key)[window] for key in GRID_KEYS + TRUTH_KEYS if getattr(scan, key) is not None}
+    return dataclasses.replace(scan, **arrays, layers={k: v[window] for k, v in scan.layers.items()})
+
+
+def _window(grid: np.ndarray, margin: int) -> tuple[slice, slice]:
+    """Bounding box of the true pixels of ``grid``, widened by ``margin`` pixels."""
+    rows, cols = np.nonzero(grid)
+    return (slice(max(rows.min() - margin, 0), rows.max() + margin + 1),
+            slice(max(cols.min() - margin, 0), cols.max() + margin + 1))
 
 
 def footprint_reach_px(scan, distance_m: float) -> int:
@@ -70,14 +96,24 @@ def footprint_reach_px(scan, distance_m: float) -> int:
     return int(math.ceil(2.0 * radius / (distance_m * step))) + 1
 
 
-def attributed_distance(points: np.ndarray, object_ids: np.ndarray, scene) -> np.ndarray:
-    """Signed distance of each point to the true surface of its object (``object_ids``), m."""
-    out = np.full(len(points), np.nan)
-    for oid in np.unique(object_ids):
-        sel = object_ids == oid
-        obj = scene.objects[int(oid)]
-        out[sel] = metrics.surface_distance(points[sel], obj.vertices, obj.faces, signed=True)
-    return out
+class TruthSurfaces:
+    """Distances to the true surfaces of a scene's objects; each object's mesh is prepared once."""
+
+    def __init__(self, scene):
+        self.scene = scene
+        self._prepared: dict[int, metrics.SurfaceDistance] = {}
+
+    def distance(self, points: np.ndarray, object_ids: np.ndarray) -> np.ndarray:
+        """Signed distance of each point to the true surface of its object (``object_ids``), m."""
+        out = np.full(len(points), np.nan)
+        for oid in np.unique(object_ids):
+            oid = int(oid)
+            if oid not in self._prepared:
+                obj = self.scene.objects[oid]
+                self._prepared[oid] = metrics.SurfaceDistance(obj.vertices, obj.faces)
+            sel = object_ids == oid
+            out[sel] = self._prepared[oid](points[sel], signed=True)
+        return out
 
 
 #: Object types scored when a case names no targets: leaves, and the analytic test surfaces.
@@ -119,18 +155,23 @@ def prepare_leaves(scene, scan, targets: list[str] | None = None,
         raise BenchError("scoring needs a simulated scan with truth arrays")
     leaves = []
     valid = scan.valid
+    surfaces = TruthSurfaces(scene)
     for oid in target_ids(scene, targets):
         own_grid = valid & (scan.truth_id == oid)
         if not own_grid.any():
             continue
         distance_m = float(np.median(scan.range[own_grid]))
-        share = metrics.leaf_power_share(scan.truth_id, scan.mixed_fraction, oid,
-                                         footprint_reach_px(scan, distance_m))
-        mask = valid & (share >= min_share)
-        attributed = scan.truth_id[mask]
-        distance = attributed_distance(scan.xyz[mask], attributed, scene)
+        reach = footprint_reach_px(scan, distance_m)
+        near = _window(own_grid, reach)
+        share = np.zeros(scan.shape)
+        share[near] = metrics.leaf_power_share(scan.truth_id[near], scan.mixed_fraction[near], oid, reach)
+        points = valid & (share >= min_share)
+        window = _window(points, CROP_MARGIN_PX)
+        part, mask = crop_scan(scan, *window), points[window]
+        attributed = part.truth_id[mask]
+        distance = surfaces.distance(part.xyz[mask], attributed)
         own = attributed == oid
-        pure = own & (scan.mixed_fraction[mask] < PURE_MIXED_FRACTION)
+        pure = own & (part.mixed_fraction[mask] < PURE_MIXED_FRACTION)
         sigma = metrics.robust_sigma(distance[pure])
         obj = scene.objects[oid]
         area = obj.truth.get("area_m2")
@@ -138,16 +179,16 @@ def prepare_leaves(scene, scan, targets: list[str] | None = None,
             "range_m": distance_m,
             "incidence_deg": float(np.degrees(np.median(scan.incidence[own_grid]))),
             "sigma_range_m": sigma,
-            "intensity_dn": float(np.median(scan.intensity[mask][pure])) if pure.any() else math.nan,
+            "intensity_dn": float(np.median(part.intensity[mask][pure])) if pure.any() else math.nan,
             "n_own": int(own.sum()),
             "points_per_cm2": int(own.sum()) / (area * 1e4) if area else math.nan,
         }
-        leaves.append(LeafTruth(oid, obj.name, obj.truth, mask, own, attributed, distance,
-                                {"auto": metrics.auto_tau(sigma), "1cm": metrics.TAU_TRUE_M}, stats))
+        leaves.append(LeafTruth(oid, obj.name, obj.type, obj.truth, part, mask, own, attributed, distance,
+                                {"auto": metrics.auto_tau(sigma), "1cm": metrics.TAU_TRUE_M}, stats, surfaces))
     return leaves
 
 
-def output_distance(leaf: LeafTruth, scene, scan, output: VariantOutput):
+def output_distance(leaf: LeafTruth, output: VariantOutput):
     """A variant's output points on a leaf and their signed distance to the truth.
 
     Returns
@@ -162,13 +203,13 @@ def output_distance(leaf: LeafTruth, scene, scan, output: VariantOutput):
     """
     points = np.asarray(output.xyz)[leaf.mask]
     kept = np.isfinite(points).all(axis=1)
-    moved = kept & (np.abs(points - scan.xyz[leaf.mask]) > 1e-9).any(axis=1)
+    moved = kept & (np.abs(points - leaf.scan.xyz[leaf.mask]) > 1e-9).any(axis=1)
     distance = leaf.distance.copy()
-    distance[moved] = attributed_distance(points[moved], leaf.attributed[moved], scene)
+    distance[moved] = leaf.surfaces.distance(points[moved], leaf.attributed[moved])
     return points, kept, distance
 
 
-def score_leaf(leaf: LeafTruth, scene, scan, output: VariantOutput) -> dict:
+def score_leaf(leaf: LeafTruth, output: VariantOutput) -> dict:
     """Scores of one variant's output on one leaf.
 
     Returns
@@ -181,9 +222,9 @@ def score_leaf(leaf: LeafTruth, scene, scan, output: VariantOutput) -> dict:
         pulses with an output point within τ); leaf-trait errors where both
         the truth and the method give the trait; the method's own stats.
     """
-    _, kept, distance = output_distance(leaf, scene, scan, output)
+    _, kept, distance = output_distance(leaf, output)
     before, after = np.abs(leaf.distance), np.abs(distance)
-    scores = {"leaf": leaf.name, "object_id": leaf.object_id, "object_type": scene.objects[leaf.object_id].type,
+    scores = {"leaf": leaf.name, "object_id": leaf.object_id, "object_type": leaf.object_type,
               **leaf.scan_stats, "tau_m": leaf.taus["auto"]}
     for label, tau in leaf.taus.items():
         suffix = "" if label == "auto" else f"_{label}"
