@@ -369,3 +369,46 @@ def analytic_surface(surface: str = "hemisphere", distance_m: float = 1.5, size_
     if background_gap_m is not None:
         objects.append(background_wall(objects, distance_m + background_gap_m, background_reflectance))
     return Scene(objects, scanner_window([obj]))
+
+
+@generator("single-leaf", "one procedural pear leaf (scenes package: outline, petiole, bending, roll, wrinkles) in "
+                          "front of a background wall; distance, incidence, size, shape seed and reflectance")
+def single_leaf(distance_m: float = 1.5, incidence_deg: float = 0.0, axis: str = "vertical",
+                length_m: float = PEAR_LENGTH_M, seed: int = 0, spin_deg: float = 30.0,
+                reflectance: float | None = None, background_gap_m: float | None = 0.5,
+                background_reflectance: float = 0.3) -> Scene:
+    """One procedural pear leaf of :mod:`scenes` facing the scanner, tilted by the incidence angle.
+
+    Parameters
+    ----------
+    distance_m : float
+        Scanner-to-blade-centroid distance along +x, m.
+    incidence_deg : float
+        Angle between the blade's mean normal direction (its local +z) and
+        the direction to the scanner, degrees.
+    axis : {"vertical", "horizontal"}
+        Axis the leaf is tilted about.
+    length_m : float
+        Blade length, m (pear default 6.5 cm; the thesis' ROP protocol used about 9 cm).
+    seed : int
+        Seed of the leaf's shape (outline, bending, roll, wrinkles).
+    spin_deg : float
+        Rotation of the midrib about the blade normal before the tilt,
+        degrees (from the horizontal; 30 gives a midrib elevation and
+        azimuth that are both defined).
+    reflectance : float, optional
+        Leaf reflectance (default: the ``pear-leaf`` library material).
+    background_gap_m, background_reflectance : float
+        Wall behind the leaf (``None``: no wall).
+    """
+    if axis not in ("vertical", "horizontal"):
+        raise BenchError(f"single-leaf axis must be 'vertical' or 'horizontal', got {axis!r}")
+    leaf = {"name": "leaf", "type": "leaf", "preset": "pear", "seed": seed, "length": length_m,
+            "material": "pear-leaf" if reflectance is None else {"reflectance": reflectance},
+            "pose": {"center": [distance_m, 0.0, 0.0], "facing": "scanner", "spin_deg": spin_deg,
+                     "incidence_deg": incidence_deg, "rotation_axis": axis}}
+    blade = scenes.scene_from_spec({"objects": [leaf]}, source="single-leaf").objects[0]
+    objects = [blade]
+    if background_gap_m is not None:
+        objects.append(background_wall(objects, distance_m + background_gap_m, background_reflectance))
+    return Scene(objects, scanner_window([blade]))

@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from skimage.draw import polygon
 
 from benchmarks import metrics
 from benchmarks.errors import BenchError
@@ -87,13 +88,40 @@ def _window(grid: np.ndarray, margin: int) -> tuple[slice, slice]:
             slice(max(cols.min() - margin, 0), cols.max() + margin + 1))
 
 
+def grid_steps(scan) -> tuple[float, float]:
+    """Angular steps ``(theta, psi)`` of a simulated scan's grid, rad."""
+    theta_deg, psi_deg = scan.meta["window"]["step_deg"]
+    return math.radians(theta_deg), math.radians(psi_deg)
+
+
 def footprint_reach_px(scan, distance_m: float) -> int:
     """How many pixels the beam footprint reaches at ``distance_m``: twice the 1/e² radius over the spacing."""
     model = scan.scanner_model
     radius = model["beam_waist_radius_m"] + distance_m * math.tan(math.radians(model["divergence_deg"]))
-    step = min(abs(float(scan.theta[0, 1] - scan.theta[0, 0])) if scan.shape[1] > 1 else math.inf,
-               abs(float(scan.psi[1, 0] - scan.psi[0, 0])) if scan.shape[0] > 1 else math.inf)
-    return int(math.ceil(2.0 * radius / (distance_m * step))) + 1
+    return int(math.ceil(2.0 * radius / (distance_m * min(grid_steps(scan))))) + 1
+
+
+def visibility(scan, object_id: int, outline, distance_m: float) -> float:
+    """Share of a leaf's silhouette that no other object hides from the scanner.
+
+    The silhouette is the leaf's outline polygon projected on the scan grid.
+    A silhouette pulse is hidden when its central ray stops (``truth_range``)
+    on another object more than one leaf length in front of the leaf's
+    median distance. Edge pulses that mix the leaf with its background are
+    not hidden, so a leaf alone scores 1 at any distance and incidence.
+    """
+    outline = np.asarray(outline, dtype=float)
+    local = (outline - scan.pose.position) @ scan.pose.rotation
+    theta0, psi0 = float(scan.theta[0, 0]), float(scan.psi[0, 0])
+    theta = theta0 + np.mod(np.arctan2(local[:, 1], local[:, 0]) - theta0 + np.pi, 2 * np.pi) - np.pi
+    psi = np.arccos(local[:, 2] / np.linalg.norm(local, axis=1))
+    d_theta, d_psi = grid_steps(scan)
+    rows, cols = polygon((psi - psi0) / d_psi, (theta - theta0) / d_theta, scan.shape)
+    if len(rows) == 0:
+        return math.nan
+    extent = np.ptp(outline, axis=0).max()
+    hidden = (scan.truth_id[rows, cols] != object_id) & (scan.truth_range[rows, cols] < distance_m - extent)
+    return float(1.0 - hidden.mean())
 
 
 class TruthSurfaces:
@@ -182,6 +210,8 @@ def prepare_leaves(scene, scan, targets: list[str] | None = None,
             "intensity_dn": float(np.median(part.intensity[mask][pure])) if pure.any() else math.nan,
             "n_own": int(own.sum()),
             "points_per_cm2": int(own.sum()) / (area * 1e4) if area else math.nan,
+            "visibility": visibility(scan, oid, obj.truth["outline"], distance_m) if "outline" in obj.truth
+            else math.nan,
         }
         leaves.append(LeafTruth(oid, obj.name, obj.type, obj.truth, part, mask, own, attributed, distance,
                                 {"auto": metrics.auto_tau(sigma), "1cm": metrics.TAU_TRUE_M}, stats, surfaces))

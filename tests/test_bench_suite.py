@@ -65,13 +65,13 @@ def test_builtin_suites_hold_what_they_promise():
     quick = load_suite("quick")
     assert len(quick.cases) <= 12
     standard = load_suite("standard")
-    single = [c for c in standard.cases if c.scene.get("generator") == "plate-leaf"]
+    single = [c for c in standard.cases if c.scene.get("generator") == "single-leaf"]
     assert len(single) >= 50
     distances = {c.scene["distance_m"] for c in single}
     incidences = {c.scene["incidence_deg"] for c in single}
     assert min(distances) == 0.8 and max(distances) == 5.0
     assert min(incidences) == 0 and max(incidences) == 80
-    assert any(c.scene.get("generator") == "plate-cluster" for c in standard.cases)
+    assert {"leaf-cluster", "leafy-tree", "orchard-row"} <= {c.scene.get("builtin") for c in standard.cases}
 
 
 def test_plate_leaf_truth_matches_its_pose():
