@@ -180,28 +180,38 @@ def reconstruct_heights(alpha: np.ndarray, height: np.ndarray, mask: np.ndarray 
     levels = assign_levels(smoothed, mask, thresholds)
     parts = split_parts(np.where(mask, smoothed, np.pi), levels, params.min_seed_px, params.orphans)
     shape = alpha.shape
-    mesh = MeshBuilder()
-    pixels, values, curves, anchors = [], [], [], []
+    pixels, values, curves, anchors, meshes = [], [], [], [], []
     seed = np.zeros(shape, dtype=bool)
     stats: dict = {"parts": int(parts.max())}
-    for k in range(1, parts.max() + 1):
-        part = parts == k
-        ws = Workspace(grid, shape, (part & ~seed).ravel(), mesh, variant, params.fill, params.buffer_rule,
-                       params.crossing_window, params.toggle_window, fusion if variant == "fused" else None, stats)
-        out = _run_part(part, smoothed, levels, height, valid, grid, params, ws, k)
+    for k, box in enumerate(ndimage.find_objects(parts), start=1):
+        if box is None:
+            continue
+        # Work on the part's bounding box (plus a margin for the LSR neighbourhoods).
+        margin = int(math.ceil(params.lsr_radius_px)) + 1
+        box = tuple(slice(max(b.start - margin, 0), min(b.stop + margin, n)) for b, n in zip(box, shape))
+        origin = np.array([box[0].start, box[1].start])
+        sub_grid = PixelGrid(grid.matrix, grid.offset + grid.matrix @ origin)
+        part = parts[box] == k
+        ws = Workspace(sub_grid, part.shape, part.ravel().copy(), MeshBuilder(), variant, params.fill,
+                       params.buffer_rule, params.crossing_window, params.toggle_window,
+                       fusion if variant == "fused" else None, stats)
+        out = _run_part(part, smoothed[box], levels[box], height[box], valid[box], sub_grid, params, ws, k)
         if out is None:
             continue
         part_pixels, part_values, part_seed, part_curves, part_anchors = out
-        seed |= part_seed
-        pixels += part_pixels
+        seed[box] |= part_seed
+        for local in part_pixels:
+            rows, cols = np.divmod(local, part.shape[1])
+            pixels.append((rows + origin[0]) * shape[1] + cols + origin[1])
         values += part_values
-        curves += part_curves
+        curves += [(kk, level, alpha_i, points_px + origin) for kk, level, alpha_i, points_px in part_curves]
         anchors += part_anchors
+        meshes.append((ws.mesh.arrays(), origin))
     pixel = np.concatenate(pixels) if pixels else np.zeros(0, int)
     value = np.concatenate(values) if values else np.zeros(0)
     median, count, spread = _merge_candidates(pixel, value, shape)
     extrapolated = _rim(median, count, mask, grid, anchors, params.rim_px)
-    vertices, vertex_pixels, faces = mesh.arrays()
+    vertices, vertex_pixels, faces = _merge_meshes(meshes)
     stats["toggles"] = stats.get("toggles", 0)
     return HeightResult(median, count, spread, seed, extrapolated, mask, smoothed, levels, parts, thresholds,
                         vertices, vertex_pixels, faces, curves, stats)
@@ -308,6 +318,17 @@ def _seed_mesh(mesh: MeshBuilder, curve: Curve, curve_ids: np.ndarray, seed_pixe
         return
     centroids = points[triangles].mean(axis=1)
     mesh.add_faces(ids[triangles[MplPath(curve.points).contains_points(centroids)]])
+
+
+def _merge_meshes(meshes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Concatenate the parts' meshes (vertex pixel positions back in full-image coordinates)."""
+    if not meshes:
+        return np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3), int)
+    offsets = np.cumsum([0] + [len(v) for (v, _, _), _ in meshes])
+    vertices = np.concatenate([v for (v, _, _), _ in meshes])
+    vertex_pixels = np.concatenate([px + origin for (_, px, _), origin in meshes])
+    faces = np.concatenate([f + off for ((_, _, f), _), off in zip(meshes, offsets)])
+    return vertices, vertex_pixels, faces
 
 
 def _merge_candidates(pixel: np.ndarray, value: np.ndarray, shape) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

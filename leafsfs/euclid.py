@@ -103,25 +103,34 @@ def _recognise(forward: list[int], backward: list[int]) -> tuple[int, int, int, 
 
 _PAIR_QUADRANT = {frozenset((0, 1)): 0, frozenset((1, 2)): 1, frozenset((2, 3)): 2, frozenset((3, 0)): 3}
 
+#: Longest growth of a segment on each side of its point, steps: bounds the cost on long straight
+#: runs (the tangent of a longer run is already exact to 1/64 in slope).
+MAX_GROWTH = 64
 
-def _run(codes: list[int], start: int, step: int, allowed: tuple[int, int], limit: int) -> list[int]:
-    """Codes met from ``start`` in direction ``step`` (+1/-1) while they stay in ``allowed`` (at most ``limit``)."""
+
+def _run_lengths(inside: np.ndarray) -> np.ndarray:
+    """For a cyclic boolean array: number of consecutive True entries starting at each index (at most n)."""
+    n = len(inside)
+    stops = np.flatnonzero(~inside)
+    if not len(stops):
+        return np.full(n, n)
+    nxt = np.searchsorted(stops, np.arange(n))
+    after = np.where(nxt < len(stops), stops[np.minimum(nxt, len(stops) - 1)], stops[0] + n)
+    return after - np.arange(n)
+
+
+def _neighbour_codes(codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """First different code after and before each index of a cyclic chain (-1 if the chain has one code)."""
     n = len(codes)
-    out = []
-    k = start
-    while len(out) < limit and codes[k % n] in allowed:
-        out.append(codes[k % n])
-        k += step
-    return out
-
-
-def _first_change(codes: list[int], i: int, step: int) -> int | None:
-    n = len(codes)
-    for k in range(1, n):
-        code = codes[(i + step * k) % n]
-        if code != codes[i]:
-            return code
-    return None
+    starts = np.flatnonzero(codes != np.roll(codes, 1))  # indices that begin a run
+    if not len(starts):
+        return np.full(n, -1), np.full(n, -1)
+    i = np.arange(n)
+    k = np.searchsorted(starts, i, side="right")  # first run start after i
+    after = codes[starts[k % len(starts)]]
+    own = starts[(k - 1) % len(starts)]  # start of the run holding i
+    before = codes[(own - 1) % n]
+    return after, before
 
 
 TANGENT_ESTIMATORS = ("lambda", "thesis")
@@ -163,43 +172,45 @@ def discrete_tangents(codes: np.ndarray, estimator: str = "lambda") -> tuple[np.
     """
     if estimator not in TANGENT_ESTIMATORS:
         raise ValueError(f"unknown tangent estimator {estimator!r}; allowed: {TANGENT_ESTIMATORS}")
-    codes_list = [int(c) for c in codes]
-    n = len(codes_list)
-    offsets = np.zeros((n, 2))
-    tangents = np.zeros((n, 2))
+    codes = np.asarray(codes, dtype=int)
+    n = len(codes)
+    doubled = np.concatenate([codes, codes]).tolist()
+    after, before = _neighbour_codes(codes)
+    forward_run, backward_run = {}, {}
+    for q in range(4):
+        inside = (codes == q) | (codes == (q + 1) % 4)
+        forward_run[q] = np.minimum(_run_lengths(inside), MAX_GROWTH).tolist()
+        backward_run[q] = np.minimum(np.roll(_run_lengths(inside[::-1])[::-1], 1), MAX_GROWTH).tolist()
+    lines = np.zeros((n, 5))  # a, b, mu, sx, sy of each point's segment (b = 0: no segment)
     spans = []
     for i in range(n):
-        m0 = codes_list[i]
+        m0 = doubled[i]
         best = None
-        quadrants = set()
-        for step in (1, -1):
-            other = _first_change(codes_list, i, step)
-            if other is not None and frozenset((m0, other)) in _PAIR_QUADRANT:
-                quadrants.add(_PAIR_QUADRANT[frozenset((m0, other))])
+        quadrants = {_PAIR_QUADRANT[pair] for pair in (frozenset((m0, int(after[i]))), frozenset((m0, int(before[i]))))
+                     if pair in _PAIR_QUADRANT}
         for q in sorted(quadrants):
-            allowed = (q, (q + 1) % 4)
-            forward = _run(codes_list, i, 1, allowed, n)
-            backward = _run(codes_list, i - 1, -1, allowed, n - len(forward))
-            a, b, mu, n_f, n_b = _recognise([c % 2 for c in forward], [c % 2 for c in backward])
+            n_forward = forward_run[q][i]
+            n_backward = min(backward_run[q][i], n - n_forward)
+            forward = [c % 2 for c in doubled[i:i + n_forward]]
+            backward = [c % 2 for c in doubled[i - 1 + n:i - 1 + n - n_backward:-1]]
+            a, b, mu, n_f, n_b = _recognise(forward, backward)
             score = (n_f + n_b,) if estimator == "thesis" else (min(n_f, n_b), n_f + n_b)
             if best is None or score > best[0]:
                 # Reflection that maps the quadrant onto the first one (and back).
-                sx = 1.0 if 0 in allowed else -1.0
-                sy = 1.0 if 1 in allowed else -1.0
-                best = (score, a, b, mu, sx, sy, n_f, n_b)
-        if best is None:
-            back, ahead = FREEMAN4[codes_list[i - 1]], FREEMAN4[m0]
-            direction = (back + ahead).astype(float)
-            if not direction.any():
-                direction = ahead.astype(float)
-            tangents[i] = direction / np.linalg.norm(direction)
-            continue
-        _, a, b, mu, sx, sy, n_f, n_b = best
-        e = (b - 1 + 2 * mu) / (2 * b)
-        offsets[i] = (sx * e, -sy * e)
-        t = np.array([sx * (b - a), sy * a], dtype=float)
-        tangents[i] = t / np.linalg.norm(t)
-        spans.append((i, n_f, n_b))
+                best = (score, a, b, mu, 1.0 if q in (0, 3) else -1.0, 1.0 if q in (0, 1) else -1.0, n_f, n_b)
+        if best is not None:
+            lines[i] = best[1:6]
+            spans.append((i, best[6], best[7]))
+    a, b, mu, sx, sy = lines.T
+    found = b > 0
+    e = np.where(found, (b - 1 + 2 * mu) / np.where(found, 2 * b, 1.0), 0.0)
+    offsets = np.stack([sx * e, -sy * e], axis=1)
+    # Without a quadrant (a U-turn): the central difference of the moves and the pixel centre.
+    steps = FREEMAN4[codes]
+    central = (np.roll(steps, 1, axis=0) + steps).astype(float)
+    central = np.where(np.any(central != 0, axis=1)[:, None], central, steps)
+    tangents = np.where(found[:, None], np.stack([sx * (b - a), sy * a], axis=1), central)
+    tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
     if estimator == "lambda" and spans:
         tangents = _lambda_average(tangents, spans)
     return offsets, tangents
@@ -208,12 +219,15 @@ def discrete_tangents(codes: np.ndarray, estimator: str = "lambda") -> tuple[np.
 def _lambda_average(tangents: np.ndarray, spans: list[tuple[int, int, int]]) -> np.ndarray:
     """Average the segment tangents covering each point, weighted by its position in the segment."""
     n = len(tangents)
-    total = np.zeros((n, 2))
-    for i, n_f, n_b in spans:
-        length = n_f + n_b
-        position = np.arange(length + 1) / length
-        weight = np.minimum(position, 1.0 - position) + 1e-3
-        np.add.at(total, np.arange(i - n_b, i + n_f + 1) % n, weight[:, None] * tangents[i])
+    owner, n_f, n_b = (np.array(v) for v in zip(*spans))
+    length = n_f + n_b
+    size = length + 1
+    which = np.repeat(np.arange(len(owner)), size)
+    step = np.arange(size.sum()) - np.repeat(np.cumsum(size) - size, size)
+    position = step / length[which]
+    weight = np.minimum(position, 1.0 - position) + 1e-3
+    target = (owner[which] - n_b[which] + step) % n
+    total = np.stack([np.bincount(target, weight * tangents[owner[which], c], n) for c in (0, 1)], axis=1)
     norm = np.linalg.norm(total, axis=1, keepdims=True)
     return np.where(norm > 0, total / np.where(norm > 0, norm, 1.0), tangents)
 

@@ -277,15 +277,21 @@ def _fill(inner: CurveState, outer: Curve, lines: Lines, ws: Workspace):
     # Wedges between consecutive valid lines (closed curve: the last pairs with the first).
     a, b = k, np.roll(k, -1)
     forward = np.mod(lines.arc[b] - lines.arc[a], length)
-    reverse = forward > 0.5 * length
+    # Each wedge takes the outer arc between its two hits that makes the smaller polygon: normally the
+    # forward (counter-clockwise) one; backward when the lines reach the outer curve in reverse order
+    # (crossed lines, a bow tie; or a hit in a concavity behind the previous one).
+    i_a = np.searchsorted(outer.arc, lines.arc[a], side="left") % m
+    i_b = np.searchsorted(outer.arc, lines.arc[b], side="left") % m
+    count_fwd = np.where(forward > 0, np.mod(i_b - i_a, m), 0)
+    count_bwd = np.where(forward > 0, np.mod(i_a - i_b, m), 0)
+    area_fwd = _wedge_area(lines, a, b, outer, i_a, count_fwd, 1)
+    area_bwd = _wedge_area(lines, a, b, outer, np.mod(i_a - 1, m), count_bwd, -1)
+    reverse = np.abs(area_bwd) < np.abs(area_fwd)
     ws.count("reversed_wedges", reverse.sum())
-    lo_arc = np.where(reverse, lines.arc[b], lines.arc[a])
-    hi_arc = np.where(reverse, lines.arc[a], lines.arc[b])
     span = np.where(reverse, length - forward, forward)
-    i0 = np.searchsorted(outer.arc, lo_arc, side="left")
-    i1 = np.searchsorted(outer.arc, hi_arc, side="left")
-    count = np.where(i1 >= i0, i1 - i0, i1 + m - i0)
-    count = np.where(span > 0, count, 0)
+    i0 = np.where(reverse, i_b, i_a)
+    i1 = np.where(reverse, i_a, i_b)
+    count = np.where(reverse, count_bwd, count_fwd)
     # Outer vertices of every wedge, ordered from line a towards line b.
     wedge = np.repeat(np.arange(len(a)), count)
     step = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
@@ -321,6 +327,24 @@ def _fill(inner: CurveState, outer: Curve, lines: Lines, ws: Workspace):
     ws.mesh.add_faces(faces)
     pixel, value = _rasterise(faces, exclusive, face_wedge, a, b, lines, ws)
     return state, pixel, value
+
+
+def _wedge_area(lines: Lines, a, b, outer: Curve, first, count, step) -> np.ndarray:
+    """Signed areas of the wedge polygons (start a, end a, ``count`` outer vertices from ``first`` by
+    ``step``, end b, start b), from prefix sums of the outer curve's shoelace terms."""
+    m = len(outer)
+    p = outer.points
+    terms = cross2(p, np.roll(p, -1, axis=0))  # term k joins vertex k to k + 1
+    prefix = np.concatenate([[0.0], np.cumsum(np.tile(terms, 2))])
+    last = np.mod(first + step * (count - 1), m)
+    # Sum of the terms between consecutive chain vertices (count - 1 of them).
+    lo = np.where(step > 0, first, last)
+    chain = prefix[lo + np.maximum(count - 1, 0)] - prefix[lo]
+    chain = chain * step
+    vf, vl = p[first], p[last]
+    sa, ea, sb, eb = lines.start[a], lines.end[a], lines.start[b], lines.end[b]
+    joins = np.where(count > 0, cross2(ea, vf) + chain + cross2(vl, eb), cross2(ea, eb))
+    return 0.5 * (cross2(sa, ea) + joins + cross2(eb, sb) + cross2(sb, sa))
 
 
 def _wedge_triangles(a, b, count, vertex, inner_ids, end_ids, outer_ids):
