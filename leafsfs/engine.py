@@ -128,7 +128,8 @@ def domain_thresholds(alpha: np.ndarray, mask: np.ndarray, params: SfsParams) ->
 
 def reconstruct_heights(alpha: np.ndarray, height: np.ndarray, mask: np.ndarray | None = None,
                         grid: PixelGrid | None = None, variant: str = "buffer",
-                        params: SfsParams | None = None, fusion=None) -> HeightResult:
+                        params: SfsParams | None = None, fusion=None,
+                        unreliable: np.ndarray | None = None) -> HeightResult:
     """Run PROP-SFS on an alpha image and a height image.
 
     Parameters
@@ -148,6 +149,10 @@ def reconstruct_heights(alpha: np.ndarray, height: np.ndarray, mask: np.ndarray 
         Parameters (default :class:`SfsParams`).
     fusion : leafsfs.fusion.Fusion, optional
         Measurement model of the fused variant (built from ``params`` when omitted).
+    unreliable : ndarray of bool, 2-D, optional
+        Object pixels whose alpha and height are not to be trusted (e.g. the
+        mixed points at edges): they are left out of the smoothing and of
+        every use of the measured heights, and join the outermost domain.
 
     Raises
     ------
@@ -165,17 +170,21 @@ def reconstruct_heights(alpha: np.ndarray, height: np.ndarray, mask: np.ndarray 
         raise SfsError(f"mask must be a boolean image of shape {alpha.shape}, got {mask.dtype} {mask.shape}")
     if variant not in VARIANTS:
         raise SfsError(f"unknown PROP-SFS variant {variant!r}; choose one of {', '.join(VARIANTS)}")
-    mask = mask & np.isfinite(alpha)
+    unreliable = np.zeros(alpha.shape, bool) if unreliable is None else np.asarray(unreliable, bool) & mask
+    if unreliable.shape != alpha.shape:
+        raise SfsError(f"unreliable must be a boolean image of shape {alpha.shape}, got {unreliable.shape}")
+    mask = mask & (np.isfinite(alpha) | unreliable)
     if mask.sum() < 9:
         raise SfsError(f"the object has {int(mask.sum())} pixels with a valid alpha; PROP-SFS needs at least 9")
-    valid = mask & np.isfinite(height)
+    valid = mask & np.isfinite(height) & ~unreliable
     if not valid.any():
         raise SfsError("no object pixel has a measured height (range); the seeds cannot be initialised")
     if variant == "fused" and fusion is None:
         from leafsfs.fusion import Fusion
         fusion = Fusion(height, valid, grid, params)
 
-    smoothed = smooth_alpha(np.clip(alpha, 0, np.pi / 2), mask, params.n_smooth)
+    smoothed = smooth_alpha(np.clip(alpha, 0, np.pi / 2), mask & ~unreliable, params.n_smooth)
+    smoothed[unreliable] = np.pi / 2
     thresholds = domain_thresholds(smoothed, mask, params)
     levels = assign_levels(smoothed, mask, thresholds)
     parts = split_parts(np.where(mask, smoothed, np.pi), levels, params.min_seed_px, params.orphans)
@@ -195,7 +204,8 @@ def reconstruct_heights(alpha: np.ndarray, height: np.ndarray, mask: np.ndarray 
         ws = Workspace(sub_grid, part.shape, part.ravel().copy(), MeshBuilder(), variant, params.fill,
                        params.buffer_rule, params.crossing_window, params.toggle_window,
                        fusion if variant == "fused" else None, stats)
-        out = _run_part(part, smoothed[box], levels[box], height[box], valid[box], sub_grid, params, ws, k)
+        out = _run_part(part, smoothed[box], levels[box], height[box], valid[box], unreliable[box], sub_grid,
+                        params, ws, k)
         if out is None:
             continue
         part_pixels, part_values, part_seed, part_curves, part_anchors = out
@@ -245,7 +255,8 @@ def _regions(part: np.ndarray, levels: np.ndarray, anchor: tuple[int, int]):
         previous = region
 
 
-def _run_part(part, smoothed, levels, height, valid, grid: PixelGrid, params: SfsParams, ws: Workspace, k: int):
+def _run_part(part, smoothed, levels, height, valid, unreliable, grid: PixelGrid, params: SfsParams, ws: Workspace,
+              k: int):
     lowest = levels[part].min()
     candidates = np.argwhere(part & (levels == lowest))
     anchor = tuple(candidates[np.argmin(smoothed[part & (levels == lowest)])])
@@ -268,10 +279,14 @@ def _run_part(part, smoothed, levels, height, valid, grid: PixelGrid, params: Sf
     curves = [(k, seed_level, float("nan"), seed_curve.points_px)]
     anchors = [state]
     previous = seed_region
+    alpha = None
     for level, region in chain[1:]:
-        new = region & ~previous
+        # The domain's alpha from its reliable pixels (else the new pixels', else the previous domain's).
+        new = region & ~previous & ~unreliable
         in_domain = new & (levels == level)
-        alpha = _domain_alpha(smoothed[in_domain if in_domain.any() else new], params)
+        if new.any() or alpha is None:
+            pool = in_domain if in_domain.any() else (new if new.any() else region & ~previous)
+            alpha = _domain_alpha(smoothed[pool], params)
         outer = extract_curve(region, grid, params.tangents)
         previous = region
         if outer is None:
