@@ -307,8 +307,12 @@ def _inside_curve(part: np.ndarray, curve: Curve, grid: PixelGrid) -> np.ndarray
     rows, cols = np.nonzero(part)
     centres = grid.to_continuous(np.stack([rows, cols], axis=1).astype(float))
     inside = MplPath(curve.points).contains_points(centres)
-    on_curve = project_on_curve(centres[~inside], curve)[1] < 1e-9 if (~inside).any() else np.zeros(0, bool)
-    inside[~inside] = on_curve
+    # Only pixels next to the curve's own pixels can lie exactly on it.
+    band = np.zeros(part.shape, dtype=bool)
+    band[np.clip(curve.pixels[:, 0], 0, part.shape[0] - 1), np.clip(curve.pixels[:, 1], 0, part.shape[1] - 1)] = True
+    near = ndimage.binary_dilation(band, np.ones((3, 3), bool))[rows, cols] & ~inside
+    if near.any():
+        inside[near] = project_on_curve(centres[near], curve)[1] < 1e-9
     out = np.zeros(part.shape, dtype=bool)
     out[rows[inside], cols[inside]] = True
     return out
@@ -320,8 +324,7 @@ def _seed_mesh(mesh: MeshBuilder, curve: Curve, curve_ids: np.ndarray, seed_pixe
     rows, cols = np.nonzero(seed_pixels)
     centres_px = np.stack([rows, cols], axis=1).astype(float)
     if len(centres_px):
-        dist = np.min(np.linalg.norm(centres_px[:, None] - curve.points_px[None], axis=2), axis=1)
-        keep = dist > 1e-6
+        keep = cKDTree(curve.points_px).query(centres_px)[0] > 1e-6  # no duplicate of a curve point
         centres_px, rows, cols = centres_px[keep], rows[keep], cols[keep]
     ids = np.concatenate([curve_ids, mesh.add(grid.to_continuous(centres_px), centres_px, height[rows, cols])])
     points = np.concatenate([curve.points, grid.to_continuous(centres_px)])

@@ -31,6 +31,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from leafsfs.curves import Curve, cast_rays, crosses_polyline, project_on_curve
 from leafsfs.grid import PixelGrid
@@ -153,9 +154,8 @@ def _buffer(inner: CurveState, outer: Curve, lines: Lines, hit: np.ndarray, ws: 
     flat_inner = inner.pixels[:, 0] * ws.shape[1] + inner.pixels[:, 1]
     pos = np.clip(np.searchsorted(flat_outer[order], flat_inner), 0, len(order) - 1)
     same_pixel = flat_outer[order][pos] == flat_inner
-    near = np.linalg.norm(outer.points_px[None] - inner.points_px[:, None], axis=2)
-    nearest = np.argmin(near, axis=1)
-    crossing = same_pixel | (near[np.arange(n), nearest] < 0.5)
+    distance, nearest = cKDTree(outer.points_px).query(inner.points_px)
+    crossing = same_pixel | (distance < 0.5)
     vertex = np.where(same_pixel, order[pos], nearest)
     lines.end[crossing] = lines.start[crossing]
     lines.end_h[crossing] = lines.start_h[crossing]
