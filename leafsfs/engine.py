@@ -223,6 +223,8 @@ def reconstruct_heights(alpha: np.ndarray, height: np.ndarray, mask: np.ndarray 
     extrapolated = _rim(median, count, mask, grid, anchors, params.rim_px)
     vertices, vertex_pixels, faces = _merge_meshes(meshes)
     stats["toggles"] = stats.get("toggles", 0)
+    if fusion is not None:
+        stats.update(fusion.stats)
     return HeightResult(median, count, spread, seed, extrapolated, mask, smoothed, levels, parts, thresholds,
                         vertices, vertex_pixels, faces, curves, stats)
 
@@ -270,6 +272,7 @@ def _run_part(part, smoothed, levels, height, valid, unreliable, grid: PixelGrid
     if state is None:
         return None
     state.vertex = ws.mesh.add(state.points, state.points_px, state.height)
+    state.variance[:] = params.sigma_range_m**2
     inside = _inside_curve(part, seed_curve, grid)
     seed_pixels = inside & valid
     ws.allowed &= ~inside.ravel()
@@ -287,12 +290,13 @@ def _run_part(part, smoothed, levels, height, valid, unreliable, grid: PixelGrid
         if new.any() or alpha is None:
             pool = in_domain if in_domain.any() else (new if new.any() else region & ~previous)
             alpha = _domain_alpha(smoothed[pool], params)
+            spread = float(np.std(np.tan(np.minimum(smoothed[pool], math.radians(params.alpha_max_deg)))))
         outer = extract_curve(region, grid, params.tangents)
         previous = region
         if outer is None:
             continue
         curves.append((k, level, alpha, outer.points_px))
-        state, pixel, value = propagate_annulus(state, outer, alpha, ws)
+        state, pixel, value = propagate_annulus(state, outer, alpha, ws, spread)
         pixels.append(pixel)
         values.append(value)
         if state is None:

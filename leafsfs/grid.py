@@ -107,7 +107,7 @@ class LocalPlanes:
     rms : ndarray, (n,)
         Residual standard deviation.
     count : ndarray, (n,)
-        Number of pixels used; planes with fewer than 4 are NaN.
+        Number of pixels used; fits with too few are NaN.
     """
 
     height: np.ndarray
@@ -118,8 +118,12 @@ class LocalPlanes:
 
 
 def local_planes(image: np.ndarray, valid: np.ndarray, grid: PixelGrid, centres: np.ndarray,
-                 radius_px: float) -> LocalPlanes:
+                 radius_px: float, order: int = 1) -> LocalPlanes:
     """Fit a plane to the valid pixels within ``radius_px`` of each centre pixel (the thesis' local LSR).
+
+    With ``order=2`` a quadratic surface is fitted instead and its tangent
+    plane at the centre is returned: its gradient is not biased by the
+    curvature of the surface across the neighbourhood.
 
     Parameters
     ----------
@@ -133,6 +137,8 @@ def local_planes(image: np.ndarray, valid: np.ndarray, grid: PixelGrid, centres:
         Centre pixels (row, col).
     radius_px : float
         Neighbourhood radius, pixels.
+    order : {1, 2}
+        Degree of the fitted polynomial surface.
     """
     r = int(np.floor(radius_px))
     di, dj = np.mgrid[-r:r + 1, -r:r + 1]
@@ -146,17 +152,22 @@ def local_planes(image: np.ndarray, valid: np.ndarray, grid: PixelGrid, centres:
     w = (inside & valid[ic, jc]).astype(float)
     h = np.where(w > 0, image[ic, jc], 0.0)
     dx = offsets @ grid.matrix.T  # continuous offsets, (k, 2)
-    design = np.concatenate([np.ones((len(offsets), 1)), dx], axis=1)  # (k, 3)
+    columns = [np.ones(len(offsets)), dx[:, 0], dx[:, 1]]
+    if order == 2:
+        columns += [dx[:, 0] ** 2, dx[:, 0] * dx[:, 1], dx[:, 1] ** 2]
+    design = np.stack(columns, axis=1)  # (k, 3 or 6)
     normal = np.einsum("nk,ka,kb->nab", w, design, design)
     rhs = np.einsum("nk,ka,nk->na", w, design, h)
     count = w.sum(axis=1)
-    ok = count >= 4
-    normal[~ok] = np.eye(3)
+    terms = design.shape[1]
+    ok = (count >= terms + 1) & (np.abs(np.linalg.det(normal)) > 1e-300)
+    normal[~ok] = np.eye(terms)
     coef = np.linalg.solve(normal, rhs[..., None])[..., 0]
     resid = h - coef @ design.T
-    dof = np.maximum(count - 3, 1)
+    dof = np.maximum(count - terms, 1)
     rms = np.sqrt(np.sum(w * resid**2, axis=1) / dof)
     inverse = np.linalg.inv(normal)
-    covariance = rms[:, None, None] ** 2 * inverse[:, 1:, 1:]
+    covariance = rms[:, None, None] ** 2 * inverse[:, 1:3, 1:3]
     nan = np.where(ok, 1.0, np.nan)
-    return LocalPlanes(coef[:, 0] * nan, coef[:, 1:] * nan[:, None], covariance * nan[:, None, None], rms * nan, count)
+    return LocalPlanes(coef[:, 0] * nan, coef[:, 1:3] * nan[:, None], covariance * nan[:, None, None], rms * nan,
+                       count)

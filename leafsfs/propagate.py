@@ -89,7 +89,7 @@ class Lines:
         return np.sum(self.gradient[k] * self.direction[k], axis=1)
 
 
-def propagate_annulus(inner: CurveState, outer: Curve, alpha: float, ws: Workspace
+def propagate_annulus(inner: CurveState, outer: Curve, alpha: float, ws: Workspace, alpha_spread: float = 0.0
                       ) -> tuple[CurveState | None, np.ndarray, np.ndarray]:
     """Propagate the inner curve across one annulus.
 
@@ -103,6 +103,8 @@ def propagate_annulus(inner: CurveState, outer: Curve, alpha: float, ws: Workspa
         Alpha of the annulus' domain, rad.
     ws : Workspace
         Shared state (variant, mesh, counters...).
+    alpha_spread : float
+        Standard deviation of ``tan(alpha)`` over the annulus (fused variant).
 
     Returns
     -------
@@ -111,13 +113,13 @@ def propagate_annulus(inner: CurveState, outer: Curve, alpha: float, ws: Workspa
     pixel, value : ndarray
         Candidate heights for flat pixel indices.
     """
-    lines = _shoot(inner, outer, alpha, ws)
+    lines = _shoot(inner, outer, alpha, alpha_spread, ws)
     if ws.variant == "simple":
         return _simple(inner, outer, lines, ws)
     return _fill(inner, outer, lines, ws)
 
 
-def _shoot(inner: CurveState, outer: Curve, alpha: float, ws: Workspace) -> Lines:
+def _shoot(inner: CurveState, outer: Curve, alpha: float, alpha_spread: float, ws: Workspace) -> Lines:
     n = len(inner)
     t, sign = inner.tangents, inner.sign
     toggle = sign == 0
@@ -131,7 +133,8 @@ def _shoot(inner: CurveState, outer: Curve, alpha: float, ws: Workspace) -> Line
                             sign[:, None] * math.tan(alpha) * direction)
     gradient_variance = None
     if ws.fusion is not None:
-        direction, gradient, gradient_variance = ws.fusion.fuse_gradients(inner, alpha, direction, gradient)
+        direction, gradient, gradient_variance = ws.fusion.fuse_gradients(inner, alpha, alpha_spread, direction,
+                                                                          gradient)
     hit, distance, arc = cast_rays(inner.points, direction, outer)
     end = inner.points + np.where(hit, distance, 0.0)[:, None] * direction
     end_h = inner.height + np.sum(gradient * (end - inner.points), axis=1)
