@@ -1,4 +1,4 @@
-"""The ``leafsfs`` command line: ``leafsfs reconstruct SCAN -o OUTDIR`` and ``leafsfs perf``."""
+"""The ``leafsfs`` command line: ``leafsfs reconstruct SCAN -o OUTDIR``, ``leafsfs perf``, ``leafsfs compare``."""
 
 from __future__ import annotations
 
@@ -36,6 +36,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--repeat", type=int, default=3, help="repetitions per case, medians reported (default 3)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_perf)
+    p = sub.add_parser("compare", help="buffer against fused on analytic surfaces and a simulated leaf",
+                       description="The accuracy of the buffer and fused variants under alpha noise and bias "
+                                   "(analytic surfaces) and under a biased calibration (simulated leaf).")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_compare)
     return parser
 
 
@@ -106,6 +111,14 @@ def _perf(args) -> int:
         raise SfsError("--sizes must be >= 10 and --repeat >= 1")
     report = run_perf(sizes, args.repeat)
     print(json.dumps(report, indent=1) if args.json else print_report(report))
+    return 0
+
+
+def _compare(args) -> int:
+    from leafsfs.compare import compare_leaf, compare_surfaces, print_comparison
+
+    surfaces, leaf = compare_surfaces(), compare_leaf()
+    print(json.dumps({"surfaces": surfaces, "leaf": leaf}, indent=1) if args.json else print_comparison(surfaces, leaf))
     return 0
 
 

@@ -76,3 +76,44 @@ def sample_surface(surface, side: int, *, alpha_noise_deg: float = 0.0, alpha_bi
     dx, dy = (x1 - x0) / side, (y1 - y0) / side
     grid = PixelGrid(np.diag([dy, dx]), (y0 + dy / 2, x0 + dx / 2))
     return SyntheticInput(np.clip(alpha, 0.0, np.pi / 2), height, truth, mask, grid)
+
+
+class LambertCalibration:
+    """Exact inverse of the simulator's radiometric chain for a Lambertian target of assumed reflectance.
+
+    ``I = I_ref + k ln(P / P_ref)`` with ``P = rho cos(alpha) g(d)``
+    (:mod:`tlssim.detector`, :mod:`tlssim.radiometry`), solved for alpha.
+    A stand-in for a fitted :class:`tlssim.calibration.Calibration` on
+    simulated scans; an assumed reflectance different from the target's
+    gives a biased calibration (used by ``leafsfs compare``).
+
+    Parameters
+    ----------
+    model : ScannerModel or dict
+        The scanner model (a scan's ``scanner_model``).
+    reflectance : float
+        Assumed reflectance of the targets (pear leaf: 0.48).
+    limit_deg : float
+        Validity limit of :meth:`reliable`, degrees.
+    """
+
+    def __init__(self, model, reflectance: float, limit_deg: float = 60.0):
+        from tlssim.scanner import ScannerModel
+
+        if isinstance(model, dict):
+            known = {f for f in ScannerModel.__dataclass_fields__}
+            model = ScannerModel(**{k: v for k, v in model.items() if k in known})
+        self.model, self.reflectance, self.limit = model, float(reflectance), np.radians(limit_deg)
+
+    def alpha(self, intensity_dn, range_m) -> np.ndarray:
+        """Incidence from raw intensity and range, rad in [0, pi/2]."""
+        from tlssim.radiometry import range_gain, reference_power
+
+        power = np.exp((np.asarray(intensity_dn, float) - self.model.intensity_ref_dn) / self.model.log_gain_dn) \
+            * reference_power(self.model)
+        cosine = power / (self.reflectance * range_gain(self.model, np.asarray(range_m, float)))
+        return np.arccos(np.clip(cosine, 0.0, 1.0))
+
+    def reliable(self, intensity_dn, range_m) -> np.ndarray:
+        """Whether the incidence lies below the validity limit."""
+        return self.alpha(intensity_dn, range_m) < self.limit
