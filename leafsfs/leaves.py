@@ -11,9 +11,10 @@ steepest slope is used.
 
 Pixels joined by plausible steps (4-neighbour links) form connected
 regions. Mixed points, whose ranges lie between the surfaces, end up alone or
-in small groups; groups smaller than ``min_pixels`` join the neighbouring
-region that is nearest to the scanner (a mixed footprint straddles an edge of
-the foreground object, whose distance it is meant to have). Regions touching
+in small groups; pixels of groups smaller than ``min_pixels`` join, among
+the regions within ``band_px`` pixels, the one nearest to the scanner (a
+mixed footprint straddles an edge of the foreground object, whose distance
+it is meant to have; ``band_px`` is about a footprint diameter). Regions touching
 the scan window's border (the background behind the leaves) are dropped by
 default.
 """
@@ -86,7 +87,7 @@ def edge_pixels(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha: 
 
 def segment_leaves(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha: np.ndarray | None = None, *,
                    min_pixels: int = 100, max_slope_deg: float = 80.0, alpha_margin_deg: float = 25.0,
-                   noise_m: float = 0.002, drop_border: bool = True) -> np.ndarray:
+                   noise_m: float = 0.002, drop_border: bool = True, band_px: int = 6) -> np.ndarray:
     """Label the leaf regions of a scan.
 
     Parameters
@@ -107,6 +108,8 @@ def segment_leaves(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alph
         FARO-class range noise at 1-5 m).
     drop_border : bool
         Drop regions touching the window's border (the background).
+    band_px : int
+        Largest distance, pixels, at which a mixed point joins a region.
 
     Returns
     -------
@@ -121,7 +124,8 @@ def segment_leaves(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alph
     sizes = np.bincount(component.ravel())
     large = sizes >= min_pixels
     large[0] = False
-    labels = _attach(np.where(large[component], component, 0), np.where(valid, range_m, np.nan), valid)
+    labels = _attach(np.where(large[component], component, 0), np.where(valid, range_m, np.nan), valid, band_px)
+    sizes = np.bincount(labels.ravel())
     keep = np.zeros(len(sizes), dtype=bool)
     keep[np.unique(labels[labels > 0])] = True
     if drop_border:
@@ -132,21 +136,20 @@ def segment_leaves(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alph
     return lookup[labels]
 
 
-def _attach(labels: np.ndarray, r: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Join every connected zone of unlabelled valid pixels to the adjacent region nearest to the scanner."""
-    zones, count = ndimage.label(valid & (labels == 0))
-    if not count:
-        return labels
-    zone_ids, region_ids, ranges = [], [], []
-    for di, dj in _SHIFTS:
-        region = _shift(labels, di, dj, 0)
-        touching = (zones > 0) & (region > 0)
-        zone_ids.append(zones[touching])
-        region_ids.append(region[touching])
-        ranges.append(_shift(r, di, dj, np.nan)[touching])
-    zone_ids, region_ids, ranges = (np.concatenate(v) for v in (zone_ids, region_ids, ranges))
-    order = np.lexsort((np.nan_to_num(ranges, nan=np.inf), zone_ids))
-    first = np.unique(zone_ids[order], return_index=True)[1]
-    target = np.zeros(count + 1, dtype=labels.dtype)
-    target[zone_ids[order][first]] = region_ids[order][first]
-    return np.where(zones > 0, target[zones], labels)
+def _attach(labels: np.ndarray, r: np.ndarray, valid: np.ndarray, band_px: int) -> np.ndarray:
+    """Give each unlabelled valid pixel the label of the nearest-to-the-scanner region within ``band_px``.
+
+    "Nearest to the scanner" compares the ranges of each region's pixel
+    closest to the unlabelled one.
+    """
+    todo = valid & (labels == 0)
+    best = np.full(labels.shape, np.inf)
+    out = labels.copy()
+    for k in np.unique(labels[labels > 0]):
+        distance, (ii, jj) = ndimage.distance_transform_edt(labels != k, return_indices=True)
+        near = todo & (distance <= band_px)
+        candidate = np.where(near, r[ii, jj], np.inf)
+        better = near & (candidate < best)
+        best[better] = candidate[better]
+        out[better] = k
+    return out
