@@ -18,6 +18,6 @@ def load(spec: str) -> Scene:
 __all__ = ["Material", "Scene", "SceneError", "SceneObject", "build", "describe", "load", "names", "register"]
 
 # Modules that register further built-in scenes (imported for their side effect).
-BUILTIN_MODULES: tuple[str, ...] = ()
+BUILTIN_MODULES: tuple[str, ...] = ("scenes.calibration_scenes",)
 for _module in BUILTIN_MODULES:
     __import__(_module)
