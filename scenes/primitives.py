@@ -65,3 +65,34 @@ def rectangle(center, normal, size, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.
     vertices = np.array([c + a * width * u + b * height * v for a, b in corners])
     faces = np.array([[0, 1, 2], [0, 2, 3]])
     return vertices, faces
+
+
+def grid_faces(n_rows: int, n_cols: int) -> np.ndarray:
+    """Triangles of a structured grid of ``n_rows x n_cols`` vertices stored row by row.
+
+    Each grid cell gives two triangles, counter-clockwise when the column
+    index grows along the first parameter axis and the row index along the
+    second (so a grid laid out in an ``(x, y)`` plane gets normals along +z).
+
+    Returns
+    -------
+    faces : ndarray, shape (2 (n_rows - 1)(n_cols - 1), 3), int64
+    """
+    if n_rows < 2 or n_cols < 2:
+        raise SceneError(f"a grid needs at least 2 x 2 vertices, got {n_rows} x {n_cols}")
+    index = np.arange(n_rows * n_cols, dtype=np.int64).reshape(n_rows, n_cols)
+    a, b = index[:-1, :-1].ravel(), index[:-1, 1:].ravel()
+    c, d = index[1:, :-1].ravel(), index[1:, 1:].ravel()
+    return np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)])
+
+
+def square_to_disk(u, v) -> tuple[np.ndarray, np.ndarray]:
+    """Map the square ``[-1, 1]²`` onto the closed unit disk, border onto circle.
+
+    Uses the elliptical grid mapping ``x = u sqrt(1 - v²/2)``,
+    ``y = v sqrt(1 - u²/2)``, which is smooth, orientation-preserving and
+    sends the square's border onto the unit circle (so meshes built on it end
+    exactly at a round rim).
+    """
+    u, v = np.asarray(u, dtype=float), np.asarray(v, dtype=float)
+    return u * np.sqrt(1.0 - 0.5 * v**2), v * np.sqrt(1.0 - 0.5 * u**2)
