@@ -222,6 +222,16 @@ class ScannerModel:
         """The Mitsuba BSDF plugin of ``bsdf`` as a dictionary (``None`` for Lambertian)."""
         return None if self.bsdf == "lambertian" else json.loads(self.bsdf)
 
+    def noise_free(self) -> "ScannerModel":
+        """A copy without amplitude and range noise, scan smear or range filter.
+
+        What remains is deterministic: the traced geometry, the radiometry,
+        the log amplifier and the detection threshold. Useful to test
+        geometry (mixed pixels, footprints) free of noise.
+        """
+        return self.replace(intensity_noise_dn=0.0, range_noise_m=0.0, range_noise_floor_m=0.0,
+                            smear_fraction=0.0, range_filter_length=1)
+
     def replace(self, **changes) -> "ScannerModel":
         """A copy with some fields changed (validated).
 
