@@ -105,7 +105,8 @@ def panel_series() -> Scene:
             vertices, faces = rectangle(distance * axis, -axis, (side, side), up=up)
             objects.append(SceneObject(panel_name(rho, distance), "panel", vertices, faces,
                                        Material(f"lambert-{rho:g}", rho), truth={"normal": list(-axis)}))
-    half = 0.5 * len(PANEL_DISTANCES_M) * PANEL_PITCH_DEG, 0.5 * len(PANEL_REFLECTANCES) * PANEL_PITCH_DEG
+    # The window reaches half a degree beyond the outer cells, past the footprint of the nearest panels.
+    half = (0.5 * len(PANEL_DISTANCES_M) * PANEL_PITCH_DEG + 0.5, 0.5 * len(PANEL_REFLECTANCES) * PANEL_PITCH_DEG + 0.5)
     return Scene(objects=objects, scanner={
         "preset": "faro-ls880",
         "position": [0.0, 0.0, 0.0],

@@ -213,6 +213,36 @@ def panel_table(scan: Scan, margin: float = 2.5) -> dict[str, np.ndarray]:
     return {key: np.array(column) for key, column in zip(keys, zip(*rows))}
 
 
+def panel_statistics(table: dict, curve: ReferenceCurve, mode: str = "additive",
+                     min_distance_m: float = CORRECTION_VALID_FROM_M) -> dict[float, dict[str, float]]:
+    """The columns of the sources' Table 2 for every reflectance of a :func:`panel_table`.
+
+    Returns
+    -------
+    dict
+        For every reflectance: ``mean_shift_dn`` and ``shift_std_dn`` (offset
+        ``f99(d) - I(d)`` averaged over distances beyond ``min_distance_m``,
+        and its spread over all distances), ``raw_at_reference_dn`` (the
+        material's intensity at ``d_ref``, interpolated linearly in ``ln d``)
+        and ``corrected_rmse_dn`` (RMS spread of the corrected intensity
+        about its mean beyond ``min_distance_m``: what remains of the
+        distance effect).
+    """
+    stats = {}
+    for rho in np.unique(table["reflectance"])[::-1]:
+        chosen = np.isclose(table["reflectance"], rho)
+        distance, intensity = table["distance_m"][chosen], table["intensity_dn"][chosen]
+        far = distance > min_distance_m
+        shift = curve(distance) - intensity
+        corrected = correct_distance(intensity[far], distance[far], curve, mode)
+        stats[float(rho)] = {
+            "mean_shift_dn": float(shift[far].mean()), "shift_std_dn": float(shift.std()),
+            "raw_at_reference_dn": float(np.interp(np.log(curve.reference_distance_m), np.log(distance), intensity)),
+            "corrected_rmse_dn": float(np.sqrt(np.mean((corrected - corrected.mean()) ** 2))),
+        }
+    return stats
+
+
 def reference_curve_from_scan(scan: Scan, reflectance: float = 0.99) -> ReferenceCurve:
     """Fit ``f99`` from the panels of reflectance ``reflectance`` in a ``panel-series`` scan."""
     table = panel_table(scan)
@@ -576,15 +606,17 @@ def _named_objects(scan: Scan, parse, what: str) -> dict:
 def _interior(scan: Scan, mask: np.ndarray, distance_m: float, margin: float) -> np.ndarray:
     """Pixels of ``mask`` farther than ``margin`` beam radii (plus half the smear) from its outline.
 
-    Angular distances on the grid, with the beam radius of the scan's model
-    at ``distance_m``.
+    Angular distances on the grid (the window's border counts as outline),
+    with the beam radius of the scan's model at ``distance_m``.
     """
     model = ScannerModel.from_dict(scan.scanner_model)
     rows, cols = scan.shape
     d_psi = abs(float(scan.psi[-1, 0] - scan.psi[0, 0])) / max(rows - 1, 1)
     d_theta = abs(float(scan.theta[0, -1] - scan.theta[0, 0])) / max(cols - 1, 1) * float(np.sin(np.median(scan.psi)))
     radius = margin * model.beam_radius_m(distance_m) / distance_m + 0.5 * model.smear_fraction * d_psi
-    return ndimage.distance_transform_edt(mask, sampling=(d_psi, d_theta)) > radius
+    # Padded: beyond the window's border nothing is known, so it bounds the interior too.
+    distance = ndimage.distance_transform_edt(np.pad(mask, 1), sampling=(d_psi, d_theta))[1:-1, 1:-1]
+    return distance > radius
 
 
 def _strictly_decreasing(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
