@@ -18,7 +18,8 @@ Both reproduce the laboratory set-ups of Balduzzi et al. 2011 (Sensors
 
 Object names carry the set-up (:func:`panel_name`, :func:`leaf_name`), so
 that the calibration code (:mod:`tlssim.calibration`) can read them back from
-a scan's ``object_names``.
+a scan's ``object_names``. :func:`panel_row` builds further panel set-ups
+(reflectance, distance, incidence) for precision and dropout experiments.
 """
 
 from __future__ import annotations
@@ -115,6 +116,47 @@ def panel_series() -> Scene:
         "window": {"theta_deg": [-half[0], half[0]], "psi_deg": [90.0 - half[1], 90.0 + half[1]],
                    "step_deg": PANEL_STEP_DEG},
     })
+
+
+def panel_row(panels, span_deg: float = 0.5, gap_deg: float = 0.2, step_deg: float | None = None) -> Scene:
+    """Lambertian panels side by side along the horizon, each in its own direction.
+
+    Parameters
+    ----------
+    panels : sequence of (reflectance, distance_m, incidence_deg)
+        One panel each, centred at ``distance_m`` and turned about the
+        vertical by the incidence angle; its width is stretched by
+        ``1 / cos(incidence)`` so that every panel spans ``span_deg`` as seen
+        from the scanner.
+    span_deg, gap_deg : float
+        Angular size of the panels and gap between them, degrees.
+    step_deg : float, optional
+        Window step (default: the scanner's).
+
+    Returns
+    -------
+    Scene
+        Objects named ``panel-<i>`` with their reflectance, distance and
+        incidence in ``truth``; the window covers all panels with a margin
+        of one gap.
+    """
+    pitch = span_deg + gap_deg
+    thetas = _grid_angles(len(panels), pitch, 0.0)
+    objects = []
+    for i, ((rho, distance, incidence), theta) in enumerate(zip(panels, thetas)):
+        axis, across, up = _direction(theta, 90.0)
+        side = 2.0 * distance * math.tan(math.radians(0.5 * span_deg))
+        normal = _rotation(up, math.radians(incidence)) @ -axis
+        vertices, faces = rectangle(distance * axis, normal, (side / math.cos(math.radians(incidence)), side), up=up)
+        objects.append(SceneObject(f"panel-{i}", "panel", vertices, faces, Material(f"lambert-{rho:g}", rho),
+                                   truth={"normal": list(normal), "reflectance": rho, "distance_m": distance,
+                                          "incidence_deg": incidence}))
+    half = 0.5 * len(panels) * pitch + gap_deg, 0.5 * span_deg + gap_deg
+    window = {"theta_deg": [-half[0], half[0]], "psi_deg": [90.0 - half[1], 90.0 + half[1]]}
+    if step_deg is not None:
+        window["step_deg"] = step_deg
+    return Scene(objects=objects, scanner={"preset": "faro-ls880", "position": [0.0, 0.0, 0.0], "window": window},
+                 name="panel-row")
 
 
 def _half_leaf(samples: int = 24) -> np.ndarray:

@@ -320,7 +320,8 @@ class IncidenceRelation:
         Monotone lookup table: incidence (increasing) and corrected
         intensity (strictly decreasing).
     polynomial : tuple of float
-        4th-order polynomial ``dn(alpha)``, alpha in rad, highest power first.
+        4th-order polynomial ``dn(alpha)``, alpha in rad, highest power first
+        (``numpy.polyval`` order; the linear coefficient is zero).
     fit_range_rad : (float, float)
         Incidences covered by the calibration data.
     validity_limit_rad : float
@@ -341,21 +342,28 @@ class IncidenceRelation:
             raise ScanError(f"incidence relation method must be 'lut' or 'polynomial', got {self.method!r}")
 
     def intensity(self, alpha_rad) -> np.ndarray:
-        """Corrected intensity expected at incidence ``alpha_rad``, DN."""
+        """Corrected intensity expected at incidence ``alpha_rad``, DN.
+
+        The table is interpolated linearly in ``alpha²``: near normal
+        incidence intensity varies as ``1 - cos(alpha) ~ alpha²/2``, so that
+        this is the interpolation the inversion can follow.
+        """
         if self.method == "polynomial":
             return np.polyval(self.polynomial, alpha_rad)
-        return _interp_extrapolate(alpha_rad, self.lut_alpha_rad, self.lut_dn)
+        return _interp_extrapolate(np.square(alpha_rad), np.square(self.lut_alpha_rad), self.lut_dn)
 
     def alpha(self, corrected_dn) -> np.ndarray:
         """Incidence of a corrected intensity, rad, clamped to [0, pi/2].
 
         The table (or the polynomial sampled over the calibrated range and made
-        monotone) is inverted by linear interpolation; beyond its ends the end
-        segments extrapolate before the clamp.
+        monotone) is inverted by linear interpolation of ``alpha²`` against
+        intensity, which stays well conditioned near normal incidence where
+        intensity hardly changes with the angle; beyond the table's ends the
+        end segments extrapolate before the clamp.
         """
         alpha, dn = self._table()
-        inverse = _interp_extrapolate(corrected_dn, dn[::-1], alpha[::-1])
-        return np.clip(inverse, 0.0, 0.5 * math.pi)
+        square = _interp_extrapolate(corrected_dn, dn[::-1], np.square(alpha[::-1]))
+        return np.sqrt(np.clip(square, 0.0, 0.25 * math.pi**2))
 
     def reliable(self, corrected_dn) -> np.ndarray:
         """Whether the inverted incidence lies within the validity limit."""
@@ -391,9 +399,12 @@ def fit_incidence_relation(alpha_rad, corrected_dn, validity_limit_rad: float = 
     Returns
     -------
     IncidenceRelation
-        Least-squares 4th-order polynomial, and the isotonic (non-increasing)
-        regression of the samples sorted by angle as the lookup table, with
-        tied plateaus merged so that it is strictly decreasing.
+        Least-squares 4th-order polynomial without a linear term (intensity
+        depends on ``cos(alpha)``, so its slope vanishes at normal incidence,
+        which keeps the polynomial invertible there), and the isotonic
+        (non-increasing) regression of the samples sorted by angle as the
+        lookup table, with tied plateaus merged so that it is strictly
+        decreasing.
     """
     alpha = np.asarray(alpha_rad, dtype=np.float64)
     dn = np.asarray(corrected_dn, dtype=np.float64)
@@ -404,7 +415,11 @@ def fit_incidence_relation(alpha_rad, corrected_dn, validity_limit_rad: float = 
     order = np.argsort(alpha)
     alpha, dn = alpha[order], dn[order]
     lut_alpha, lut_dn = _strictly_decreasing(alpha, isotonic_regression(dn, increasing=False).x)
-    polynomial = np.polyfit(alpha, dn, POLYNOMIAL_ORDER)
+    # No linear term: intensity is even in alpha (it depends on cos alpha), so its slope vanishes at normal incidence.
+    powers = [p for p in range(POLYNOMIAL_ORDER, -1, -1) if p != 1]
+    coefficients, *_ = np.linalg.lstsq(alpha[:, None] ** np.array(powers), dn, rcond=None)
+    polynomial = np.zeros(POLYNOMIAL_ORDER + 1)
+    polynomial[[POLYNOMIAL_ORDER - p for p in powers]] = coefficients
     return IncidenceRelation(tuple(lut_alpha.tolist()), tuple(lut_dn.tolist()), tuple(polynomial.tolist()),
                              (float(alpha[0]), float(alpha[-1])), float(validity_limit_rad), method)
 
@@ -614,9 +629,14 @@ def _interior(scan: Scan, mask: np.ndarray, distance_m: float, margin: float) ->
     d_psi = abs(float(scan.psi[-1, 0] - scan.psi[0, 0])) / max(rows - 1, 1)
     d_theta = abs(float(scan.theta[0, -1] - scan.theta[0, 0])) / max(cols - 1, 1) * float(np.sin(np.median(scan.psi)))
     radius = margin * model.beam_radius_m(distance_m) / distance_m + 0.5 * model.smear_fraction * d_psi
-    # Padded: beyond the window's border nothing is known, so it bounds the interior too.
-    distance = ndimage.distance_transform_edt(np.pad(mask, 1), sampling=(d_psi, d_theta))[1:-1, 1:-1]
-    return distance > radius
+    inside = np.zeros_like(mask)
+    if not mask.any():
+        return inside
+    box = ndimage.find_objects(mask.astype(np.int8))[0]  # the distance is computed on the mask's bounding box,
+    # padded: beyond the window's border nothing is known, so it bounds the interior too
+    distance = ndimage.distance_transform_edt(np.pad(mask[box], 1), sampling=(d_psi, d_theta))[1:-1, 1:-1]
+    inside[box] = distance > radius
+    return inside
 
 
 def _strictly_decreasing(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
