@@ -154,6 +154,15 @@ def test_bad_detector_parameters_are_refused(field, value):
         MODEL.replace(**{field: value})
 
 
+def test_every_preset_value_has_a_source():
+    import dataclasses
+
+    from tlssim.scanner import FARO_LS880_SOURCES
+
+    assert set(FARO_LS880_SOURCES) == {f.name for f in dataclasses.fields(ScannerModel)} - {"name"}
+    assert all(text.strip() for text in FARO_LS880_SOURCES.values())
+
+
 def test_model_round_trips_through_its_dictionary():
     model = MODEL.replace(near_filter_table=((1.0, 0.1), (4.0, 1.0)), bsdf={"type": "roughplastic", "alpha": 0.2},
                           range_filter_length=5)

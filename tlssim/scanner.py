@@ -7,9 +7,30 @@ parameters of the detector chain. Presets are registered by name
 be overridden (:meth:`ScannerModel.replace`).
 
 Every value of the ``faro-ls880`` preset is documented in
-:data:`FARO_LS880_SOURCES` (source, or "assumption"); the decisions taken on
-the open questions of the physics digest (``tls-physics.md`` section 7) are
-fields of the model, so that each can be changed per scan.
+:data:`FARO_LS880_SOURCES` (source, or "assumption"). The open questions of
+the physics digest (``tls-physics.md`` section 7) are decided as follows,
+each a field that can be changed per scan unless said otherwise:
+
+- 7.2 modulation: ``mod_freqs_hz``, one coarse 1.972 MHz frequency (76 m unambiguous).
+- 7.3 mixed intensity: ``intensity_signal = "phasor"``, the log of the total phasor amplitude.
+- 7.4 intensity transfer: ``intensity_ref_*``, ``log_gain_dn``; noise ``intensity_noise_dn``,
+  ``intensity_noise_exponent``. No per-material offset table: the log model
+  overshoots the 68-83 % offsets of Table 2 by 20-30 DN, and that stays.
+- 7.5 near-range attenuator: ``near_filter_range_m``, ``near_filter_exponent``, ``near_filter_table``.
+- 7.6 conflicts: ``min_range_m`` 0.6 (the ``panel-series`` scene lowers it to 0.3 m),
+  ``max_range_m`` 76, ``intensity_max_dn`` 2047.
+- 7.7 beam: ``beam_profile``, ``n_subrays``; scan smear ``smear_fraction`` (one full step).
+- 7.9 step: ``step_deg``.
+- 7.11 range noise: ``range_noise_m``, ``range_noise_exponent``, ``range_noise_floor_m``
+  (from the signal, so partial footprints are noisier); ``range_filter_length``
+  for the filtered mode; dropouts ``min_signal_dn``.
+- 7.17 timing: no measurement rate; the smear is a fraction of the sampling
+  period, which needs none. The in-canopy intensity offset (digest 6.12) is
+  not modelled.
+- Optional effects: ``leaf_transmission``, ``bsdf`` / ``bsdf_object_types``.
+
+The calibration decisions (7.1 sign of the correction, 7.13 inversion, 7.14
+plane-fit angle) live in :mod:`tlssim.calibration`.
 """
 
 from __future__ import annotations
