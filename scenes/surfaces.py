@@ -50,7 +50,8 @@ from typing import Callable
 import numpy as np
 
 from scenes.errors import SceneError
-from scenes.primitives import grid_faces, orthonormal_frame, square_to_disk
+from scenes.pose import Pose, facing_pose
+from scenes.primitives import grid_faces, square_to_disk
 from scenes.scene import Material, SceneObject
 
 Domain = tuple[tuple[float, float], tuple[float, float]]
@@ -521,25 +522,62 @@ def _builder(name: str) -> Callable[..., HeightField]:
     return _BUILDERS[name]
 
 
+def surface_mesh(surface: HeightField, size_m: float, resolution: int = 201):
+    """The surface as a mesh in its scaled local frame (domain centre at the origin, metres).
+
+    A surface point ``(x, y, h)`` goes to ``s (x - xc, y - yc, h)`` with
+    ``s = size_m / (longest domain side)`` and ``(xc, yc)`` the domain centre.
+
+    Returns
+    -------
+    vertices : ndarray, shape (V, 3)
+    faces : ndarray, shape (F, 3)
+    scale : float
+        ``s``, metres per surface unit.
+    center : ndarray, shape (2,)
+        ``(xc, yc)`` in surface units.
+    """
+    size_m = _positive(size_m, "surface size_m")
+    (x0, x1), (y0, y1) = surface.domain
+    scale = size_m / max(x1 - x0, y1 - y0)
+    center = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
+    local, faces = surface.mesh(resolution)
+    return scale * (local - np.array([center[0], center[1], 0.0])), faces, scale, center
+
+
+def surface_truth(surface: HeightField, pose: Pose, scale: float, center) -> dict:
+    """Truth of a posed surface: its name, parameters and the frame mapping scans back to it.
+
+    ``frame``: ``origin`` (world position of the domain centre at height 0),
+    ``axes`` (rows: world directions of surface x, y, z), ``scale`` (m per
+    surface unit) and ``center`` (domain centre, surface units), so that a
+    world point ``p`` has surface coordinates
+    ``(p - origin) @ axes.T / scale + (xc, yc, 0)``.
+    """
+    return {
+        "surface": surface.name,
+        "params": surface.params,
+        "frame": {"origin": pose.translation.tolist(), "axes": pose.rotation.T.tolist(),
+                  "scale": float(scale * pose.scale), "center": [float(c) for c in center]},
+    }
+
+
 def surface_object(name: str, distance_m: float, size_m: float, *, params: dict | None = None,
                    direction=(1.0, 0.0, 0.0), scanner_position=(0.0, 0.0, 0.0), resolution: int = 201,
                    material: Material | None = None, object_name: str | None = None) -> SceneObject:
     """An analytic surface as a mesh in front of the scanner, its +z axis pointing at the scanner.
 
-    The surface frame is scaled by ``s = size_m / (longest domain side)``; the
-    domain centre at height 0 lies ``distance_m`` from the scanner along
-    ``direction``, surface +z points back at the scanner and surface +y is as
-    close to world up as possible. A surface point ``(x, y, h)`` goes to
-    ``origin + s ((x - xc) ex + (y - yc) ey + h ez)``; ``truth["frame"]``
-    records ``origin``, ``axes`` (rows ex, ey, ez), ``scale`` and ``center``
-    ``(xc, yc)`` so that scans can be mapped back to surface coordinates.
+    The domain centre (at height 0) lies ``distance_m`` from the scanner
+    along ``direction``; surface +z points back at the scanner and surface +y
+    is as close to world up as possible. See :func:`surface_mesh` for the
+    scaling and :func:`surface_truth` for the recorded frame.
 
     Parameters
     ----------
     name : str
         Surface name (``SURFACE_NAMES``).
     distance_m : float
-        Distance from the scanner to the surface's base point, m.
+        Distance from the scanner to the domain centre at height 0, m.
     size_m : float
         World size of the longest side of the surface's domain, m.
     params : dict, optional
@@ -556,20 +594,9 @@ def surface_object(name: str, distance_m: float, size_m: float, *, params: dict 
         Object name (default: the surface name).
     """
     surface = get_surface(name, **(params or {}))
-    distance_m, size_m = _positive(distance_m, "surface distance_m"), _positive(size_m, "surface size_m")
-    ex, ey, ez = orthonormal_frame(-np.asarray(direction, dtype=float))
-    origin = np.asarray(scanner_position, dtype=float) - distance_m * ez
-    (x0, x1), (y0, y1) = surface.domain
-    scale = size_m / max(x1 - x0, y1 - y0)
-    center = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
-    local, faces = surface.mesh(resolution)
-    local = local - np.array([center[0], center[1], 0.0])
-    vertices = origin + scale * (local @ np.stack([ex, ey, ez]))
-    truth = {
-        "surface": name,
-        "params": surface.params,
-        "frame": {"origin": origin.tolist(), "axes": [ex.tolist(), ey.tolist(), ez.tolist()],
-                  "scale": scale, "center": center.tolist()},
-    }
-    return SceneObject(object_name or name, "surface", vertices, faces,
-                       material or Material("lambert-0.5", 0.5), truth=truth)
+    distance_m = _positive(distance_m, "surface distance_m")
+    direction = np.asarray(direction, dtype=float) / np.linalg.norm(direction)
+    pose = facing_pose(np.asarray(scanner_position, dtype=float) + distance_m * direction, -direction)
+    local, faces, scale, center = surface_mesh(surface, size_m, resolution)
+    return SceneObject(object_name or name, "surface", pose.apply(local), faces,
+                       material or Material("lambert-0.5", 0.5), truth=surface_truth(surface, pose, scale, center))

@@ -17,6 +17,8 @@ COMMAND_MODULES = (
     "tlssim.commands.scan",
     "tlssim.commands.scenes",
     "tlssim.commands.perf",
+    "tlssim.commands.truth",
+    "tlssim.commands.preview",
     "tlssim.commands.formats",
     "tlssim.commands.calibrate",
 )
