@@ -30,10 +30,14 @@ import re
 import numpy as np
 
 from scenes.library import register
+from scenes.materials import get_material
 from scenes.primitives import rectangle
 from scenes.scene import Material, Scene, SceneObject
 
-PANEL_REFLECTANCES = (0.99, 0.83, 0.80, 0.68, 0.48, 0.22, 0.03)
+#: Panel materials of the series (library names, :mod:`scenes.materials`) by reflectance.
+PANEL_MATERIALS = {0.99: "spectralon-99", 0.83: "canson-83", 0.80: "canson-80", 0.68: "canson-68",
+                   0.48: "canson-48", 0.22: "greycard-22", 0.03: "canson-3"}
+PANEL_REFLECTANCES = tuple(PANEL_MATERIALS)
 PANEL_DISTANCES_M = (0.35, 0.45, 0.6, 0.75, 0.8, 1.0, 1.5, 1.85, 2.15, 2.6, 3.6, 5.0, 7.5, 10.0)
 #: Angular size of every panel and spacing of the panel grid, degrees.
 PANEL_SPAN_DEG, PANEL_PITCH_DEG = 2.0, 2.4
@@ -45,11 +49,8 @@ GONIOMETER_ANGLES_DEG = tuple(range(0, 90, 5))
 GONIOMETER_AXES = ("vertical", "horizontal")
 #: Half pear leaf after Sensors 2011 sec. 2.2.2: length and width (the measured half-width), m.
 LEAF_LENGTH_M, LEAF_WIDTH_M = 0.0647, 0.0219
-LEAF_REFLECTANCE = 0.48
-#: Diffuse transmittance of the leaf at 785 nm, used only by the optional leaf-transmission model.
-#: Assumption: typical near-infrared leaf transmittance (~0.4-0.45 for mature dicot leaves, PROSPECT).
-LEAF_TRANSMITTANCE = 0.42
-PLATFORM_REFLECTANCE = 0.03
+#: Library materials of the leaf (reflectance 0.48, transmittance 0.42) and of the black platform (3 %).
+LEAF_MATERIAL, PLATFORM_MATERIAL = "pear-leaf", "paint-3"
 #: Platform margin around the leaf and gap between leaf and platform, m.
 PLATFORM_MARGIN_M, PLATFORM_GAP_M = 0.015, 0.001
 #: Spacing of the goniometer stations (azimuth, zenith), degrees.
@@ -105,7 +106,7 @@ def panel_series() -> Scene:
             side = 2.0 * distance * math.tan(math.radians(0.5 * PANEL_SPAN_DEG))
             vertices, faces = rectangle(distance * axis, -axis, (side, side), up=up)
             objects.append(SceneObject(panel_name(rho, distance), "panel", vertices, faces,
-                                       Material(f"lambert-{rho:g}", rho), truth={"normal": list(-axis)}))
+                                       get_material(PANEL_MATERIALS[rho]), truth={"normal": list(-axis)}))
     # The window reaches half a degree beyond the outer cells, past the footprint of the nearest panels.
     half = (0.5 * len(PANEL_DISTANCES_M) * PANEL_PITCH_DEG + 0.5, 0.5 * len(PANEL_REFLECTANCES) * PANEL_PITCH_DEG + 0.5)
     return Scene(objects=objects, scanner={
@@ -180,8 +181,7 @@ def goniometer() -> Scene:
     fan = np.array([[0, i, i + 1] for i in range(1, len(outline))] + [[0, len(outline), 1]])
     thetas = _grid_angles(len(GONIOMETER_AXES), STATION_PITCH_DEG[0], 0.0)
     psis = _grid_angles(len(GONIOMETER_ANGLES_DEG), STATION_PITCH_DEG[1], 90.0)
-    leaf_material = Material("pear-leaf", LEAF_REFLECTANCE, LEAF_TRANSMITTANCE)
-    platform_material = Material("black-paint-3", PLATFORM_REFLECTANCE)
+    leaf_material, platform_material = get_material(LEAF_MATERIAL), get_material(PLATFORM_MATERIAL)
     objects = []
     for rotation_axis, theta in zip(GONIOMETER_AXES, thetas):
         for angle, psi in zip(GONIOMETER_ANGLES_DEG, psis):
