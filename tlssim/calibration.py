@@ -10,10 +10,12 @@ These are the calibrations of Balduzzi et al. 2011 (Sensors 11:1657, sec.
    decision 7.1, ``I_c = I(d) - f99(d) + f99(d_ref)`` (the printed eq. 1.7
    has the sign the other way); ``mode="ratio"`` gives the multiplicative
    eq. 1.6, ``I_c = I(d)·(f99(d_ref) - c)/(f99(d) - c)``.
-2. **Incidence from geometry.** :func:`fit_plane` and :func:`patch_incidence`
-   estimate a patch's incidence from a least-squares plane (total least
-   squares, the orientation-free form ``alpha = acos(|n·x|/(|n||x|))`` of
-   decision 7.14, instead of the sources' best of three regressions).
+2. **Incidence from geometry.** :func:`patch_incidence` estimates a patch's
+   incidence from a least-squares plane fitted in the scanner's error
+   geometry (noise along the line of sight), with the orientation-free form
+   ``alpha = acos(|n·x|/(|n||x|))`` of decision 7.14, instead of the
+   sources' best of three axis regressions; :func:`fit_plane` is the
+   orthogonal fit (plane RMS, e.g. range precision on a panel).
 3. **Intensity to incidence.** :func:`fit_incidence_relation` fits corrected
    intensity against incidence with a 4th-order polynomial (as the sources
    do) and a monotone lookup table (isotonic regression, decision 7.13);
