@@ -16,6 +16,7 @@ from tlssim.clitools import run_main
 COMMAND_MODULES = (
     "tlssim.commands.scan",
     "tlssim.commands.scenes",
+    "tlssim.commands.presets",
     "tlssim.commands.perf",
     "tlssim.commands.truth",
     "tlssim.commands.preview",

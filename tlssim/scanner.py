@@ -417,3 +417,17 @@ def get_preset(name: str, **overrides) -> ScannerModel:
 
 register_preset(ScannerModel(name="faro-ls880"))
 register_preset(ScannerModel(name="faro-ls880-filtered", range_filter_length=15))
+
+
+def parameter_table(model: ScannerModel, sources: dict[str, str] = FARO_LS880_SOURCES) -> str:
+    """Markdown table of a model's parameters with the source or assumption behind each value."""
+    lines = ["| parameter | value | source / assumption |", "|---|---|---|"]
+    for field in dataclasses.fields(model):
+        if field.name == "name":
+            continue
+        value = getattr(model, field.name)
+        shown = ", ".join(f"{v:.6g}" if isinstance(v, float) else str(v) for v in value) \
+            if isinstance(value, tuple) else (f"{value:.6g}" if isinstance(value, float) else str(value))
+        text = sources.get(field.name, "undocumented").replace("|", "/")
+        lines.append(f"| `{field.name}` | {shown or '—'} | {text} |")
+    return "\n".join(lines)
