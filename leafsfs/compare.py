@@ -8,7 +8,8 @@ within a tolerance:
    +-2.8 deg uniform alpha noise, a global alpha bias of -5, 0 or +5 deg (a
    mis-calibrated intensity) and 0.5 % height noise; 5 smoothing passes,
    10 % quantisation; errors relative to ``h_max - h_min``, tolerance 5 %;
-2. the simulated ``leaf-1.5m`` scan with the exact radiometric inverse
+2. the simulated ``leaf-1.5m`` scan with the Lambertian inverse of the
+   simulator's radiometric chain (:class:`leafsfs.synthetic.LambertCalibration`)
    assuming leaf reflectance 0.40, 0.48 (the truth) or 0.58; errors in mm
    against the true range on leaf pixels (central ray on the leaf), for all
    of them and for the mixed ones (more than 10 % of the power from

@@ -28,8 +28,11 @@ Per inner-curve point and annulus:
    20 %, it rejected 99 % of the measurements). The ray follows the fused
    gradient (outward, or the curve normal if it is nearly tangent).
 4. *Height*: predicted ``h' = h + g . (x' - x)`` with variance
-   ``P + dx^T P_g dx``; measured ``Mh(x')`` with ``sigma_range^2``; gated and
-   updated the same way. Rejected heights are the measured outliers.
+   ``P + dx^T P_g dx``; measured ``Mh(x')`` with ``sigma_range^2``; an
+   innovation beyond ``gate_sigma`` standard deviations is rejected (these
+   are the measured outliers), otherwise the Kalman update moves the end
+   height and the line's plane is tilted to reach it, so that the fill and
+   the next curve follow.
 """
 
 from __future__ import annotations
@@ -131,7 +134,13 @@ class Fusion:
         innovation = measured - lines.end_h
         accept = ok & (innovation**2 <= self.gate_sigma**2 * (predicted_var + r))
         gain = predicted_var / (predicted_var + r)
-        lines.end_h = np.where(accept, lines.end_h + gain * innovation, lines.end_h)
+        change = np.where(accept, gain * innovation, 0.0)
+        lines.end_h = lines.end_h + change
         lines.end_variance = np.where(accept, (1 - gain) * predicted_var, predicted_var)
+        # Tilt each line's plane so that it reaches the updated end height: the fill, the outer curve and
+        # the candidates all follow the plane.
+        length = np.linalg.norm(step, axis=1)
+        tilt = np.where(length > 1e-9, change / np.maximum(length, 1e-12), 0.0)
+        lines.gradient = lines.gradient + tilt[:, None] * lines.direction
         self.stats["height_updates"] += int(accept.sum())
         self.stats["height_rejected"] += int((ok & ~accept).sum())

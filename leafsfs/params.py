@@ -84,12 +84,17 @@ class SfsParams:
         A measured point is flagged as an outlier when it lies farther than
         this from its corrected distance, m (assumption: about 3 sigma of the
         range noise of a leaf at 1-2 m plus the reconstruction error).
+    trait_smoothing_m : float
+        Gaussian smoothing of the corrected heights before the leaf traits
+        are computed, m (assumption: leaf shape varies on centimetre scales,
+        range noise on sub-millimetre ones; :mod:`leafsfs.traits`).
     sigma_alpha_deg : float
         Standard deviation of the intensity-derived alpha (fused variant),
         degrees (assumption; take it from the calibration residuals).
     sigma_range_m : float
-        Range noise of inlier points (fused variant), m (assumption: FARO
-        LS880 class at 1-2 m, tls-physics §7 item 11).
+        Range noise of inlier points (fused variant), m (assumption: raw
+        FARO LS880-class noise on leaves at 1-2 m, tls-physics §7 item 11,
+        rounded up to the 1.8 mm the simulator gives at 1.5 m).
     gate_sigma : float
         Innovation gate of the fused variant in standard deviations.
     """
@@ -115,8 +120,9 @@ class SfsParams:
     crossing_window: int = 1
     rim_px: int = 2
     outlier_threshold_m: float = 0.005
+    trait_smoothing_m: float = 0.002
     sigma_alpha_deg: float = 3.0
-    sigma_range_m: float = 0.001
+    sigma_range_m: float = 0.002
     gate_sigma: float = 3.0
 
     def __post_init__(self):
@@ -139,6 +145,7 @@ class SfsParams:
         _number(self, "alpha_bias_deg", -30.0, 30.0)
         _number(self, "lsr_radius_px", 1.0, 50.0)
         _number(self, "outlier_threshold_m", 0.0, 10.0, open_low=True)
+        _number(self, "trait_smoothing_m", 0.0, 1.0, open_low=True)
         _number(self, "sigma_alpha_deg", 0.0, 45.0, open_low=True)
         _number(self, "sigma_range_m", 0.0, 1.0, open_low=True)
         _number(self, "gate_sigma", 0.0, 100.0, open_low=True)

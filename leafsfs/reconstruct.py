@@ -22,7 +22,7 @@ from leafsfs.frame import LocalFrame, local_frame
 from leafsfs.leaves import edge_pixels, segment_leaves
 from leafsfs.params import VARIANTS, SfsParams
 from leafsfs.preprocess import resolve_calibration, scan_alpha
-from leafsfs.traits import mesh_traits
+from leafsfs.traits import leaf_traits
 from tlssim.scan import Scan, grid_to_xyz
 
 #: Smallest leaf region reconstructed, pixels (smaller regions are skipped and listed).
@@ -42,7 +42,7 @@ class LeafResult:
     heights : HeightResult
         Engine output on the frame's pixel box.
     traits : dict
-        Area, normal, elevation, azimuth (:func:`leafsfs.traits.mesh_traits`)
+        Area, normal, elevation, azimuth (:func:`leafsfs.traits.leaf_traits`)
         plus ``n_points`` and ``n_outliers``.
     """
 
@@ -217,9 +217,8 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
     result = SfsResult(scan, variant, params, labels, out_range, corrected, candidates, spread, outlier, smoothed,
                        leaves, skipped)
     for leaf in leaves:
-        vertices, faces = leaf.mesh_world()
         region = labels == leaf.label
-        leaf.traits = {**mesh_traits(vertices, faces, scan.pose.position),
+        leaf.traits = {**leaf_traits(leaf.frame, leaf.heights.height, region[leaf.frame.box], params.trait_smoothing_m),
                        "n_points": int(region.sum()), "n_outliers": int((outlier & region).sum()),
                        "unreliable_alpha_fraction": float(np.mean(~reliable[region]))}
     return result

@@ -1,16 +1,22 @@
-"""Leaf traits from a reconstructed mesh: one-sided area, mean normal, midrib elevation and azimuth.
+"""Leaf traits from the corrected surface: one-sided area, mean normal, midrib elevation and azimuth.
 
-Thesis ch.7 §1.5: the area is the sum of the mesh triangles and the leaf
-orientation comes from the area-weighted mean normal, assuming a symmetric
-leaf whose lateral axis is horizontal. The project's truth (docs/contracts.md)
-is the midrib: elevation above the horizontal in [-90, 90] deg and azimuth
-from +x counter-clockwise. Here the midrib direction is the principal axis of
-the area-weighted triangle centroids (the leaf's longest extent), which does
-not need the symmetry assumption. A scan cannot tell the petiole from the
-tip, so the direction is the one that rises (elevation >= 0); for a
-horizontal midrib the azimuth is known only modulo 180 deg. The zenith angle
-of the mean normal (the thesis' elevation) is reported as
-``normal_zenith_deg``.
+Thesis ch.7 §1.5 sums the areas of the PROP-SFS mesh triangles and takes the
+leaf orientation from their area-weighted mean normal, assuming a symmetric
+leaf whose lateral axis is horizontal. With sub-millimetre pixels, range
+noise of a millimetre makes such a mesh rough and its area several times too
+large, so here the corrected heights are first smoothed (a masked Gaussian
+of ``smoothing_m``, about the scale on which a leaf's shape varies), turned
+into world points on the pixel grid, and the area is the sum of the grid's
+area elements ``|dP/di x dP/dj|``.
+
+The project's truth (docs/contracts.md) is the midrib: elevation above the
+horizontal in [-90, 90] deg and azimuth from +x counter-clockwise. The
+midrib direction is taken as the principal axis of the area-weighted points
+(the leaf's longest extent), which needs no symmetry assumption. A scan
+cannot tell the petiole from the tip, so the direction reported is the one
+that rises (elevation >= 0); for a horizontal midrib the azimuth is known
+only modulo 180 deg. The zenith angle of the mean normal (the thesis'
+elevation) is reported as ``normal_zenith_deg``.
 """
 
 from __future__ import annotations
@@ -18,50 +24,58 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy import ndimage
+
+from leafsfs.frame import LocalFrame
 
 
-def mesh_traits(vertices: np.ndarray, faces: np.ndarray, viewpoint: np.ndarray) -> dict:
-    """Traits of a leaf mesh in world coordinates.
+def leaf_traits(frame: LocalFrame, height: np.ndarray, region: np.ndarray, smoothing_m: float) -> dict:
+    """Traits of one leaf.
 
     Parameters
     ----------
-    vertices : ndarray, (V, 3)
-        Vertices, m (world frame, +z up).
-    faces : ndarray of int, (F, 3)
-        Triangles (any winding).
-    viewpoint : ndarray, (3,)
-        Scanner position; each triangle's normal is turned towards it before
-        averaging, so that inconsistent windings do not cancel.
+    frame : LocalFrame
+        The leaf's frame.
+    height : ndarray, 2-D
+        Corrected heights on the frame's pixel box (NaN = none).
+    region : ndarray of bool, 2-D
+        The leaf's pixels in the box.
+    smoothing_m : float
+        Standard deviation of the Gaussian smoothing of the heights, m.
 
     Returns
     -------
     dict
         ``area_m2``, ``normal`` (upward unit mean normal), ``normal_zenith_deg``,
         ``elevation_deg`` and ``azimuth_deg`` of the midrib estimate,
-        ``length_m`` (extent along it). NaN values for an empty mesh.
+        ``length_m`` (extent along it); NaN orientation without a surface.
     """
-    nan = {"area_m2": 0.0, "normal": [math.nan] * 3, "normal_zenith_deg": math.nan, "elevation_deg": math.nan,
-           "azimuth_deg": math.nan, "length_m": 0.0}
-    if not len(faces):
-        return nan
-    a, b, c = (vertices[faces[:, k]] for k in range(3))
-    cross = np.cross(b - a, c - a)
-    area = 0.5 * np.linalg.norm(cross, axis=1)
-    centroid = (a + b + c) / 3
-    facing = np.sign(np.sum(cross * (viewpoint - centroid), axis=1))
-    total = np.sum(facing[:, None] * cross, axis=0)
+    known = region & np.isfinite(height)
+    empty = {"area_m2": 0.0, "normal": [math.nan] * 3, "normal_zenith_deg": math.nan, "elevation_deg": math.nan,
+             "azimuth_deg": math.nan, "length_m": 0.0}
+    if known.sum() < 4:
+        return empty
+    sigma = smoothing_m / frame.grid.pixel_size
+    weight = ndimage.gaussian_filter(known.astype(float), sigma)
+    smooth = ndimage.gaussian_filter(np.where(known, height, 0.0), sigma) / np.maximum(weight, 1e-12)
+    rows, cols = np.indices(height.shape)
+    pixels = np.stack([rows, cols], axis=-1).reshape(-1, 2).astype(float)
+    points = frame.world_points(pixels, smooth.ravel()).reshape(*height.shape, 3)
+    d_row, d_col = np.gradient(points, axis=(0, 1))
+    element = np.cross(d_row, d_col)[known]
+    area = np.linalg.norm(element, axis=1)
+    facing = np.sign(np.sum(element * (frame.pose.position - points[known]), axis=1))
+    total = np.sum(facing[:, None] * element, axis=0)
     if not area.sum() > 0 or not np.linalg.norm(total) > 0:
-        return nan
+        return empty
     normal = total / np.linalg.norm(total)
-    if normal[2] < 0:
-        normal = -normal
+    normal = -normal if normal[2] < 0 else normal
     weights = area / area.sum()
-    mean = weights @ centroid
-    spread = (centroid - mean).T @ (weights[:, None] * (centroid - mean))
-    axis = np.linalg.eigh(spread)[1][:, -1]
-    if axis[2] < 0:
-        axis = -axis
-    along = (vertices[np.unique(faces)] - mean) @ axis
+    centre = weights @ points[known]
+    offsets = points[known] - centre
+    axis = np.linalg.eigh(offsets.T @ (weights[:, None] * offsets))[1][:, -1]
+    axis = -axis if axis[2] < 0 else axis
+    along = offsets @ axis
     return {
         "area_m2": float(area.sum()),
         "normal": [float(v) for v in normal],
