@@ -115,15 +115,21 @@ class HeightResult:
         return float(np.mean(self.count[self.mask] > 0)) if self.mask.any() else 0.0
 
 
-def domain_thresholds(alpha: np.ndarray, mask: np.ndarray, params: SfsParams) -> np.ndarray:
-    """Quantisation thresholds (rad, last = pi/2) for the object's smoothed alpha values."""
+def domain_thresholds(alpha: np.ndarray, mask: np.ndarray, params: SfsParams,
+                      reliable: np.ndarray | None = None) -> np.ndarray:
+    """Quantisation thresholds (rad, last = pi/2) for an object's smoothed alpha values.
+
+    The shell rule measures the object ``mask``; the quantiles are those of its
+    ``reliable`` pixels (default: all of them).
+    """
+    reliable = mask if reliable is None or not reliable.any() else reliable
     if params.quantization == "fixed":
         return np.append(np.radians(params.thresholds_deg), np.pi / 2)
     if params.quantization == "shell":
         eps_alpha, eps_seed = shell_fractions(mask, params.shell_set)
     else:
         eps_alpha, eps_seed = params.eps_alpha, params.eps_seed
-    return quantile_thresholds(alpha[mask], eps_alpha, eps_seed)
+    return quantile_thresholds(alpha[reliable], eps_alpha, eps_seed)
 
 
 def reconstruct_heights(alpha: np.ndarray, height: np.ndarray, mask: np.ndarray | None = None,
@@ -185,7 +191,7 @@ def reconstruct_heights(alpha: np.ndarray, height: np.ndarray, mask: np.ndarray 
 
     smoothed = smooth_alpha(np.clip(alpha, 0, np.pi / 2), mask & ~unreliable, params.n_smooth)
     smoothed[unreliable] = np.pi / 2
-    thresholds = domain_thresholds(smoothed, mask, params)
+    thresholds = domain_thresholds(smoothed, mask, params, mask & ~unreliable)
     levels = assign_levels(smoothed, mask, thresholds)
     parts = split_parts(np.where(mask, smoothed, np.pi), levels, params.min_seed_px, params.orphans)
     shape = alpha.shape

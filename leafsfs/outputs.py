@@ -31,18 +31,23 @@ def write_outputs(result: SfsResult, outdir) -> dict[str, Path]:
     paths = {"corrected": result.corrected_scan().save(outdir / "corrected.npz")}
     paths["mesh"] = outdir / "mesh.ply"
     result.mesh().export(paths["mesh"])
-    report = {"variant": result.variant, "leaves": [_json_ready(t) for t in result.traits()],
+    report = {"variant": result.variant, "leaves": _json_ready(result.traits()),
               "skipped": [{"leaf": label, "reason": reason} for label, reason in result.skipped],
               "rppp": result.rppp(), "n_corrected": int(result.corrected.sum()),
               "n_outliers": int(result.outlier.sum()), "params": result.params.to_dict()}
     paths["traits"] = outdir / "traits.json"
-    paths["traits"].write_text(json.dumps(report, indent=1))
+    paths["traits"].write_text(json.dumps(report, indent=1, allow_nan=False))
     paths["preview"] = preview(result, outdir / "preview.png")
     return paths
 
 
-def _json_ready(entry: dict) -> dict:
-    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in entry.items()}
+def _json_ready(value):
+    """NaN and infinities become null (JSON has no such numbers), recursively."""
+    if isinstance(value, dict):
+        return {k: _json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(v) for v in value]
+    return None if isinstance(value, float) and not math.isfinite(value) else value
 
 
 def preview(result: SfsResult, path) -> Path:
@@ -69,8 +74,9 @@ def preview(result: SfsResult, path) -> Path:
                          closed[:, 0] + item.frame.box[0].start - (box[0].start or 0), color="white", lw=0.6)
     axes[0].set_title(f"iso-alpha curves ({result.variant})")
     change = np.where(leaf, 1e3 * (result.range[box] - result.scan.range[box]), np.nan)
-    limit = max(1.0, float(np.nanquantile(np.abs(change), 0.98))) if np.isfinite(change).any() else 1.0
-    image = axes[1].imshow(change, cmap="coolwarm", vmin=-limit, vmax=limit, interpolation="nearest")
+    limit = max(1.0, float(np.nanmax(np.abs(change)))) if np.isfinite(change).any() else 1.0
+    norm = matplotlib.colors.SymLogNorm(linthresh=1.0, vmin=-limit, vmax=limit)
+    image = axes[1].imshow(change, cmap="coolwarm", norm=norm, interpolation="nearest")
     fig.colorbar(image, ax=axes[1], label="corrected - measured range (mm)")
     out_r, out_c = np.nonzero(result.outlier[box])
     axes[1].plot(out_c, out_r, ",", color="black")

@@ -202,6 +202,9 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
         except SfsError as exc:
             skipped.append((int(label), str(exc)))
             continue
+        if not heights.count.any():
+            skipped.append((int(label), "no seed curve could be initialised (seed regions too small or unmeasured)"))
+            continue
         done = region[box] & np.isfinite(heights.height)
         sub = out_range[box]
         sub[done] = frame.range(heights.height[done])

@@ -77,7 +77,7 @@ def test_leaf_traits_and_redundancy(leaf_scan, leaf_result):
     assert abs((traits["azimuth_deg"] - truth["azimuth_deg"] + 90) % 180 - 90) < 15
     assert abs(traits["elevation_deg"] - truth["elevation_deg"]) < 10
     normal = np.array(truth["normal"]) * np.sign(truth["normal"][2] or 1)
-    assert np.degrees(np.arccos(np.clip(np.dot(normal, traits["normal"]), -1, 1))) < 10
+    assert np.degrees(np.arccos(np.clip(np.dot(normal, traits["normal"]), -1, 1))) < 15
     rppp = leaf_result.rppp()
     assert rppp["rppp_0"] < 0.05 and rppp["rppp_1"] > 0.6
     assert traits["n_outliers"] == int(leaf_result.outlier.sum())
