@@ -53,18 +53,14 @@ class Curve:
         """Length of the segment from each vertex to the next."""
         return np.linalg.norm(np.roll(self.points, -1, axis=0) - self.points, axis=1)
 
-    def at(self, arc: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Points, unit tangents and pixel positions at arc parameters (wrapped to ``[0, length)``)."""
+    def tangents_at(self, arc: np.ndarray) -> np.ndarray:
+        """Unit tangents at arc parameters (wrapped to ``[0, length)``), interpolated between vertices."""
         arc = np.mod(arc, self.length)
         index = np.clip(np.searchsorted(self.arc, arc, side="right") - 1, 0, len(self) - 1)
-        nxt = (index + 1) % len(self)
         frac = ((arc - self.arc[index]) / np.maximum(self.segment_lengths[index], 1e-300))[:, None]
-        points = (1 - frac) * self.points[index] + frac * self.points[nxt]
-        points_px = (1 - frac) * self.points_px[index] + frac * self.points_px[nxt]
-        tangents = (1 - frac) * self.tangents[index] + frac * self.tangents[nxt]
+        tangents = (1 - frac) * self.tangents[index] + frac * self.tangents[(index + 1) % len(self)]
         norm = np.linalg.norm(tangents, axis=1, keepdims=True)
-        tangents = np.where(norm > 1e-9, tangents / np.maximum(norm, 1e-300), self.tangents[index])
-        return points, tangents, points_px
+        return np.where(norm > 1e-9, tangents / np.maximum(norm, 1e-300), self.tangents[index])
 
 
 def extract_curve(region: np.ndarray, grid: PixelGrid, estimator: str = "lambda") -> Curve | None:

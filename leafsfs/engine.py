@@ -176,9 +176,10 @@ def reconstruct_heights(alpha: np.ndarray, height: np.ndarray, mask: np.ndarray 
         raise SfsError(f"mask must be a boolean image of shape {alpha.shape}, got {mask.dtype} {mask.shape}")
     if variant not in VARIANTS:
         raise SfsError(f"unknown PROP-SFS variant {variant!r}; choose one of {', '.join(VARIANTS)}")
-    unreliable = np.zeros(alpha.shape, bool) if unreliable is None else np.asarray(unreliable, bool) & mask
+    unreliable = np.zeros(alpha.shape, bool) if unreliable is None else np.asarray(unreliable, bool)
     if unreliable.shape != alpha.shape:
         raise SfsError(f"unreliable must be a boolean image of shape {alpha.shape}, got {unreliable.shape}")
+    unreliable = unreliable & mask
     mask = mask & (np.isfinite(alpha) | unreliable)
     if mask.sum() < 9:
         raise SfsError(f"the object has {int(mask.sum())} pixels with a valid alpha; PROP-SFS needs at least 9")

@@ -34,11 +34,6 @@ class PixelGrid:
         object.__setattr__(self, "matrix", np.asarray(self.matrix, dtype=float).reshape(2, 2))
         object.__setattr__(self, "offset", np.asarray(self.offset, dtype=float).reshape(2))
 
-    @classmethod
-    def square(cls, spacing: float = 1.0, origin=(0.0, 0.0)) -> "PixelGrid":
-        """Plain grid: ``x = origin + spacing * (row, col)``."""
-        return cls(spacing * np.eye(2), np.asarray(origin, dtype=float))
-
     @property
     def flips(self) -> bool:
         """Whether the map reverses orientation (negative determinant)."""
@@ -61,11 +56,6 @@ class PixelGrid:
         """Unit continuous directions of pixel-space vectors ``(n, 2)``."""
         vectors = pixel_vectors @ self.matrix.T
         return vectors / np.linalg.norm(vectors, axis=1, keepdims=True)
-
-    def pixel_centres(self, shape) -> np.ndarray:
-        """Continuous coordinates of every pixel centre, ``shape + (2,)``."""
-        rows, cols = np.indices(shape)
-        return self.to_continuous(np.stack([rows, cols], axis=-1).reshape(-1, 2)).reshape(*shape, 2)
 
 
 def bilinear(image: np.ndarray, valid: np.ndarray, points_px: np.ndarray) -> np.ndarray:

@@ -246,7 +246,7 @@ def _simple(inner: CurveState, outer: Curve, lines: Lines, ws: Workspace):
     if not len(k):
         return None, np.zeros(0, int), np.zeros(0)
     k = k[np.argsort(lines.arc[k], kind="stable")]
-    points, tangents, points_px = outer.at(lines.arc[k])
+    tangents = outer.tangents_at(lines.arc[k])
     points = lines.end[k]
     points_px = ws.grid.to_pixels(points)
     vertex = ws.mesh.add(points, points_px, lines.end_h[k])

@@ -63,6 +63,9 @@ def test_measured_outliers_move_to_the_true_surface(leaf_scan, leaf_result):
     assert np.median(corrected[outliers]) < 0.05 * np.median(measured[outliers])
     # Inliers: with intensity noise the thesis' propagation drifts by a few mm (the fused variant does not).
     assert np.quantile(corrected[on_leaf], 0.9) < 0.012  # m
+    points = leaf_result.points()  # the corrected point cloud, world frame
+    assert len(points) == leaf_result.corrected.sum()
+    assert np.allclose(np.linalg.norm(points - scan.pose.position, axis=1), leaf_result.range[leaf_result.corrected])
     # flags: exactly the corrected pixels that moved farther than the threshold
     moved = np.abs(scan.range - leaf_result.range) > leaf_result.params.outlier_threshold_m
     assert np.array_equal(leaf_result.outlier, leaf_result.corrected & moved)
