@@ -33,6 +33,6 @@ __all__ = ["Material", "Scene", "SceneError", "SceneObject", "build", "describe"
            "names", "register", "save_scene", "scene_from_spec"]
 
 # Modules that register further built-in scenes (imported for their side effect).
-BUILTIN_MODULES: tuple[str, ...] = ("scenes.builtin",)
+BUILTIN_MODULES: tuple[str, ...] = ("scenes.builtin", "scenes.calibration_scenes")
 for _module in BUILTIN_MODULES:
     __import__(_module)
