@@ -24,6 +24,7 @@ import yaml
 from benchmarks import registry, summary, sweeps
 from benchmarks.errors import BenchError
 from benchmarks.generators import describe_generators
+from benchmarks.runner import MEMORY_LIMIT_GB, TIMEOUT_S, execute
 from benchmarks.store import Store
 from benchmarks.suite import load_suite, suite_names
 from tlssim.clitools import run_main
@@ -62,7 +63,12 @@ def _overrides(items: list[str] | None) -> dict[str, dict]:
 def _add_execution(p: argparse.ArgumentParser, db_default: str | None = "results.sqlite") -> None:
     p.add_argument("--variants", nargs="+", default=None, help="variants to run (default: every registered one)")
     p.add_argument("--set", action="append", metavar="VARIANT.PARAM=VALUE", help="override a variant parameter")
-    p.add_argument("--workers", type=int, default=None, help="local worker processes (default: CPU count)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="local worker processes (default: CPU count; 0: run in this process, unprotected)")
+    p.add_argument("--memory-limit-gb", type=float, default=MEMORY_LIMIT_GB,
+                   help=f"memory limit of each local worker, GiB (default {MEMORY_LIMIT_GB:g}; 0: none)")
+    p.add_argument("--timeout", type=float, default=TIMEOUT_S,
+                   help=f"stop a local worker silent this long on one variant, s (default {TIMEOUT_S:g}; 0: never)")
     p.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:port) to run the cases on")
     if db_default is not None:
         p.add_argument("--db", default=db_default, help=f"results database (default {db_default})")
@@ -122,11 +128,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run_suite(suite, args, store: Store, resume=True, notes=None):
-    from benchmarks.runner import execute
-
     variants = registry.resolve(args.variants, _overrides(args.set))
     outcome = execute(suite, variants, store, workers=args.workers, scheduler=args.scheduler, resume=resume,
-                      progress=not args.quiet, notes=notes)
+                      progress=not args.quiet, notes=notes, memory_limit_gb=args.memory_limit_gb,
+                      timeout_s=args.timeout or None)
     state = "resumed" if outcome.resumed else "new"
     print(f"run {outcome.run_id} ({state}): {outcome.cases_run} case(s) run, {outcome.cases_skipped} already done, "
           f"{outcome.elapsed_s:.1f} s", file=sys.stderr)
@@ -237,7 +242,8 @@ def cmd_list(args) -> int:
     print("variants:")
     for name in registry.variant_names():
         variant = registry.get_variant(name)
-        print(f"  {name:12s} {variant.family:9s} {variant.description}  {json.dumps(variant.params)}")
+        params = json.dumps(variant.params)
+        print(f"  {name:12s} {variant.family:9s} {variant.description}" + (f"  {params}" if len(params) < 100 else ""))
     for family, why in registry.unavailable().items():
         print(f"  ({family}: not registered, {why})")
     print("scene generators:")

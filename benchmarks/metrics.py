@@ -313,22 +313,23 @@ def outlier_scores(outlier_before: np.ndarray, kept: np.ndarray, outlier_after: 
     after = np.asarray(outlier_after, dtype=bool) & kept
     n, n_out = len(before), int(before.sum())
     n_good, n_kept = n - n_out, int(kept.sum())
-    rop_before = _ratio(n_out, n)
-    rop_after = _ratio(int(after.sum()), n_kept) if n_kept else 0.0
+    rop_before = ratio(n_out, n)
+    rop_after = ratio(int(after.sum()), n_kept) if n_kept else 0.0
     return {
         "n_points": n,
         "n_outliers": n_out,
         "rop_before": rop_before,
         "rop_after": rop_after,
         "rop_reduction": 1.0 - rop_after / rop_before if rop_before > 0 and np.isfinite(rop_after) else math.nan,
-        "good_points_lost": _ratio(int((~before & ~kept).sum()), n_good),
-        "outliers_removed": _ratio(int((before & ~kept).sum()), n_out),
-        "outliers_restored": _ratio(int((before & kept & ~after).sum()), n_out),
-        "good_points_damaged": _ratio(int((~before & after).sum()), n_good),
+        "good_points_lost": ratio(int((~before & ~kept).sum()), n_good),
+        "outliers_removed": ratio(int((before & ~kept).sum()), n_out),
+        "outliers_restored": ratio(int((before & kept & ~after).sum()), n_out),
+        "good_points_damaged": ratio(int((~before & after).sum()), n_good),
     }
 
 
-def _ratio(numerator: int, denominator: int) -> float:
+def ratio(numerator: int, denominator: int) -> float:
+    """``numerator / denominator``, NaN when the denominator is zero."""
     return numerator / denominator if denominator else math.nan
 
 

@@ -8,8 +8,10 @@ them, the leaf traits. Families:
 
 - ``raw``: no correction (the measured points);
 - ``filter``: the outlier-removal baselines of :mod:`leafsfs.baselines`;
-- ``prop-sfs``: the PROP-SFS variants of :func:`leafsfs.reconstruct`,
-  registered only when the leafsfs package provides that function.
+- ``prop-sfs``: the PROP-SFS variants of :func:`leafsfs.reconstruct`
+  (``simple``, ``sps``, ``buffer``, ``fused`` with the shell-rule set T3, and
+  ``buffer-T1``, ``buffer-T2``, ``buffer-T3*``), calibrated by simulating the
+  scan's scanner model.
 
 Raw and filtered clouds get their leaf traits from
 :func:`leafsfs.baselines.leaf_traits` (range-image mesh with an edge cap).
@@ -43,11 +45,15 @@ class VariantOutput:
     stats : dict
         Further method-specific numbers stored with the metrics (e.g.
         ``rppp_1``), JSON-ready.
+    flags : ndarray of bool or None
+        The measured points the method judges to be outliers (removed or
+        corrected), for the detection precision and recall.
     """
 
     xyz: np.ndarray
     traits: dict | None = None
     stats: dict = field(default_factory=dict)
+    flags: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -66,6 +72,9 @@ class Variant:
         Default parameters (JSON-ready).
     description : str
         One line.
+    prepare : callable, optional
+        ``prepare(scan)``, called once per scan before the timed runs (e.g.
+        to build a calibration that every leaf of the scan shares).
     """
 
     name: str
@@ -73,6 +82,7 @@ class Variant:
     run: Callable[..., VariantOutput]
     params: dict
     description: str
+    prepare: Callable | None = None
 
     def with_params(self, **changes) -> "Variant":
         """A copy with some parameters changed.
@@ -147,20 +157,23 @@ def resolve(names: list[str] | None = None, overrides: dict[str, dict] | None = 
     return [get_variant(n).with_params(**overrides.get(n, {})) for n in names]
 
 
-#: Edge cap of the range-image mesh that gives raw and filtered clouds their leaf area, m.
+#: Edge cap and range smoothing of the range-image mesh that gives raw and filtered clouds their leaf traits, m.
 MESH_MAX_EDGE_M = 0.01
+MESH_SMOOTHING_M = 0.002
 
 
 def _removal_variant(name: str, family: str, func: Callable, description: str, **params) -> Variant:
     """A variant that keeps a subset of the measured points (``func(scan, mask, **params) -> kept``)."""
 
-    def run(scan, mask, mesh_max_edge_m, **filter_params):
+    def run(scan, mask, mesh_max_edge_m, mesh_smoothing_m, **filter_params):
         from leafsfs.baselines import leaf_traits
 
         kept = func(scan, mask, **filter_params)
-        return VariantOutput(np.where(kept[..., None], scan.xyz, np.nan), leaf_traits(scan, kept, mesh_max_edge_m))
+        return VariantOutput(np.where(kept[..., None], scan.xyz, np.nan),
+                             leaf_traits(scan, kept, mesh_max_edge_m, mesh_smoothing_m), flags=mask & scan.valid & ~kept)
 
-    return Variant(name, family, run, {**params, "mesh_max_edge_m": MESH_MAX_EDGE_M}, description)
+    return Variant(name, family, run, {**params, "mesh_max_edge_m": MESH_MAX_EDGE_M,
+                                       "mesh_smoothing_m": MESH_SMOOTHING_M}, description)
 
 
 def _register_builtins() -> None:
@@ -182,16 +195,53 @@ def _register_builtins() -> None:
     register_variant(_removal_variant("intensity", "filter", baselines.intensity_filter,
                                       "dark-point removal: 100 DN below the leaf's median intensity",
                                       below_median_dn=100.0, min_dn=None))
+    _register_prop_sfs()
     _note_missing()
+
+
+def _register_prop_sfs() -> None:
+    """PROP-SFS: the four propagation variants with the thesis' leaf parameter set T3 (shell rule), and
+    ``buffer`` (the thesis' reference variant) with the other shell-rule sets T1, T2, T3* of thesis ch.7."""
+    import leafsfs
+
+    if not hasattr(leafsfs, "reconstruct"):
+        return
+    defaults = leafsfs.SfsParams().to_dict()
+    for engine in leafsfs.VARIANTS:
+        register_variant(_prop_sfs_variant(engine, engine, defaults))
+    for shell in ("T1", "T2", "T3*"):
+        register_variant(_prop_sfs_variant(f"buffer-{shell}", "buffer", {**defaults, "shell_set": shell}))
+
+
+def _calibration(scan):
+    """The intensity calibration of a scan's scanner model (simulated once per model and process)."""
+    from leafsfs.preprocess import resolve_calibration
+
+    return resolve_calibration("model", scan)
+
+
+def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
+    def run(scan, mask, **params):
+        import leafsfs
+        from tlssim.scan import grid_to_xyz
+
+        result = leafsfs.reconstruct(scan, mask=mask, variant=engine, params=leafsfs.SfsParams(**params),
+                                     calibration=_calibration(scan))
+        xyz = grid_to_xyz(result.range, scan.theta, scan.psi, scan.pose)
+        # A leaf PROP-SFS could not reconstruct gets no traits: its area estimate is zero.
+        traits = result.leaves[0].traits if result.leaves else {"area_m2": 0.0}
+        return VariantOutput(xyz, traits, {**result.rppp(), "skipped": len(result.skipped)}, flags=result.outlier)
+
+    shell = params["shell_set"]
+    return Variant(name, "prop-sfs", run, params,
+                   f"PROP-SFS {engine} propagation, shell-rule set {shell} (leafsfs.reconstruct, model calibration)",
+                   prepare=_calibration)
 
 
 def _note_missing() -> None:
     """Record the method families whose packages do not provide them yet."""
-    import leafsfs
     import woody
 
-    if not hasattr(leafsfs, "reconstruct"):
-        _UNAVAILABLE["prop-sfs"] = "leafsfs.reconstruct does not exist yet"
     if not (hasattr(woody, "step") and hasattr(woody, "follow_cylinders")):
         _UNAVAILABLE["woody"] = "woody.step / woody.follow_cylinders do not exist yet"
 

@@ -1,23 +1,21 @@
 """Running a suite: cases in parallel on this machine or on a Dask cluster, results into the store.
 
-:func:`run_case` is the unit of work: it rebuilds a case's scene, simulates
-the scan (deterministic from the case seed), runs each requested variant on
-every target leaf and scores it. It takes and returns JSON-ready data, so the
-same function runs inline, in a local process pool (spawned processes: the
-Dr.Jit JIT does not survive ``fork``) or on Dask workers.
+:func:`case_rows` is the unit of work: it rebuilds a case's scene,
+simulates the scan (deterministic from the case seed), runs each requested
+variant on every target leaf and scores it. It takes and returns JSON-ready
+data, so the same function runs inline, in local worker processes or on Dask
+workers (:func:`run_case`).
 
-:func:`execute` sends the cases that are not yet in the store for a run,
-writes each case's rows in one transaction as soon as it finishes, and
-shows a progress bar. A stopped run resumes from the store: finished
-(case, variant) pairs are never redone.
+:func:`execute` sends the cases that are not yet in the store for a run
+(to the local pool of :mod:`benchmarks.pool`, inline, or to Dask), writes
+each result row as soon as it arrives, and shows a progress bar. A stopped
+run resumes from the store: finished (case, variant) pairs are never redone.
 """
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import hashlib
 import json
-import multiprocessing
 import os
 import time
 import traceback
@@ -29,6 +27,7 @@ from tqdm.auto import tqdm
 from benchmarks import scoring
 from benchmarks.errors import BenchError
 from benchmarks.generators import build_scene
+from benchmarks.pool import run_local
 from benchmarks.registry import Variant, get_variant
 from benchmarks.store import Store, git_commit
 from benchmarks.suite import Case, Suite
@@ -73,8 +72,8 @@ def measured(func, *args):
 
 
 def variant_specs(variants: list[Variant]) -> list[dict]:
-    """JSON-ready ``{name, params}`` of each variant (what workers receive)."""
-    return [{"name": v.name, "params": v.params} for v in variants]
+    """JSON-ready ``{name, family, params}`` of each variant (what workers receive)."""
+    return [{"name": v.name, "family": v.family, "params": v.params} for v in variants]
 
 
 def simulate_case(case: Case):
@@ -95,35 +94,37 @@ def simulate_case(case: Case):
                            progress=False)
 
 
-def run_case(case: dict, variants: list[dict]) -> list[dict]:
-    """Simulate one case and score every variant on its target leaves.
+def case_rows(case: dict, variants: list[dict]):
+    """Simulate one case and score every variant on its target leaves, yielding one row per variant.
 
     Parameters
     ----------
     case : dict
         :meth:`benchmarks.suite.Case.to_dict` of the case.
     variants : list of dict
-        ``{"name", "params"}`` of the variants to run (looked up in the
+        :func:`variant_specs` of the variants to run (looked up in the
         registry of the process that runs the case).
 
-    Returns
-    -------
-    list of dict
-        One row per variant for :meth:`benchmarks.store.Store.add_results`;
-        a variant that fails on the case gets a row with its ``error``.
+    Yields
+    ------
+    dict
+        A row for :meth:`benchmarks.store.Store.add_results` as soon as the
+        variant is scored; a variant that fails on the case gets a row with
+        its ``error``.
     """
     case = Case.from_dict(case)
-    rows = []
     try:
         (scene, scan), simulate_s, _ = measured(simulate_case, case)
         leaves = scoring.prepare_leaves(scene, scan, None if case.targets is None else list(case.targets))
     except Exception as exc:  # noqa: BLE001 - a broken case is recorded, not fatal to the run
-        message = _message(exc)
-        return [_row(case, spec, spec.get("family", ""), {"leaves": []}, None, None, None, message)
-                for spec in variants]
+        for spec in variants:
+            yield error_row(case, spec, _message(exc))
+        return
     for spec in variants:
         try:
             variant = get_variant(spec["name"]).with_params(**spec["params"])
+            if variant.prepare is not None and leaves:
+                variant.prepare(scan)
             scores, runtime, peaks = [], 0.0, []
             for leaf in leaves:
                 output, elapsed, peak = measured(variant, leaf.scan, leaf.mask)
@@ -131,11 +132,19 @@ def run_case(case: dict, variants: list[dict]) -> list[dict]:
                 peaks.append(peak)
                 scores.append(scoring.score_leaf(leaf, output))
             peak = None if not peaks or any(p is None for p in peaks) else max(peaks)
-            rows.append(_row(case, spec, variant.family, {"leaves": scores}, runtime, peak, simulate_s, None))
+            yield _row(case, spec, {"leaves": scores}, runtime, peak, simulate_s, None)
         except Exception as exc:  # noqa: BLE001 - a failing variant is recorded, the others still run
-            rows.append(_row(case, spec, spec.get("family", ""), {"leaves": []}, None, None, simulate_s,
-                             _message(exc)))
-    return rows
+            yield _row(case, spec, {"leaves": []}, None, None, simulate_s, _message(exc))
+
+
+def run_case(case: dict, variants: list[dict]) -> list[dict]:
+    """All rows of :func:`case_rows` at once (the unit of work sent to Dask)."""
+    return list(case_rows(case, variants))
+
+
+def error_row(case: Case, spec: dict, message: str) -> dict:
+    """The row of a variant that could not be run on a case."""
+    return _row(case, spec, {"leaves": []}, None, None, None, message)
 
 
 def _message(exc: BaseException) -> str:
@@ -144,8 +153,8 @@ def _message(exc: BaseException) -> str:
     return "".join(traceback.format_exception(exc)[-3:]).strip()
 
 
-def _row(case: Case, spec: dict, family: str, metrics: dict, runtime, peak, simulate_s, error) -> dict:
-    return {"case_name": case.name, "variant": spec["name"], "family": family, "params": spec["params"],
+def _row(case: Case, spec: dict, metrics: dict, runtime, peak, simulate_s, error) -> dict:
+    return {"case_name": case.name, "variant": spec["name"], "family": spec["family"], "params": spec["params"],
             "case_spec": case.to_dict(), "metrics": metrics, "runtime_s": runtime, "peak_mem_mb": peak,
             "simulate_s": simulate_s, "error": error}
 
@@ -169,9 +178,15 @@ def run_config(suite: Suite, variants: list[Variant]) -> tuple[dict, str]:
     return config, hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()
 
 
+#: Default data-segment limit of a local worker process, GiB, and longest silence of a worker on a task, s.
+MEMORY_LIMIT_GB = 6.0
+TIMEOUT_S = 900.0
+
+
 def execute(suite: Suite, variants: list[Variant], store: Store, workers: int | None = None,
             scheduler: str | None = None, resume: str | bool = True, progress: bool = True,
-            notes: dict | None = None) -> RunOutcome:
+            notes: dict | None = None, memory_limit_gb: float | None = MEMORY_LIMIT_GB,
+            timeout_s: float | None = TIMEOUT_S) -> RunOutcome:
     """Run every case of ``suite`` with ``variants`` and store the results.
 
     Parameters
@@ -183,8 +198,9 @@ def execute(suite: Suite, variants: list[Variant], store: Store, workers: int | 
     store : Store
         Where results go.
     workers : int, optional
-        Local worker processes (default: the processor count; 1 runs the
-        cases in this process). Ignored with ``scheduler``.
+        Local worker processes (default: the processor count; 0 runs the
+        cases in this process, without the protections below). Ignored
+        with ``scheduler``.
     scheduler : str, optional
         Address of a Dask distributed scheduler (``tcp://host:port``) to
         send the cases to instead.
@@ -196,6 +212,12 @@ def execute(suite: Suite, variants: list[Variant], store: Store, workers: int | 
         Show a progress bar.
     notes : dict, optional
         Notes stored with a new run.
+    memory_limit_gb : float, optional
+        Memory (data segment) limit of each local worker, GiB; a variant
+        that exceeds it records a ``MemoryError`` (``None`` or 0: no limit).
+    timeout_s : float, optional
+        A local worker silent this long on a task is stopped and its
+        variant recorded as timed out (``None``: no limit).
 
     Returns
     -------
@@ -224,37 +246,33 @@ def execute(suite: Suite, variants: list[Variant], store: Store, workers: int | 
             todo.append((case.to_dict(), missing))
     start = time.perf_counter()
     added = 0
+    remaining = {case["name"]: len(missing) for case, missing in todo}
     with tqdm(total=len(suite.cases), initial=len(suite.cases) - len(todo), unit="case", disable=not progress,
               desc=f"{suite.name} ({run_id})") as bar:
-        for rows in _dispatch(todo, workers, scheduler):
+        for rows in _dispatch(todo, workers, scheduler, memory_limit_gb, timeout_s):
             added += store.add_results(run_id, rows)
-            bar.update(1)
+            for row in rows:
+                remaining[row["case_name"]] -= 1
+                bar.update(remaining[row["case_name"]] == 0)
     if len(store.done_pairs(run_id)) == len(suite.cases) * len(specs):
         store.finish_run(run_id)
     return RunOutcome(run_id, resumed, len(todo), len(suite.cases) - len(todo), added,
                       time.perf_counter() - start)
 
 
-def _dispatch(todo: list[tuple[dict, list[dict]]], workers: int | None, scheduler: str | None):
-    """Yield the rows of each case as it finishes (inline, process pool or Dask)."""
+def _dispatch(todo: list[tuple[dict, list[dict]]], workers: int | None, scheduler: str | None,
+              memory_limit_gb: float | None, timeout_s: float | None):
+    """Yield result rows as they arrive (inline, local worker processes or Dask)."""
     if not todo:
         return
     if scheduler:
         yield from _dispatch_dask(todo, scheduler)
-        return
-    workers = min(workers or os.cpu_count() or 1, len(todo))
-    if workers <= 1:
+    elif workers == 0:
         for case, specs in todo:
-            yield run_case(case, specs)
-        return
-    with cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = [pool.submit(run_case, case, specs) for case, specs in todo]
-        try:
-            for future in cf.as_completed(futures):
-                yield future.result()
-        finally:
-            for future in futures:
-                future.cancel()
+            for row in case_rows(case, specs):
+                yield [row]
+    else:
+        yield from run_local(todo, workers or os.cpu_count() or 1, memory_limit_gb, timeout_s)
 
 
 def _dispatch_dask(todo: list[tuple[dict, list[dict]]], address: str):
@@ -265,9 +283,13 @@ def _dispatch_dask(todo: list[tuple[dict, list[dict]]], address: str):
     except (OSError, TimeoutError) as exc:
         raise BenchError(f"cannot reach the Dask scheduler at {address!r} ({exc})") from None
     with client:
-        futures = [client.submit(run_case, case, specs, pure=False) for case, specs in todo]
+        futures = {client.submit(run_case, case, specs, pure=False): (case, specs) for case, specs in todo}
         try:
             for future in as_completed(futures):
-                yield future.result()
+                try:
+                    yield future.result()
+                except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker: the case's variants get error rows
+                    case, specs = futures[future]
+                    yield [error_row(Case.from_dict(case), spec, f"Dask: {_message(exc)}") for spec in specs]
         finally:
-            client.cancel(futures)
+            client.cancel(list(futures))

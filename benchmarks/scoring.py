@@ -249,7 +249,9 @@ def score_leaf(leaf: LeafTruth, output: VariantOutput) -> dict:
         outlier scores of :func:`benchmarks.metrics.outlier_scores` (the
         ``auto`` threshold unsuffixed, τ = 1 cm with the suffix ``_1cm``);
         ``surface_rmse_m`` and ``completeness`` (share of the leaf's own
-        pulses with an output point within τ); leaf-trait errors where both
+        pulses with an output point within τ); ``flag_precision`` and
+        ``flag_recall`` of the points the method flags as outliers against
+        the true outliers (τ auto); leaf-trait errors where both
         the truth and the method give the trait; the method's own stats.
     """
     _, kept, distance = output_distance(leaf, output)
@@ -260,6 +262,11 @@ def score_leaf(leaf: LeafTruth, output: VariantOutput) -> dict:
         suffix = "" if label == "auto" else f"_{label}"
         for key, value in metrics.outlier_scores(before > tau, kept, after > tau).items():
             scores[key + suffix] = value
+    if output.flags is not None:
+        flagged = np.asarray(output.flags)[leaf.mask]
+        truly = before > leaf.taus["auto"]
+        scores["flag_precision"] = metrics.ratio(int((flagged & truly).sum()), int(flagged.sum()))
+        scores["flag_recall"] = metrics.ratio(int((flagged & truly).sum()), int(truly.sum()))
     scores["surface_rmse_m"] = metrics.rms(distance[kept])
     own = max(int(leaf.own.sum()), 1)
     scores["completeness"] = int((leaf.own & kept & (after <= leaf.taus["auto"])).sum()) / own

@@ -28,9 +28,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from leafsfs.errors import SfsError
+from tlssim.scan import grid_to_xyz
 
 #: The eight neighbours of a pixel in the range image.
 _NEIGHBOURS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
@@ -273,6 +275,22 @@ def intensity_filter(scan, mask=None, below_median_dn: float | None = 100.0,
         return mask & (scan.intensity >= threshold)
 
 
+def smoothed_range(scan, kept, smoothing_m: float) -> np.ndarray:
+    """Range image smoothed over the kept pixels (normalised Gaussian of standard deviation ``smoothing_m``).
+
+    The width in pixels follows the kept points' median range and the grid
+    step. NaN outside ``kept``.
+    """
+    kept = _checked_mask(scan, kept)
+    _positive("smoothing_m", smoothing_m)
+    if not kept.any():
+        return np.full(scan.shape, np.nan)
+    sigma = smoothing_m / (float(np.median(scan.range[kept])) * angular_step(scan))
+    weight = ndimage.gaussian_filter(kept.astype(float), sigma)
+    total = ndimage.gaussian_filter(np.where(kept, scan.range, 0.0), sigma)
+    return np.where(kept, total / np.maximum(weight, 1e-12), np.nan)
+
+
 def grid_mesh(scan, kept, max_edge_m: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
     """Triangulate kept points along the scan grid, dropping triangles with a long edge.
 
@@ -280,10 +298,19 @@ def grid_mesh(scan, kept, max_edge_m: float = 0.01) -> tuple[np.ndarray, np.ndar
     its three points are kept and none of its edges exceeds ``max_edge_m``
     (which drops the triangles that bridge a leaf and its background).
 
+    Parameters
+    ----------
+    scan : tlssim.Scan
+        The scan.
+    kept : ndarray of bool
+        Points to mesh.
+    max_edge_m : float
+        Longest triangle edge, m.
+
     Returns
     -------
     vertices : ndarray, shape (V, 3)
-        The kept points, m.
+        The kept points (in grid order), m.
     faces : ndarray, shape (F, 3)
         Triangles, oriented so that their normals face the scanner.
     """
@@ -308,9 +335,16 @@ def grid_mesh(scan, kept, max_edge_m: float = 0.01) -> tuple[np.ndarray, np.ndar
     return vertices, faces.reshape(-1, 3)
 
 
-def leaf_traits(scan, kept, max_edge_m: float = 0.01) -> dict:
-    """Leaf area, normal and midrib direction from kept points (meshed with :func:`grid_mesh`).
+def leaf_traits(scan, kept, max_edge_m: float = 0.01, smoothing_m: float = 0.002) -> dict:
+    """Leaf area, normal and midrib direction from kept points.
 
+    The kept points are meshed along the grid (:func:`grid_mesh`); then the
+    ranges of the meshed points are smoothed among themselves
+    (:func:`smoothed_range`: range noise of a millimetre on sub-millimetre
+    pixels would otherwise crumple the mesh and multiply its area; 2 mm is
+    the scale of leafsfs' trait smoothing) and the same triangles are
+    measured on the smoothed points. Points outside the mesh (veils cut
+    off by the edge cap) take no part in the smoothing.
     The normal is the area-weighted mean triangle normal (facing the
     scanner); the midrib is taken as the principal axis of the area-weighted
     triangle centroids (the blade's longest extent; it has no sense, so the
@@ -323,10 +357,16 @@ def leaf_traits(scan, kept, max_edge_m: float = 0.01) -> dict:
         ``azimuth_deg`` of the midrib axis; NaN values when nothing could be
         meshed.
     """
-    vertices, faces = grid_mesh(scan, kept, max_edge_m)
+    kept = _checked_mask(scan, kept)
+    _, faces = grid_mesh(scan, kept, max_edge_m)
     if len(faces) == 0:
         return {"area_m2": 0.0, "normal": [math.nan] * 3, "elevation_deg": math.nan, "azimuth_deg": math.nan}
-    tri = vertices[faces]
+    meshed = np.zeros(int(kept.sum()), dtype=bool)
+    meshed[faces.ravel()] = True
+    surface = np.zeros(scan.shape, dtype=bool)
+    surface[kept] = meshed
+    smooth = grid_to_xyz(smoothed_range(scan, surface, smoothing_m), scan.theta, scan.psi, scan.pose)
+    tri = smooth[kept][faces]
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     area = 0.5 * np.linalg.norm(cross, axis=1)
     normal = cross.sum(axis=0)

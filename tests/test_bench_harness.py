@@ -40,7 +40,7 @@ def tiny_run(tiny_path, tmp_path_factory):
     """The tiny suite run inline (one process): (db path, run id)."""
     db = tmp_path_factory.mktemp("db") / "results.sqlite"
     with Store(db) as store:
-        outcome = execute(load_suite(str(tiny_path)), registry.resolve(VARIANTS), store, workers=1, progress=False)
+        outcome = execute(load_suite(str(tiny_path)), registry.resolve(VARIANTS), store, workers=0, progress=False)
     return db, outcome.run_id
 
 
@@ -89,10 +89,30 @@ def test_dask_local_cluster_gives_the_same_scores(tiny_path, tiny_run, tmp_path)
     assert scores(tmp_path / "dask.sqlite", outcome.run_id) == scores(*tiny_run)
 
 
+def test_worker_pool_survives_runaway_variants(tmp_path):
+    """A variant over the memory limit records a MemoryError; a silent worker is stopped and replaced."""
+    suite = {"name": "unruly", "cases": [
+        {"name": "big-leaf", "scene": {"generator": "plate-leaf", "distance_m": 0.8}},
+        {"name": "orchard", "scene": {"builtin": "orchard-row"}},
+        {"name": "edge", "scene": {"builtin": "knife-edge"}, "targets": ["plate"]}]}
+    path = tmp_path / "unruly.yaml"
+    path.write_text(yaml.safe_dump(suite))
+    variants = registry.resolve(["raw", "sor"], {"sor": {"k": 20000}})  # 0.8 m leaf: 30k x 20k neighbours
+    with Store(tmp_path / "r.sqlite") as store:
+        outcome = execute(load_suite(str(path)), variants, store, workers=1, progress=False, memory_limit_gb=1.5,
+                          timeout_s=3.0)
+        rows = {(r["case_name"], r["variant"]): r for r in store.results(outcome.run_id)}
+        assert store.run_info(outcome.run_id)["status"] == "complete"
+    assert rows[("big-leaf", "raw")]["error"] is None
+    assert "MemoryError" in rows[("big-leaf", "sor")]["error"]
+    assert all("no result within 3 s" in rows[("orchard", v)]["error"] for v in ("raw", "sor"))
+    assert rows[("edge", "raw")]["error"] is None and rows[("edge", "sor")]["error"] is None
+
+
 def test_a_failing_case_is_recorded_not_fatal():
     case = {"name": "bad", "scene": {"generator": "plate-leaf"}, "scanner": {"step_deg": -1.0}, "seed": 0,
             "targets": None}
-    rows = run_case(case, [{"name": "raw", "params": {"mesh_max_edge_m": 0.01}}])
+    rows = run_case(case, [{"name": "raw", "family": "raw", "params": {"mesh_max_edge_m": 0.01, "mesh_smoothing_m": 0.002}}])
     assert len(rows) == 1 and "step_deg" in rows[0]["error"] and rows[0]["metrics"] == {"leaves": []}
 
 
@@ -120,8 +140,8 @@ def test_resume_after_a_killed_run_neither_redoes_nor_loses_cases(tmp_path):
     os.killpg(process.pid, signal.SIGKILL)
     assert process.wait(timeout=30) == -signal.SIGKILL, "the run finished before it could be killed"
     before = {(case, variant): finished for case, variant, finished in _stored_rows(db)}
-    done_cases = len({case for case, _ in before})
-    assert 1 <= done_cases < 6 and len(before) == 2 * done_cases, "a case's rows are written together"
+    done_cases = len({case for case, variant in before if (case, "shadow") in before})
+    assert 2 <= len(before) < 12 and done_cases < 6
 
     resumed = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert resumed.returncode == 0, resumed.stderr
@@ -155,7 +175,7 @@ class _CheckedHTML(HTMLParser):
 
 def test_cli_run_writes_well_formed_reports(tiny_path, tmp_path, capsys):
     db, out = tmp_path / "results.sqlite", tmp_path / "out"
-    argv = ["run", "--suite", str(tiny_path), "--db", str(db), "-o", str(out), "--workers", "1", "--quiet",
+    argv = ["run", "--suite", str(tiny_path), "--db", str(db), "-o", str(out), "--workers", "0", "--quiet",
             "--variants", "raw", "shadow", "--set", "shadow.min_angle_deg=5"]
     assert cli.main(argv) == 0
     printed = capsys.readouterr().out
@@ -209,7 +229,7 @@ def test_compare_flags_regressions_beyond_noise(tiny_run, capsys):
 
 
 def test_sweep_command_writes_table_and_plot(tmp_path, capsys):
-    argv = ["sweep", "distance", "--values", "3", "5", "--variants", "raw", "shadow", "--workers", "1", "--quiet",
+    argv = ["sweep", "distance", "--values", "3", "5", "--variants", "raw", "shadow", "--workers", "0", "--quiet",
             "--db", str(tmp_path / "r.sqlite"), "-o", str(tmp_path / "sw")]
     assert cli.main(argv) == 0
     lines = (tmp_path / "sw" / "sweep-distance.csv").read_text().splitlines()
@@ -221,7 +241,7 @@ def test_sweep_command_writes_table_and_plot(tmp_path, capsys):
 
 def test_main_job_end_to_end(tiny_path, tmp_path, capsys):
     out = tmp_path / "bench-out"
-    assert cli.main(["main", "-o", str(out), "--suite", str(tiny_path), "--workers", "1", "--quiet",
+    assert cli.main(["main", "-o", str(out), "--suite", str(tiny_path), "--workers", "0", "--quiet",
                      "--variants", "raw", "shadow"]) == 0
     printed = capsys.readouterr().out
     assert "ROP red." in printed and "goal:" in printed
