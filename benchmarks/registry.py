@@ -157,8 +157,9 @@ def resolve(names: list[str] | None = None, overrides: dict[str, dict] | None = 
     return [get_variant(n).with_params(**overrides.get(n, {})) for n in names]
 
 
-#: Edge cap and range smoothing of the range-image mesh that gives raw and filtered clouds their leaf traits, m.
-MESH_MAX_EDGE_M = 0.01
+#: Edge cap (None: 1 cm or four sample spacings) and range smoothing of the range-image mesh that gives raw
+#: and filtered clouds their leaf traits, m (:func:`leafsfs.baselines.leaf_traits`).
+MESH_MAX_EDGE_M = None
 MESH_SMOOTHING_M = 0.002
 
 

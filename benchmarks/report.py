@@ -29,7 +29,7 @@ from benchmarks.suite import Case
 
 
 def report_document(store: Store, run_id: str) -> dict:
-    """The JSON report of a run: ``run``, ``goal``, ``rows`` (suite × variant) and ``sweeps``."""
+    """The JSON report of a run: ``run``, ``goal``, ``rows`` (suite × variant), ``by_scene`` and ``sweeps``."""
     info = store.run_info(run_id)
     rows = store.results(run_id)
     table = summary.summarize(rows, info["suite"])
@@ -37,6 +37,7 @@ def report_document(store: Store, run_id: str) -> dict:
         "run": {k: info[k] for k in ("run_id", "created", "finished", "status", "git_commit", "machine", "suite")},
         "goal": summary.goal_status(table, unavailable()),
         "rows": table,
+        "by_scene": summary.summarize_by_scene(rows, info["suite"]),
         "unavailable_variants": unavailable(),
         "errors": [{"case": r["case_name"], "variant": r["variant"], "error": r["error"]} for r in rows if r["error"]],
         "sweeps": [],
@@ -180,6 +181,10 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
         _table(document["rows"], [key for _, key, _ in summary.HEADLINE]),
         "<h2>All metrics (variant × metric)</h2>",
         _table(document["rows"], summary.SUMMARY_KEYS),
+        "<h2>By kind of scene</h2>",
+        _table(document["by_scene"], ["scene", "variant", "n_leaves", "n_errors", "rop_before", "rop_after",
+                                      "rop_reduction", "outliers_restored", "good_points_lost",
+                                      "area_rel_err_median", "area_rel_err_bias", "runtime_s"]),
         "<p>ROP: mean over leaves of outliers / points (points with ≥ 10 % of their footprint power from the leaf; "
         "outliers farther than τ from the true surface of their object). Area and angle errors: medians of absolute "
         "errors over leaves. Runtime: median per case. Lengths in mm.</p>",

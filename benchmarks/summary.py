@@ -1,19 +1,21 @@
 """Aggregating stored results: one summary row per suite × variant, and the headline table.
 
-Per-leaf scores (see :func:`benchmarks.scoring.score_leaf`) are pooled over
-every case of a run:
+Per-leaf scores (see :func:`benchmarks.scoring.score_leaf`) are first
+aggregated within each case, then over the cases, so that every case weighs
+the same whatever its number of leaves (a tree with 300 leaves does not
+drown 60 single-leaf cases):
 
-- ``rop_before``, ``rop_after``: mean over leaves of the per-leaf ROP;
+- ``rop_before``, ``rop_after``: mean over cases of the mean per-leaf ROP;
   ``rop_reduction`` = 1 − rop_after / rop_before (the same with ``_1cm``);
 - ``good_points_lost``, ``outliers_restored``, ``good_points_damaged``,
-  ``completeness``: mean over leaves;
-- ``area_rel_err_median``: median over the fully visible leaves
-  (``visibility`` >= :data:`MIN_VISIBILITY`, like the thesis' 58 fully
-  visible field leaves: no method recovers a hidden part) of |relative area
-  error| (``area_rel_err_bias``: median of the signed error);
-  ``elevation_err_median_deg``, ``azimuth_err_median_deg``: medians of the
-  absolute angle errors on the same leaves (``n_leaves_traits`` of them);
-  ``surface_rmse_m``: median over leaves;
+  ``completeness``: mean over cases of the mean over leaves;
+- ``area_rel_err_median``: median over cases of the median over the fully
+  visible leaves (``visibility`` >= :data:`MIN_VISIBILITY`, like the
+  thesis' 58 fully visible field leaves: no method recovers a hidden part)
+  of |relative area error| (``area_rel_err_bias``: the same with the
+  signed error); ``elevation_err_median_deg``, ``azimuth_err_median_deg``:
+  the same with the absolute angle errors (on ``n_leaves_traits`` leaves);
+  ``surface_rmse_m``: median over cases of the median over leaves;
 - ``runtime_s``: median wall time of the variant on one case (all its
   leaves); ``runtime_total_s``: sum over cases; ``peak_mem_mb``: largest
   peak over cases;
@@ -34,7 +36,7 @@ import numpy as np
 GOAL_ROP_REDUCTION = 0.90
 GOAL_AREA_REL_ERR = 0.05
 
-#: Leaves whose dominated pulses reach this share of an unoccluded blade's count are "fully visible".
+#: Leaves with at least this share of their silhouette unhidden are "fully visible".
 MIN_VISIBILITY = 0.8
 
 #: Keys of a summary row, in display order.
@@ -62,14 +64,17 @@ def _values(leaves: list[dict], key: str, absolute: bool = False) -> np.ndarray:
     return np.abs(values) if absolute else values
 
 
-def _mean(leaves, key):
-    values = _values(leaves, key)
-    return float(values.mean()) if len(values) else None
-
-
-def _median(leaves, key, absolute=False):
-    values = _values(leaves, key, absolute)
-    return float(np.median(values)) if len(values) else None
+def _over_cases(rows: list[dict], key: str, reduce=np.mean, absolute: bool = False, visible: bool = False):
+    """``reduce`` of a per-leaf score within each case, then over the cases (None when no case has it)."""
+    per_case = []
+    for row in rows:
+        leaves = row["metrics"]["leaves"]
+        if visible:
+            leaves = [leaf for leaf in leaves if (leaf.get("visibility") or 0.0) >= MIN_VISIBILITY]
+        values = _values(leaves, key, absolute)
+        if len(values):
+            per_case.append(reduce(values))
+    return float(reduce(per_case)) if per_case else None
 
 
 def _reduction(before, after):
@@ -78,35 +83,50 @@ def _reduction(before, after):
 
 def summarize(rows: list[dict], suite: str) -> list[dict]:
     """One summary row per variant of a run's result rows (variants in first-seen order)."""
-    summary = []
-    for variant in dict.fromkeys(r["variant"] for r in rows):
-        mine = [r for r in rows if r["variant"] == variant]
-        ok = [r for r in mine if not r["error"]]
-        leaves = leaf_scores(ok)
-        row = {"suite": suite, "variant": variant, "family": mine[0]["family"], "n_cases": len(mine),
-               "n_leaves": len(leaves), "n_errors": len(mine) - len(ok)}
-        for suffix in ("", "_1cm"):
-            before, after = _mean(leaves, "rop_before" + suffix), _mean(leaves, "rop_after" + suffix)
-            row.update({f"rop_before{suffix}": before, f"rop_after{suffix}": after,
-                        f"rop_reduction{suffix}": _reduction(before, after)})
-        for key in ("good_points_lost", "outliers_restored", "good_points_damaged", "completeness"):
-            row[key] = _mean(leaves, key)
-        row["surface_rmse_m"] = _median(leaves, "surface_rmse_m")
-        visible = [leaf for leaf in leaves if (leaf.get("visibility") or 0.0) >= MIN_VISIBILITY]
-        row["n_leaves_traits"] = len(visible)
-        row["area_rel_err_median"] = _median(visible, "area_rel_err", absolute=True)
-        row["area_rel_err_bias"] = _median(visible, "area_rel_err")
-        row["elevation_err_median_deg"] = _median(visible, "elevation_err_deg")
-        row["azimuth_err_median_deg"] = _median(visible, "azimuth_err_deg")
-        row["diameter_err_median_m"] = None
-        row["volume_rel_err"] = None
-        runtimes = [r["runtime_s"] for r in ok if r["runtime_s"] is not None]
-        peaks = [r["peak_mem_mb"] for r in ok if r["peak_mem_mb"] is not None]
-        row["runtime_s"] = float(np.median(runtimes)) if runtimes else None
-        row["runtime_total_s"] = float(np.sum(runtimes)) if runtimes else None
-        row["peak_mem_mb"] = float(max(peaks)) if peaks else None
-        summary.append({key: row[key] for key in SUMMARY_KEYS})
-    return summary
+    return [_summary_row([r for r in rows if r["variant"] == variant], {"suite": suite})
+            for variant in dict.fromkeys(r["variant"] for r in rows)]
+
+
+def scene_kind(case_spec: dict) -> str:
+    """The kind of scene of a stored case: its generator or built-in scene name."""
+    scene = case_spec["scene"]
+    return scene.get("generator") or scene.get("builtin")
+
+
+def summarize_by_scene(rows: list[dict], suite: str) -> list[dict]:
+    """One summary row per kind of scene (:func:`scene_kind`) and variant, with a ``scene`` key."""
+    kinds = list(dict.fromkeys(scene_kind(r["case_spec"]) for r in rows))
+    return [_summary_row(mine, {"suite": suite, "scene": kind})
+            for kind in kinds for variant in dict.fromkeys(r["variant"] for r in rows)
+            if (mine := [r for r in rows if r["variant"] == variant and scene_kind(r["case_spec"]) == kind])]
+
+
+def _summary_row(mine: list[dict], labels: dict) -> dict:
+    """Aggregate the result rows of one variant (see the module docstring)."""
+    ok = [r for r in mine if not r["error"]]
+    leaves = leaf_scores(ok)
+    row = {**labels, "variant": mine[0]["variant"], "family": mine[0]["family"], "n_cases": len(mine),
+           "n_leaves": len(leaves), "n_errors": len(mine) - len(ok)}
+    for suffix in ("", "_1cm"):
+        before, after = _over_cases(ok, "rop_before" + suffix), _over_cases(ok, "rop_after" + suffix)
+        row.update({f"rop_before{suffix}": before, f"rop_after{suffix}": after,
+                    f"rop_reduction{suffix}": _reduction(before, after)})
+    for key in ("good_points_lost", "outliers_restored", "good_points_damaged", "completeness"):
+        row[key] = _over_cases(ok, key)
+    row["surface_rmse_m"] = _over_cases(ok, "surface_rmse_m", np.median)
+    row["n_leaves_traits"] = sum(1 for leaf in leaves if (leaf.get("visibility") or 0.0) >= MIN_VISIBILITY)
+    row["area_rel_err_median"] = _over_cases(ok, "area_rel_err", np.median, absolute=True, visible=True)
+    row["area_rel_err_bias"] = _over_cases(ok, "area_rel_err", np.median, visible=True)
+    row["elevation_err_median_deg"] = _over_cases(ok, "elevation_err_deg", np.median, visible=True)
+    row["azimuth_err_median_deg"] = _over_cases(ok, "azimuth_err_deg", np.median, visible=True)
+    row["diameter_err_median_m"] = None
+    row["volume_rel_err"] = None
+    runtimes = [r["runtime_s"] for r in ok if r["runtime_s"] is not None]
+    peaks = [r["peak_mem_mb"] for r in ok if r["peak_mem_mb"] is not None]
+    row["runtime_s"] = float(np.median(runtimes)) if runtimes else None
+    row["runtime_total_s"] = float(np.sum(runtimes)) if runtimes else None
+    row["peak_mem_mb"] = float(max(peaks)) if peaks else None
+    return {key: row[key] for key in tuple(labels) + SUMMARY_KEYS[1:]}
 
 
 def goal_status(summary: list[dict], unavailable: dict[str, str] | None = None) -> str:

@@ -335,8 +335,12 @@ def grid_mesh(scan, kept, max_edge_m: float = 0.01) -> tuple[np.ndarray, np.ndar
     return vertices, faces.reshape(-1, 3)
 
 
-def leaf_traits(scan, kept, max_edge_m: float = 0.01, smoothing_m: float = 0.002) -> dict:
+def leaf_traits(scan, kept, max_edge_m: float | None = None, smoothing_m: float = 0.002) -> dict:
     """Leaf area, normal and midrib direction from kept points.
+
+    ``max_edge_m`` caps the mesh edges (default: 1 cm, or four sample
+    spacings on sparser scans, so that a leaf sampled every 5 mm and tilted
+    still meshes).
 
     The kept points are meshed along the grid (:func:`grid_mesh`); then the
     ranges of the meshed points are smoothed among themselves
@@ -358,7 +362,9 @@ def leaf_traits(scan, kept, max_edge_m: float = 0.01, smoothing_m: float = 0.002
         meshed.
     """
     kept = _checked_mask(scan, kept)
-    _, faces = grid_mesh(scan, kept, max_edge_m)
+    if max_edge_m is None and kept.any():
+        max_edge_m = max(0.01, 4.0 * float(np.median(scan.range[kept])) * angular_step(scan))
+    _, faces = grid_mesh(scan, kept, max_edge_m or 0.01)
     if len(faces) == 0:
         return {"area_m2": 0.0, "normal": [math.nan] * 3, "elevation_deg": math.nan, "azimuth_deg": math.nan}
     meshed = np.zeros(int(kept.sum()), dtype=bool)

@@ -19,9 +19,9 @@ VEIL = (0.1, 0.25, 0.4)  # columns 25..27: mixed points between the plate and th
 WALL_X = 2.0             # columns 28..: the wall
 
 
-def make_scan(range_m, intensity=None) -> Scan:
-    theta_axis = np.radians(STEP_DEG * (np.arange(range_m.shape[1]) - range_m.shape[1] / 2))
-    psi_axis = np.radians(90.0 + STEP_DEG * (np.arange(range_m.shape[0]) - range_m.shape[0] / 2))
+def make_scan(range_m, intensity=None, step_deg=STEP_DEG) -> Scan:
+    theta_axis = np.radians(step_deg * (np.arange(range_m.shape[1]) - range_m.shape[1] / 2))
+    psi_axis = np.radians(90.0 + step_deg * (np.arange(range_m.shape[0]) - range_m.shape[0] / 2))
     theta, psi = np.meshgrid(theta_axis, psi_axis)
     if intensity is None:
         intensity = np.where(np.isfinite(range_m), 1600.0, np.nan)
@@ -148,6 +148,19 @@ def test_leaf_traits_smooth_range_noise():
     area = baselines.leaf_traits(clean, everything)["area_m2"]
     assert baselines.leaf_traits(noisy, everything)["area_m2"] == pytest.approx(area, rel=0.05)
     assert baselines.leaf_traits(noisy, everything, smoothing_m=1e-6)["area_m2"] > 2 * area
+
+
+def test_leaf_traits_cap_follows_sparse_sampling():
+    # A plane 4 m away tilted 60 deg about the vertical, sampled every 0.08 deg (5.6 mm; 11 mm along the tilt).
+    step = 0.08
+    grid = make_scan(np.ones((20, 20)), step_deg=step)
+    normal = np.array([-math.cos(math.radians(60.0)), math.sin(math.radians(60.0)), 0.0])
+    beam = grid.xyz / np.linalg.norm(grid.xyz, axis=2, keepdims=True)
+    scan = make_scan(np.dot([4.0, 0.0, 0.0], normal) / np.einsum("ijk,k->ij", beam, normal), step_deg=step)
+    everything = np.ones(scan.shape, bool)
+    wide = baselines.leaf_traits(scan, everything, max_edge_m=1.0)["area_m2"]
+    assert baselines.leaf_traits(scan, everything, max_edge_m=0.01)["area_m2"] == 0.0
+    assert baselines.leaf_traits(scan, everything)["area_m2"] == pytest.approx(wide, rel=1e-6)
 
 
 def test_grid_mesh_faces_the_scanner(edge_scan):
