@@ -29,8 +29,8 @@ from benchmarks.store import Store
 from benchmarks.suite import load_suite, suite_names
 from tlssim.clitools import run_main
 
-#: Suite of the main job: about 1 min on 2 cores with the built-in variants (see the README).
-MAIN_SUITE = "standard"
+#: Suite of the main job: about 3 min on 2 cores with every registered variant (see the README).
+MAIN_SUITE = "quick"
 #: Sweeps of the main job (raw and every filter).
 MAIN_SWEEPS = ("distance", "incidence")
 
@@ -106,7 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("sweep", help="stress sweep: ROP, range noise and intensity against one parameter")
     p.add_argument("kind", choices=list(sweeps.SWEEPS))
-    p.add_argument("--scene", default="plate-leaf", help="scene generator (default plate-leaf)")
+    p.add_argument("--scene", default="single-leaf", help="scene generator (default single-leaf)")
     p.add_argument("--values", nargs="+", type=float, default=None, help="values of the swept parameter")
     p.add_argument("--param", action="append", metavar="KEY=VALUE", help="fixed scene-generator parameter")
     p.add_argument("--scanner", action="append", metavar="KEY=VALUE", help="fixed scanner override")
@@ -195,9 +195,9 @@ def cmd_compare(args) -> int:
     return 1 if regressions else 0
 
 
-def _sweep(kind: str, args, store: Store, scene: str = "plate-leaf", values=None, params=None, scanner=None,
-           repeats: int = 1):
-    suite = sweeps.sweep_suite(kind, scene, values, params, scanner, repeats)
+def _sweep(suite, args, store: Store):
+    """Run a sweep's suite; return its run id and table."""
+    kind = sweeps.sweep_of(suite.name)
     outcome = _run_suite(suite, args, store)
     table = sweeps.sweep_table(store.results(outcome.run_id), kind)
     return outcome.run_id, table
@@ -206,8 +206,9 @@ def _sweep(kind: str, args, store: Store, scene: str = "plate-leaf", values=None
 def cmd_sweep(args) -> int:
     args.variants = args.variants or args.variants_default
     with Store(args.db) as store:
-        run_id, table = _sweep(args.kind, args, store, args.scene, args.values, _assignments(args.param, "--param"),
-                               _assignments(args.scanner, "--scanner"), args.repeats)
+        suite = sweeps.sweep_suite(args.kind, args.scene, args.values, _assignments(args.param, "--param"),
+                                   _assignments(args.scanner, "--scanner"), args.repeats)
+        run_id, table = _sweep(suite, args, store)
     csv_path, png_path = sweeps.write_sweep(table, args.kind, args.output)
     print(f"sweep {args.kind}, run {run_id}")
     print(sweeps.format_table(table))
@@ -225,7 +226,7 @@ def cmd_main(args) -> int:
                                                                       if v.family in ("raw", "filter")]})
         sweep_ids = []
         for kind in MAIN_SWEEPS:
-            run_id, table = _sweep(kind, sweep_args, store)
+            run_id, table = _sweep(sweeps.sweep_suite(kind), sweep_args, store)
             sweeps.write_sweep(table, kind, outdir)
             sweep_ids.append(run_id)
         store.set_notes(outcome.run_id, {"sweeps": sweep_ids})

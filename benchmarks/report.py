@@ -44,7 +44,7 @@ def report_document(store: Store, run_id: str) -> dict:
     }
     for sweep_id in info["notes"].get("sweeps", []):
         sweep = store.run_info(sweep_id)
-        kind = sweep["suite"].removeprefix("sweep-")
+        kind = sweeps.sweep_of(sweep["suite"])
         document["sweeps"].append({"run_id": sweep_id, "kind": kind,
                                    "table": sweeps.sweep_table(store.results(sweep_id), kind)})
     return document

@@ -148,9 +148,12 @@ def error_row(case: Case, spec: dict, message: str) -> dict:
 
 
 def _message(exc: BaseException) -> str:
-    if isinstance(exc, ValueError):
-        return f"{type(exc).__name__}: {exc}"
-    return "".join(traceback.format_exception(exc)[-3:]).strip()
+    """``Type: message``, and where it was raised unless it is a user-facing error (ValueError)."""
+    text = f"{type(exc).__name__}: {exc}"
+    if isinstance(exc, ValueError) or exc.__traceback__ is None:
+        return text
+    frame = traceback.extract_tb(exc.__traceback__)[-1]
+    return f"{text} (at {Path(frame.filename).name}:{frame.lineno} in {frame.name})"
 
 
 def _row(case: Case, spec: dict, metrics: dict, runtime, peak, simulate_s, error) -> dict:

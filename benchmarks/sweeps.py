@@ -71,7 +71,7 @@ def sweep_kind(kind: str) -> SweepKind:
     return SWEEPS[kind]
 
 
-def sweep_suite(kind: str, scene: str = "plate-leaf", values=None, params: dict | None = None,
+def sweep_suite(kind: str, scene: str = "single-leaf", values=None, params: dict | None = None,
                 scanner: dict | None = None, repeats: int = 1) -> Suite:
     """The suite of a sweep: one case per value and repeat.
 
@@ -106,6 +106,13 @@ def sweep_suite(kind: str, scene: str = "plate-leaf", values=None, params: dict 
             name = f"{kind}={value:g}" + (f"#{repeat + 1}" if repeats > 1 else "")
             cases.append(Case(name, case_scene, case_scanner, case_seed(name)))
     return Suite(f"sweep-{kind}", f"{kind} sweep on {scene}", tuple(cases), f"sweep:{kind}")
+
+
+def sweep_of(suite_name: str) -> str:
+    """The sweep kind of a sweep suite's name (``sweep-<kind>``, as :func:`sweep_suite` names it)."""
+    kind = suite_name.removeprefix("sweep-")
+    sweep_kind(kind)
+    return kind
 
 
 def sweep_value(kind: str, case_spec: dict) -> float:

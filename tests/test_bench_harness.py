@@ -206,6 +206,8 @@ def test_cli_run_writes_well_formed_reports(tiny_path, tmp_path, capsys):
     raw, shadow = printed["rows"]
     assert raw["suite"] == "tiny" and raw["rop_reduction"] == 0.0 and shadow["rop_reduction"] > 0.8
     assert raw["diameter_err_median_m"] is None and raw["volume_rel_err"] is None
+    assert [(r["scene"], r["variant"]) for r in printed["by_scene"]] == [
+        ("plate-leaf", "raw"), ("plate-leaf", "shadow"), ("knife-edge", "raw"), ("knife-edge", "shadow")]
     with Store(db) as store:
         assert store.results(store.resolve("latest"))[-1]["params"]["min_angle_deg"] == 5
 

@@ -8,6 +8,7 @@ import trimesh
 
 from benchmarks import metrics
 from benchmarks.scoring import trait_errors
+from benchmarks.summary import summarize, summarize_by_scene
 
 
 @pytest.fixture(scope="module")
@@ -115,3 +116,24 @@ def test_trait_errors():
     assert errors["azimuth_err_deg"] == pytest.approx(0.0, abs=1e-9)
     assert trait_errors(truth, None) == {}
     assert trait_errors({"normal": [1, 0, 0]}, {"area_m2": 1.0, "elevation_deg": 0, "azimuth_deg": 0}) == {}
+
+
+def test_summaries_weigh_cases_equally_and_gate_traits_on_visibility():
+    def row(case, variant, leaves, error=None):
+        return {"case_name": case, "variant": variant, "family": "raw", "case_spec": {"scene": {"builtin": case}},
+                "metrics": {"leaves": leaves}, "runtime_s": 1.0, "peak_mem_mb": 2.0, "error": error}
+
+    single = [{"rop_before": 0.2, "rop_after": 0.1, "area_rel_err": -0.1, "visibility": 1.0}]
+    tree = [{"rop_before": 0.0, "rop_after": 0.0, "area_rel_err": e, "visibility": v}
+            for e, v in ((0.3, 1.0), (0.5, 0.9), (-0.9, 0.2))]
+    rows = [row("leaf", "raw", single), row("tree", "raw", tree), row("broken", "raw", [], error="SfsError: x")]
+    (summary,) = summarize(rows, "s")
+    assert summary["n_cases"] == 3 and summary["n_errors"] == 1 and summary["n_leaves"] == 4
+    assert summary["rop_before"] == pytest.approx(0.1) and summary["rop_after"] == pytest.approx(0.05)
+    assert summary["rop_reduction"] == pytest.approx(0.5)
+    # Per case: median |error| of the visible leaves (0.1; 0.4 of 0.3 and 0.5), then the median of the cases.
+    assert summary["area_rel_err_median"] == pytest.approx(0.25) and summary["n_leaves_traits"] == 3
+    assert summary["diameter_err_median_m"] is None and summary["runtime_s"] == 1.0
+    by_scene = summarize_by_scene(rows, "s")
+    assert [r["scene"] for r in by_scene] == ["leaf", "tree", "broken"]
+    assert by_scene[2]["n_errors"] == 1 and by_scene[2]["rop_before"] is None
