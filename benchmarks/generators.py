@@ -72,8 +72,13 @@ def check_scene(spec: dict) -> None:
         On an unknown scene or generator, or parameters the generator does
         not accept (the message lists what is allowed).
     """
+    from benchmarks.heightfields import check_heightfield, is_heightfield
+
     if not isinstance(spec, dict):
-        raise BenchError(f"a case scene must be a mapping with 'builtin' or 'generator', got {spec!r}")
+        raise BenchError(f"a case scene must be a mapping with 'builtin', 'generator' or 'heightfield', got {spec!r}")
+    if is_heightfield(spec):
+        check_heightfield(spec)
+        return
     if "builtin" in spec:
         if set(spec) != {"builtin"}:
             raise BenchError(f"a built-in scene takes no parameters, got {sorted(set(spec) - {'builtin'})}")
@@ -81,7 +86,7 @@ def check_scene(spec: dict) -> None:
             raise BenchError(f"unknown built-in scene {spec['builtin']!r}; available: {', '.join(scenes.names())}")
         return
     if "generator" not in spec:
-        raise BenchError(f"a case scene needs 'builtin' or 'generator', got keys {sorted(spec)}")
+        raise BenchError(f"a case scene needs 'builtin', 'generator' or 'heightfield', got keys {sorted(spec)}")
     name = spec["generator"]
     if name not in _GENERATORS:
         raise BenchError(f"unknown scene generator {name!r}; available: {', '.join(generator_names())}")
@@ -111,6 +116,8 @@ def build_scene(spec: dict) -> Scene:
         As :func:`check_scene`, or when the generator rejects a value.
     """
     check_scene(spec)
+    if "heightfield" in spec:
+        raise BenchError("a height-field case has no scene to scan (see benchmarks.heightfields)")
     if "builtin" in spec:
         return scenes.build(spec["builtin"])
     try:

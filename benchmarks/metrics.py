@@ -333,6 +333,33 @@ def ratio(numerator: int, denominator: int) -> float:
     return numerator / denominator if denominator else math.nan
 
 
+def height_errors(estimate: np.ndarray, truth: np.ndarray, mask: np.ndarray, tolerance: float = 0.05) -> dict:
+    """Errors of a reconstructed height image, relative to the surface's height range (thesis ch.5 eqs 3.1-3.2).
+
+    ``eps = (estimate - truth) / h_tot`` with ``h_tot = h_max - h_min`` of
+    the true surface, over the reconstructed pixels of ``mask``.
+
+    Returns
+    -------
+    dict
+        ``eps_mean`` (signed mean, eq 3.1), ``abs_eps_mean`` and
+        ``abs_eps_median`` (eq 3.2), ``within_5pct`` (share of reconstructed
+        pixels with ``|eps| < tolerance``; the thesis' "95 % of the points
+        within 5 % of the radius" criterion), ``completeness`` (share of the
+        surface's pixels reconstructed).
+    """
+    mask = np.asarray(mask, dtype=bool)
+    h_tot = float(np.ptp(truth[mask]))
+    done = mask & np.isfinite(estimate)
+    eps = (estimate[done] - truth[done]) / h_tot if h_tot > 0 else np.zeros(int(done.sum()))
+    if len(eps) == 0:
+        return {"eps_mean": math.nan, "abs_eps_mean": math.nan, "abs_eps_median": math.nan,
+                "within_5pct": math.nan, "completeness": 0.0}
+    return {"eps_mean": float(eps.mean()), "abs_eps_mean": float(np.abs(eps).mean()),
+            "abs_eps_median": float(np.median(np.abs(eps))), "within_5pct": float(np.mean(np.abs(eps) < tolerance)),
+            "completeness": float(done.sum() / mask.sum())}
+
+
 def relative_error(estimate: float, truth: float) -> float:
     """Signed relative error ``(estimate − truth) / truth``."""
     return (estimate - truth) / truth

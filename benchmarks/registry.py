@@ -75,6 +75,10 @@ class Variant:
     prepare : callable, optional
         ``prepare(scan)``, called once per scan before the timed runs (e.g.
         to build a calibration that every leaf of the scan shares).
+    heights : callable, optional
+        ``heights(sample, **params) -> leafsfs.HeightResult`` for methods
+        that reconstruct height fields (the height-field cases of
+        :mod:`benchmarks.heightfields`).
     """
 
     name: str
@@ -83,6 +87,7 @@ class Variant:
     params: dict
     description: str
     prepare: Callable | None = None
+    heights: Callable | None = None
 
     def with_params(self, **changes) -> "Variant":
         """A copy with some parameters changed.
@@ -100,6 +105,10 @@ class Variant:
 
     def __call__(self, scan, mask) -> VariantOutput:
         return self.run(scan, mask, **self.params)
+
+    def reconstruct_heights(self, sample):
+        """Run the method on a sampled height field (:class:`leafsfs.synthetic.SyntheticInput`)."""
+        return self.heights(sample, **self.params)
 
 
 _VARIANTS: dict[str, Variant] = {}
@@ -233,10 +242,16 @@ def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
         traits = result.leaves[0].traits if result.leaves else {"area_m2": 0.0}
         return VariantOutput(xyz, traits, {**result.rppp(), "skipped": len(result.skipped)}, flags=result.outlier)
 
+    def heights(sample, **params):
+        import leafsfs
+
+        return leafsfs.reconstruct_heights(sample.alpha, sample.height, sample.mask, sample.grid, engine,
+                                           leafsfs.SfsParams(**params))
+
     shell = params["shell_set"]
     return Variant(name, "prop-sfs", run, params,
                    f"PROP-SFS {engine} propagation, shell-rule set {shell} (leafsfs.reconstruct, model calibration)",
-                   prepare=_calibration)
+                   prepare=_calibration, heights=heights)
 
 
 def _note_missing() -> None:

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from benchmarks import scoring, summary, sweeps
+from benchmarks import heightfields, scoring, summary, sweeps
 from benchmarks.registry import get_variant, unavailable
 from benchmarks.runner import simulate_case
 from benchmarks.store import Store
@@ -92,9 +92,26 @@ def plot_area_errors(leaves: list[dict]) -> Figure:
     return figure
 
 
+def plot_height_errors(rows: list[dict]) -> Figure:
+    """Mean |relative height error| (thesis eq 3.2) of every height-field case, per variant."""
+    cases = list(dict.fromkeys(r["case_name"] for r in rows if heightfields.is_heightfield(r["case_spec"]["scene"])))
+    figure = Figure(figsize=(max(7.0, 0.22 * len(cases)), 4.5), layout="constrained")
+    axes = figure.subplots()
+    for variant in dict.fromkeys(r["variant"] for r in rows):
+        values = {r["case_name"]: r["metrics"]["leaves"][0].get("abs_eps_mean") for r in rows
+                  if r["variant"] == variant and not r["error"] and r["metrics"]["leaves"]}
+        axes.plot(range(len(cases)), [100 * values[c] if values.get(c) is not None else np.nan for c in cases],
+                  ".-", label=variant)
+    axes.set_xticks(range(len(cases)), cases, rotation=90, fontsize=6)
+    axes.set(ylabel="mean |height error| (% of h_max - h_min)", title="height fields (thesis eq. 3.2)")
+    axes.legend(fontsize=7)
+    return figure
+
+
 def pick_showcase(rows: list[dict]) -> dict | None:
     """The case shown before/after: preferably one leaf alone, nearest to 1.5 m (else any scored case)."""
-    candidates = [r for r in rows if not r["error"] and r["metrics"]["leaves"]]
+    candidates = [r for r in rows if not r["error"] and r["metrics"]["leaves"]
+                  and not heightfields.is_heightfield(r["case_spec"]["scene"])]
     if not candidates:
         return None
     return min(candidates, key=lambda r: (r["metrics"]["leaves"][0].get("object_type") != "leaf",
@@ -193,8 +210,12 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
         parts.append("<p>Not registered yet: " + "; ".join(
             f"{html.escape(k)} ({html.escape(v)})" for k, v in document["unavailable_variants"].items()) + "</p>")
     figures = []
-    if leaves:
-        figures += [("ROP against distance", plot_rop_vs_distance(leaves)), ("Leaf area error", plot_area_errors(leaves))]
+    if any(leaf.get("object_type") == "leaf" for leaf in leaves):
+        figures.append(("ROP against distance", plot_rop_vs_distance(leaves)))
+    if any(leaf.get("area_rel_err") is not None for leaf in leaves):
+        figures.append(("Leaf area error", plot_area_errors(leaves)))
+    if any(heightfields.is_heightfield(r["case_spec"]["scene"]) for r in rows):
+        figures.append(("Height-field errors", plot_height_errors(rows)))
     showcase = pick_showcase(rows) if before_after else None
     if showcase is not None:
         specs = list({r["variant"]: {"name": r["variant"], "params": r["params"]} for r in rows}.values())

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
-from benchmarks import scoring
+from benchmarks import heightfields, scoring
 from benchmarks.errors import BenchError
 from benchmarks.generators import build_scene
 from benchmarks.pool import run_local
@@ -113,6 +113,9 @@ def case_rows(case: dict, variants: list[dict]):
         its ``error``.
     """
     case = Case.from_dict(case)
+    if heightfields.is_heightfield(case.scene):
+        yield from _heightfield_rows(case, variants)
+        return
     try:
         (scene, scan), simulate_s, _ = measured(simulate_case, case)
         leaves = scoring.prepare_leaves(scene, scan, None if case.targets is None else list(case.targets))
@@ -135,6 +138,30 @@ def case_rows(case: dict, variants: list[dict]):
             yield _row(case, spec, {"leaves": scores}, runtime, peak, simulate_s, None)
         except Exception as exc:  # noqa: BLE001 - a failing variant is recorded, the others still run
             yield _row(case, spec, {"leaves": []}, None, None, simulate_s, _message(exc))
+
+
+def _heightfield_rows(case: Case, variants: list[dict]):
+    """Rows of a height-field case (:mod:`benchmarks.heightfields`): no scan, the height image is reconstructed."""
+    try:
+        sampled, sample_s, _ = measured(heightfields.sample, case.scene, case.seed)
+    except Exception as exc:  # noqa: BLE001 - a broken case is recorded, not fatal to the run
+        for spec in variants:
+            yield error_row(case, spec, _message(exc))
+        return
+    for spec in variants:
+        try:
+            variant = get_variant(spec["name"]).with_params(**spec["params"]).with_params(
+                **case.scene.get("sfs_params", {}))
+            result, runtime, peak = measured(variant.reconstruct_heights, sampled)
+            scores = scoring.json_ready(heightfields.score_heights(case.scene, sampled, result))
+            yield _row(case, spec, {"leaves": [scores]}, runtime, peak, sample_s, None)
+        except Exception as exc:  # noqa: BLE001 - a failing variant is recorded, the others still run
+            yield _row(case, spec, {"leaves": []}, None, None, sample_s, _message(exc))
+
+
+def applies(variant: Variant, case: Case) -> bool:
+    """Whether a variant runs on a case: height-field cases need a method that reconstructs height fields."""
+    return variant.heights is not None or not heightfields.is_heightfield(case.scene)
 
 
 def run_case(case: dict, variants: list[dict]) -> list[dict]:
@@ -241,10 +268,11 @@ def execute(suite: Suite, variants: list[Variant], store: Store, workers: int | 
     if run_id is None:
         run_id = store.create_run(suite.name, suite.digest(), config, digest, commit, notes)
     done = store.done_pairs(run_id)
-    specs = variant_specs(variants)
+    specs = dict(zip((v.name for v in variants), variant_specs(variants)))
+    expected = {case.name: [specs[v.name] for v in variants if applies(v, case)] for case in suite.cases}
     todo = []
     for case in suite.cases:
-        missing = [s for s in specs if (case.name, s["name"]) not in done]
+        missing = [s for s in expected[case.name] if (case.name, s["name"]) not in done]
         if missing:
             todo.append((case.to_dict(), missing))
     start = time.perf_counter()
@@ -257,7 +285,7 @@ def execute(suite: Suite, variants: list[Variant], store: Store, workers: int | 
             for row in rows:
                 remaining[row["case_name"]] -= 1
                 bar.update(remaining[row["case_name"]] == 0)
-    if len(store.done_pairs(run_id)) == len(suite.cases) * len(specs):
+    if len(store.done_pairs(run_id)) == sum(len(v) for v in expected.values()):
         store.finish_run(run_id)
     return RunOutcome(run_id, resumed, len(todo), len(suite.cases) - len(todo), added,
                       time.perf_counter() - start)

@@ -272,7 +272,7 @@ def score_leaf(leaf: LeafTruth, output: VariantOutput) -> dict:
     scores["completeness"] = int((leaf.own & kept & (after <= leaf.taus["auto"])).sum()) / own
     scores.update(trait_errors(leaf.truth, output.traits))
     scores.update(output.stats)
-    return _json_ready(scores)
+    return json_ready(scores)
 
 
 def trait_errors(truth: dict, traits: dict | None) -> dict:
@@ -292,8 +292,8 @@ def trait_errors(truth: dict, traits: dict | None) -> dict:
     return errors
 
 
-def _json_ready(scores: dict) -> dict:
-    """Plain Python numbers; NaN becomes None (JSON has no NaN)."""
+def json_ready(scores: dict) -> dict:
+    """Scores with plain Python numbers; NaN becomes None (JSON has no NaN)."""
     clean = {}
     for key, value in scores.items():
         if isinstance(value, (np.generic,)):

@@ -17,14 +17,16 @@ file looks like::
         vary: {distance_m: [1.5, 3, 5], incidence_deg: [0, 60]}
 
 ``vary`` expands an entry into the Cartesian product of its lists; a key
-``scanner.FIELD`` varies a scanner override instead of a scene parameter, and
-the name template may use every varied key (``{FIELD}`` for scanner keys).
+``scanner.FIELD`` varies a scanner override instead of a scene parameter,
+a dotted key such as ``sfs_params.n_smooth`` a nested scene parameter, and
+the name template may use every varied key by its last part (``{FIELD}``).
 The seed of a case defaults to a hash of its name, so the same case gets the
 same scan in every suite. Files are read with ``yaml.safe_load``.
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import hashlib
 import itertools
@@ -191,7 +193,7 @@ def _expand(entry) -> list[Case]:
         raise BenchError("every case needs a non-empty 'name'")
     scene, scanner = entry.get("scene"), entry.get("scanner") or {}
     if not isinstance(scene, dict):
-        raise BenchError("'scene' must be a mapping with 'builtin' or 'generator'")
+        raise BenchError("'scene' must be a mapping with 'builtin', 'generator' or 'heightfield'")
     if not isinstance(scanner, dict):
         raise BenchError(f"'scanner' must be a mapping of scanner-model overrides, got {scanner!r}")
     targets = entry.get("targets")
@@ -205,14 +207,18 @@ def _expand(entry) -> list[Case]:
         raise BenchError("'vary' must map parameter names to non-empty lists of values")
     cases = []
     for values in itertools.product(*vary.values()):
-        case_scene, case_scanner, fields = dict(scene), dict(scanner), {}
+        case = {"scene": copy.deepcopy(scene), "scanner": dict(scanner)}
+        fields = {}
         for key, value in zip(vary, values):
-            if key.startswith("scanner."):
-                case_scanner[key.split(".", 1)[1]] = value
-                fields[key.split(".", 1)[1]] = value
-            else:
-                case_scene[key] = value
-                fields[key] = value
+            path = key.split(".")
+            target = case if path[0] == "scanner" else case["scene"]
+            for part in path[:-1]:
+                if not isinstance(target.setdefault(part, {}), dict):
+                    raise BenchError(f"vary key {key!r}: {part!r} is not a mapping")
+                target = target[part]
+            target[path[-1]] = value
+            fields[path[-1]] = value
+        case_scene, case_scanner = case["scene"], case["scanner"]
         try:
             name = entry["name"].format(**fields)
         except (KeyError, IndexError, ValueError) as exc:

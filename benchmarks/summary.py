@@ -9,6 +9,9 @@ drown 60 single-leaf cases):
   ``rop_reduction`` = 1 − rop_after / rop_before (the same with ``_1cm``);
 - ``good_points_lost``, ``outliers_restored``, ``good_points_damaged``,
   ``completeness``: mean over cases of the mean over leaves;
+- height-field cases (:mod:`benchmarks.heightfields`): ``abs_eps_mean``
+  (the thesis' mean |relative height error|), ``within_5pct`` and
+  ``completeness``, means over cases;
 - ``area_rel_err_median``: median over cases of the median over the fully
   visible leaves (``visibility`` >= :data:`MIN_VISIBILITY`, like the
   thesis' 58 fully visible field leaves: no method recovers a hidden part)
@@ -42,7 +45,8 @@ MIN_VISIBILITY = 0.8
 #: Keys of a summary row, in display order.
 SUMMARY_KEYS = ("suite", "variant", "family", "n_cases", "n_leaves", "n_leaves_traits", "n_errors", "rop_before",
                 "rop_after", "rop_reduction", "rop_before_1cm", "rop_after_1cm", "rop_reduction_1cm", "good_points_lost",
-                "outliers_restored", "good_points_damaged", "completeness", "surface_rmse_m",
+                "outliers_restored", "good_points_damaged", "completeness", "abs_eps_mean", "within_5pct",
+                "surface_rmse_m",
                 "area_rel_err_median", "area_rel_err_bias", "elevation_err_median_deg", "azimuth_err_median_deg",
                 "diameter_err_median_m", "volume_rel_err", "runtime_s", "runtime_total_s", "peak_mem_mb")
 
@@ -88,9 +92,9 @@ def summarize(rows: list[dict], suite: str) -> list[dict]:
 
 
 def scene_kind(case_spec: dict) -> str:
-    """The kind of scene of a stored case: its generator or built-in scene name."""
+    """The kind of scene of a stored case: its generator, built-in scene or height-field surface name."""
     scene = case_spec["scene"]
-    return scene.get("generator") or scene.get("builtin")
+    return scene.get("generator") or scene.get("builtin") or f"height field: {scene['heightfield']}"
 
 
 def summarize_by_scene(rows: list[dict], suite: str) -> list[dict]:
@@ -111,7 +115,8 @@ def _summary_row(mine: list[dict], labels: dict) -> dict:
         before, after = _over_cases(ok, "rop_before" + suffix), _over_cases(ok, "rop_after" + suffix)
         row.update({f"rop_before{suffix}": before, f"rop_after{suffix}": after,
                     f"rop_reduction{suffix}": _reduction(before, after)})
-    for key in ("good_points_lost", "outliers_restored", "good_points_damaged", "completeness"):
+    for key in ("good_points_lost", "outliers_restored", "good_points_damaged", "completeness", "abs_eps_mean",
+                "within_5pct"):
         row[key] = _over_cases(ok, key)
     row["surface_rmse_m"] = _over_cases(ok, "surface_rmse_m", np.median)
     row["n_leaves_traits"] = sum(1 for leaf in leaves if (leaf.get("visibility") or 0.0) >= MIN_VISIBILITY)

@@ -137,3 +137,15 @@ def test_summaries_weigh_cases_equally_and_gate_traits_on_visibility():
     by_scene = summarize_by_scene(rows, "s")
     assert [r["scene"] for r in by_scene] == ["leaf", "tree", "broken"]
     assert by_scene[2]["n_errors"] == 1 and by_scene[2]["rop_before"] is None
+
+
+def test_height_errors_follow_the_thesis_definition():
+    truth = np.array([[0.0, 1.0], [2.0, 4.0]])
+    mask = np.array([[True, True], [True, False]])  # h_tot = 2 on the mask
+    estimate = np.array([[0.1, np.nan], [1.8, 99.0]])
+    errors = metrics.height_errors(estimate, truth, mask)
+    assert errors["completeness"] == pytest.approx(2 / 3)
+    assert errors["eps_mean"] == pytest.approx((0.05 - 0.1) / 2)
+    assert errors["abs_eps_mean"] == pytest.approx(0.075)
+    assert errors["within_5pct"] == 0.0  # 5 % and 10 %: neither is strictly below 5 %
+    assert metrics.height_errors(np.full((2, 2), np.nan), truth, mask)["completeness"] == 0.0

@@ -55,6 +55,15 @@ def test_malformed_suites_name_the_file_and_the_problem(tmp_path, data, message)
     assert str(path) in str(info.value)
 
 
+def test_vary_reaches_nested_parameters():
+    suite = parse_suite({"name": "t", "cases": [{"name": "h-{n_smooth}", "scene": {
+        "heightfield": "hemisphere", "sfs_params": {"eps_alpha": 0.2}}, "vary": {"sfs_params.n_smooth": [1, 5]}}]})
+    assert [c.scene["sfs_params"] for c in suite.cases] == [{"eps_alpha": 0.2, "n_smooth": 1},
+                                                            {"eps_alpha": 0.2, "n_smooth": 5}]
+    with pytest.raises(BenchError, match="side"):
+        parse_suite({"name": "t", "cases": [{"name": "h", "scene": {"heightfield": "hemisphere", "side": 3}}]})
+
+
 def test_unknown_suite():
     with pytest.raises(BenchError, match="quick"):
         load_suite("no-such-suite")
@@ -72,6 +81,12 @@ def test_builtin_suites_hold_what_they_promise():
     assert min(distances) == 0.8 and max(distances) == 5.0
     assert min(incidences) == 0 and max(incidences) == 80
     assert {"leaf-cluster", "leafy-tree", "orchard-row"} <= {c.scene.get("builtin") for c in standard.cases}
+    synthetic = load_suite("sfs-synthetic").cases
+    assert all("heightfield" in c.scene for c in synthetic)
+    assert {c.scene.get("alpha_noise_deg") for c in synthetic} >= {1.4, 2.8, 5.7}
+    assert {c.scene.get("alpha_bias_deg") for c in synthetic} >= {-7.0, -3.5, 3.5, 7.0}
+    assert {c.scene.get("side") for c in synthetic if c.scene["heightfield"] == "hemisphere"} >= {25, 34, 41, 47, 53, 58}
+    assert {c.scene["sfs_params"].get("seed_cutoff") for c in synthetic} >= {0.061, 0.029, 0.019}
 
 
 def test_plate_leaf_truth_matches_its_pose():
