@@ -39,6 +39,8 @@ METRICS = {
     "abs_area_rel_err": MetricRule("lower", 0.005),
     "elevation_err_deg": MetricRule("lower", 0.5),
     "azimuth_err_deg": MetricRule("lower", 0.5),
+    "abs_eps_mean": MetricRule("lower", 0.002),
+    "within_5pct": MetricRule("higher", 0.005),
     "runtime_s": MetricRule("lower", math.log(1.25), log=True),
 }
 

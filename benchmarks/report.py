@@ -195,7 +195,7 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
         f"machine {html.escape(str(run['machine']))}</p>",
         f"<p class='goal{' met' if met else ''}'>{html.escape(document['goal'])}</p>",
         "<h2>Headline</h2>",
-        _table(document["rows"], [key for _, key, _ in summary.HEADLINE]),
+        _table(document["rows"], [key for _, key, _ in summary.headline_columns(document["rows"])]),
         "<h2>All metrics (variant × metric)</h2>",
         _table(document["rows"], summary.SUMMARY_KEYS),
         "<h2>By kind of scene</h2>",

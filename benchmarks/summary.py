@@ -54,7 +54,12 @@ SUMMARY_KEYS = ("suite", "variant", "family", "n_cases", "n_leaves", "n_leaves_t
 HEADLINE = (("variant", "variant", "{}"), ("ROP after", "rop_after", "{:.3f}"),
             ("ROP red.", "rop_reduction", "{:.0%}"), ("good lost", "good_points_lost", "{:.1%}"),
             ("|area err| med", "area_rel_err_median", "{:.1%}"), ("elev err", "elevation_err_median_deg", "{:.1f}°"),
-            ("azim err", "azimuth_err_median_deg", "{:.1f}°"), ("runtime/case", "runtime_s", "{:.3f} s"))
+            ("azim err", "azimuth_err_median_deg", "{:.1f}°"), ("runtime/case", "runtime_s", "{:.3f} s"),
+            ("errors", "n_errors", "{}"))
+#: The headline of suites without leaves (height fields: the thesis' relative height errors).
+HEADLINE_HEIGHTS = (("variant", "variant", "{}"), ("mean |height err|", "abs_eps_mean", "{:.2%}"),
+                    ("within 5 %", "within_5pct", "{:.1%}"), ("completeness", "completeness", "{:.1%}"),
+                    ("runtime/case", "runtime_s", "{:.3f} s"), ("errors", "n_errors", "{}"))
 
 
 def leaf_scores(rows: list[dict]) -> list[dict]:
@@ -139,6 +144,8 @@ def goal_status(summary: list[dict], unavailable: dict[str, str] | None = None) 
     goal = (f"goal: a PROP-SFS variant with ROP reduction >= {GOAL_ROP_REDUCTION:.0%} and median |area error| "
             f"<= {GOAL_AREA_REL_ERR:.0%}")
     candidates = [r for r in summary if r["family"] == "prop-sfs"]
+    if candidates and all(r["rop_reduction"] is None for r in candidates):
+        return f"{goal}: not measured by this suite (no leaf scored)"
     if not candidates:
         why = (unavailable or {}).get("prop-sfs", "no PROP-SFS variant was run")
         return f"{goal}: NOT MET - no PROP-SFS variant in this run ({why})"
@@ -156,10 +163,18 @@ def _fmt(value, fmt: str) -> str:
     return "n/a" if value is None else fmt.format(value)
 
 
+def headline_columns(summary: list[dict]) -> tuple:
+    """:data:`HEADLINE`, or :data:`HEADLINE_HEIGHTS` for results without any leaf score."""
+    leaves = any(row["rop_after"] is not None for row in summary)
+    heights = any(row["abs_eps_mean"] is not None for row in summary)
+    return HEADLINE_HEIGHTS if heights and not leaves else HEADLINE
+
+
 def headline_table(summary: list[dict]) -> str:
     """The headline table as aligned plain text (one line per variant)."""
-    cells = [[title for title, _, _ in HEADLINE]]
-    cells += [[_fmt(row[key], fmt) for _, key, fmt in HEADLINE] for row in summary]
-    widths = [max(len(line[i]) for line in cells) for i in range(len(HEADLINE))]
+    columns = headline_columns(summary)
+    cells = [[title for title, _, _ in columns]]
+    cells += [[_fmt(row[key], fmt) for _, key, fmt in columns] for row in summary]
+    widths = [max(len(line[i]) for line in cells) for i in range(len(columns))]
     return "\n".join("  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(line, widths)))
                      for line in cells)
