@@ -8,7 +8,9 @@ drown 60 single-leaf cases):
 - ``rop_before``, ``rop_after``: mean over cases of the mean per-leaf ROP;
   ``rop_reduction`` = 1 − rop_after / rop_before (the same with ``_1cm``);
 - ``good_points_lost``, ``outliers_restored``, ``good_points_damaged``,
-  ``completeness``: mean over cases of the mean over leaves;
+  ``completeness``, ``flag_precision``, ``flag_recall`` and ``rppp_1`` (the
+  share of pixels with exactly one PROP-SFS candidate): mean over cases of
+  the mean over leaves;
 - height-field cases (:mod:`benchmarks.heightfields`): ``abs_eps_mean``
   (the thesis' mean |relative height error|), ``within_5pct`` and
   ``completeness``, means over cases;
@@ -45,8 +47,8 @@ MIN_VISIBILITY = 0.8
 #: Keys of a summary row, in display order.
 SUMMARY_KEYS = ("suite", "variant", "family", "n_cases", "n_leaves", "n_leaves_traits", "n_errors", "rop_before",
                 "rop_after", "rop_reduction", "rop_before_1cm", "rop_after_1cm", "rop_reduction_1cm", "good_points_lost",
-                "outliers_restored", "good_points_damaged", "completeness", "abs_eps_mean", "within_5pct",
-                "surface_rmse_m",
+                "outliers_restored", "good_points_damaged", "completeness", "flag_precision", "flag_recall",
+                "rppp_1", "abs_eps_mean", "within_5pct", "surface_rmse_m",
                 "area_rel_err_median", "area_rel_err_bias", "elevation_err_median_deg", "azimuth_err_median_deg",
                 "diameter_err_median_m", "volume_rel_err", "runtime_s", "runtime_total_s", "peak_mem_mb")
 
@@ -120,8 +122,8 @@ def _summary_row(mine: list[dict], labels: dict) -> dict:
         before, after = _over_cases(ok, "rop_before" + suffix), _over_cases(ok, "rop_after" + suffix)
         row.update({f"rop_before{suffix}": before, f"rop_after{suffix}": after,
                     f"rop_reduction{suffix}": _reduction(before, after)})
-    for key in ("good_points_lost", "outliers_restored", "good_points_damaged", "completeness", "abs_eps_mean",
-                "within_5pct"):
+    for key in ("good_points_lost", "outliers_restored", "good_points_damaged", "completeness", "flag_precision",
+                "flag_recall", "rppp_1", "abs_eps_mean", "within_5pct"):
         row[key] = _over_cases(ok, key)
     row["surface_rmse_m"] = _over_cases(ok, "surface_rmse_m", np.median)
     row["n_leaves_traits"] = sum(1 for leaf in leaves if (leaf.get("visibility") or 0.0) >= MIN_VISIBILITY)
