@@ -109,14 +109,27 @@ def plot_height_errors(rows: list[dict]) -> Figure:
 
 
 def pick_showcase(rows: list[dict]) -> dict | None:
-    """The case shown before/after: preferably one leaf alone, nearest to 1.5 m (else any scored case)."""
-    candidates = [r for r in rows if not r["error"] and r["metrics"]["leaves"]
-                  and not heightfields.is_heightfield(r["case_spec"]["scene"])]
-    if not candidates:
+    """The case shown before/after: preferably a single leaf with visible outliers (ROP >= 0.1) that every
+    variant reconstructed, and among those the one whose variants ran fastest, since the figure re-runs them."""
+    runtime: dict[str, float] = {}
+    skipped: dict[str, bool] = {}
+    cases: dict[str, dict] = {}
+    for r in rows:
+        if r["error"] or not r["metrics"]["leaves"] or heightfields.is_heightfield(r["case_spec"]["scene"]):
+            continue
+        name = r["case_name"]
+        runtime[name] = runtime.get(name, 0.0) + (r["runtime_s"] or 0.0)
+        skipped[name] = skipped.get(name, False) or any(leaf.get("skipped") for leaf in r["metrics"]["leaves"])
+        cases[name] = r
+    if not cases:
         return None
-    return min(candidates, key=lambda r: (r["metrics"]["leaves"][0].get("object_type") != "leaf",
-                                          len(r["metrics"]["leaves"]) != 1,
-                                          abs(r["metrics"]["leaves"][0]["range_m"] - 1.5)))["case_spec"]
+
+    def preference(name):
+        leaves = cases[name]["metrics"]["leaves"]
+        return (len(leaves) != 1 or leaves[0].get("object_type") != "leaf", (leaves[0]["rop_before"] or 0) < 0.1,
+                skipped[name], runtime[name])
+
+    return cases[min(cases, key=preference)]["case_spec"]
 
 
 def plot_before_after(case_spec: dict, variants: list[dict]) -> Figure:
