@@ -51,7 +51,7 @@ def case_values(rows: list[dict]) -> dict[tuple[str, str], dict[str, float]]:
     for row in rows:
         if row["error"]:
             continue
-        leaves = row["metrics"]["leaves"]
+        leaves = row["metrics"]["targets"]
         entry = {}
         for key in METRICS:
             if key == "runtime_s":

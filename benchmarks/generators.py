@@ -419,3 +419,24 @@ def single_leaf(distance_m: float = 1.5, incidence_deg: float = 0.0, axis: str =
     if background_gap_m is not None:
         objects.append(background_wall(objects, distance_m + background_gap_m, background_reflectance))
     return Scene(objects, scanner_window([blade]))
+
+
+@generator("branch", "one straight woody branch (a closed cylinder of the scenes package, truth cylinders for "
+                     "woody scoring) standing upright in front of the scanner")
+def branch(distance_m: float = 3.0, radius_m: float = 0.05, length_m: float = 0.6, tilt_deg: float = 0.0) -> Scene:
+    """A cylinder standing at ``distance_m`` along +x, tilted by ``tilt_deg`` towards the scanner.
+
+    Parameters
+    ----------
+    distance_m : float
+        Distance from the scanner to the axis, m.
+    radius_m, length_m : float
+        Cylinder radius and length, m.
+    tilt_deg : float
+        Rotation of the axis about +y, degrees (0: vertical).
+    """
+    spec = {"objects": [{"name": "branch", "type": "cylinder", "radius": radius_m, "length": length_m,
+                         "material": "bark", "pose": {"translate": [distance_m, 0.0, 0.0],
+                                                      "rotate": {"axis": [0, 1, 0], "angle_deg": tilt_deg}}}]}
+    wood = scenes.scene_from_spec(spec, source="branch").objects[0]
+    return Scene([wood], scanner_window([wood]))

@@ -8,10 +8,11 @@ surface ``NAME`` of :mod:`scenes.surfaces` on a ``side x side`` pixel grid
 - ``alpha_bias_deg``: a global incidence bias (thesis: ±3.5, ±7 deg);
 - ``height_noise``: uniform height ("distance") noise as a fraction of
   ``h_max − h_min`` (thesis saddles: 10 %);
-- ``surface_params``: parameters of the surface (radians);
-- ``sfs_params``: PROP-SFS parameters for this experiment, applied over the
-  variant's own (the thesis varied the smoothing passes, the quantisation
-  and the seed cutoff from one experiment to the next).
+- ``surface_params``: parameters of the surface (radians).
+
+The thesis varied the smoothing passes, the quantisation and the seed
+cutoff from one experiment to the next: such settings go in the case's
+``params`` (``params: {prop-sfs: {n_smooth: 5}}``, see :mod:`benchmarks.suite`).
 
 PROP-SFS variants reconstruct the heights from alpha and the height image
 (:func:`leafsfs.reconstruct_heights`); :func:`benchmarks.metrics.height_errors`
@@ -25,7 +26,7 @@ import math
 from benchmarks import metrics
 from benchmarks.errors import BenchError
 
-_KEYS = {"heightfield", "side", "alpha_noise_deg", "alpha_bias_deg", "height_noise", "surface_params", "sfs_params"}
+_KEYS = {"heightfield", "side", "alpha_noise_deg", "alpha_bias_deg", "height_noise", "surface_params"}
 
 
 def is_heightfield(spec: dict) -> bool:
@@ -49,9 +50,8 @@ def check_heightfield(spec: dict) -> None:
         value = spec.get(key, 0.0)
         if not (isinstance(value, (int, float)) and math.isfinite(value)):
             raise BenchError(f"height-field {key} must be a number, got {value!r}")
-    for key in ("surface_params", "sfs_params"):
-        if not isinstance(spec.get(key, {}), dict):
-            raise BenchError(f"height-field {key} must be a mapping, got {spec[key]!r}")
+    if not isinstance(spec.get("surface_params", {}), dict):
+        raise BenchError(f"height-field surface_params must be a mapping, got {spec['surface_params']!r}")
 
 
 def sample(spec: dict, seed: int):
@@ -68,7 +68,7 @@ def sample(spec: dict, seed: int):
 
 def score_heights(spec: dict, sampled, result) -> dict:
     """Scores of a height-field reconstruction: the thesis' errors, completeness and redundancy."""
-    scores = {"leaf": spec["heightfield"], "object_type": "heightfield", "side": spec.get("side", 41),
+    scores = {"target": spec["heightfield"], "object_type": "heightfield", "side": spec.get("side", 41),
               "alpha_noise_deg": spec.get("alpha_noise_deg", 0.0), "alpha_bias_deg": spec.get("alpha_bias_deg", 0.0),
               "height_noise": spec.get("height_noise", 0.0)}
     scores.update(metrics.height_errors(result.height, sampled.truth, sampled.mask))

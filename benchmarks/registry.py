@@ -11,7 +11,10 @@ them, the leaf traits. Families:
 - ``prop-sfs``: the PROP-SFS variants of :func:`leafsfs.reconstruct`
   (``simple``, ``sps``, ``buffer``, ``fused`` with the shell-rule set T3, and
   ``buffer-T1``, ``buffer-T2``, ``buffer-T3*``), calibrated by simulating the
-  scan's scanner model.
+  scan's scanner model;
+- ``woody``: ``step`` (:func:`woody.step`) and ``cylinders``
+  (:func:`woody.follow_cylinders`) on the points of each woody object,
+  registered once the woody package provides them with :func:`woody.score`.
 
 Raw and filtered clouds get their leaf traits from
 :func:`leafsfs.baselines.leaf_traits` (range-image mesh with an edge cap).
@@ -79,6 +82,10 @@ class Variant:
         ``heights(sample, **params) -> leafsfs.HeightResult`` for methods
         that reconstruct height fields (the height-field cases of
         :mod:`benchmarks.heightfields`).
+    target : {"leaf", "wood"}
+        What the method reconstructs: leaves (and analytic surfaces), or
+        woody objects (``run`` then gets the mask of one woody object's
+        points and returns its cylinders as ``traits["cylinders"]``).
     """
 
     name: str
@@ -88,6 +95,7 @@ class Variant:
     description: str
     prepare: Callable | None = None
     heights: Callable | None = None
+    target: str = "leaf"
 
     def with_params(self, **changes) -> "Variant":
         """A copy with some parameters changed.
@@ -206,7 +214,7 @@ def _register_builtins() -> None:
                                       "dark-point removal: 100 DN below the leaf's median intensity",
                                       below_median_dn=100.0, min_dn=None))
     _register_prop_sfs()
-    _note_missing()
+    _register_woody()
 
 
 def _register_prop_sfs() -> None:
@@ -254,12 +262,30 @@ def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
                    prepare=_calibration, heights=heights)
 
 
-def _note_missing() -> None:
-    """Record the method families whose packages do not provide them yet."""
+def _register_woody() -> None:
+    """STEP and cylinder following, with their packages' defaults (scalar parameters are overridable)."""
     import woody
 
-    if not (hasattr(woody, "step") and hasattr(woody, "follow_cylinders")):
-        _UNAVAILABLE["woody"] = "woody.step / woody.follow_cylinders do not exist yet"
+    if not all(hasattr(woody, name) for name in ("step", "follow_cylinders", "score", "FollowParams")):
+        _UNAVAILABLE["woody"] = "woody.step / woody.follow_cylinders / woody.score do not exist yet"
+        return
+
+    def step(scan, mask, **params):
+        result = woody.step(scan.xyz[mask], viewpoints=scan.pose.position, **params)
+        return VariantOutput(scan.xyz, {"cylinders": result.cylinders()}, {"tuboids": len(result.tuboids)})
+
+    def cylinders(scan, mask, **params):
+        result = woody.follow_cylinders(scan.xyz[mask], **params)
+        return VariantOutput(scan.xyz, {"cylinders": result.cylinders()}, {"branches": len(result.branches)})
+
+    follow = {k: v for k, v in dataclasses.asdict(woody.FollowParams()).items()
+              if v is None or isinstance(v, (bool, int, float, str))}
+    register_variant(Variant("step", "woody", step, {"cell_m": 0.02, "radius_step_m": 0.01, "r_min_m": 0.02,
+                                                     "r_max_m": 0.30},
+                             "STEP tuboids (Ravaglia et al. 2017: point-normal Hough, open active contours)",
+                             target="wood"))
+    register_variant(Variant("cylinders", "woody", cylinders, follow,
+                             "cylinder following (Mendez et al.): branch hierarchy of cylinders", target="wood"))
 
 
 _register_builtins()

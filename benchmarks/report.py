@@ -98,8 +98,8 @@ def plot_height_errors(rows: list[dict]) -> Figure:
     figure = Figure(figsize=(max(7.0, 0.22 * len(cases)), 4.5), layout="constrained")
     axes = figure.subplots()
     for variant in dict.fromkeys(r["variant"] for r in rows):
-        values = {r["case_name"]: r["metrics"]["leaves"][0].get("abs_eps_mean") for r in rows
-                  if r["variant"] == variant and not r["error"] and r["metrics"]["leaves"]}
+        values = {r["case_name"]: r["metrics"]["targets"][0].get("abs_eps_mean") for r in rows
+                  if r["variant"] == variant and not r["error"] and r["metrics"]["targets"]}
         axes.plot(range(len(cases)), [100 * values[c] if values.get(c) is not None else np.nan for c in cases],
                   ".-", label=variant)
     axes.set_xticks(range(len(cases)), cases, rotation=90, fontsize=6)
@@ -115,17 +115,17 @@ def pick_showcase(rows: list[dict]) -> dict | None:
     skipped: dict[str, bool] = {}
     cases: dict[str, dict] = {}
     for r in rows:
-        if r["error"] or not r["metrics"]["leaves"] or heightfields.is_heightfield(r["case_spec"]["scene"]):
+        if r["error"] or not r["metrics"]["targets"] or heightfields.is_heightfield(r["case_spec"]["scene"]):
             continue
         name = r["case_name"]
         runtime[name] = runtime.get(name, 0.0) + (r["runtime_s"] or 0.0)
-        skipped[name] = skipped.get(name, False) or any(leaf.get("skipped") for leaf in r["metrics"]["leaves"])
+        skipped[name] = skipped.get(name, False) or any(leaf.get("skipped") for leaf in r["metrics"]["targets"])
         cases[name] = r
     if not cases:
         return None
 
     def preference(name):
-        leaves = cases[name]["metrics"]["leaves"]
+        leaves = cases[name]["metrics"]["targets"]
         return (len(leaves) != 1 or leaves[0].get("object_type") != "leaf", (leaves[0]["rop_before"] or 0) < 0.1,
                 skipped[name], runtime[name])
 
@@ -196,7 +196,7 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
     """Write the HTML report of a run (figures embedded as PNG); returns the path."""
     document = report_document(store, run_id)
     rows = store.results(run_id)
-    leaves = summary.leaf_scores(rows)
+    leaves = summary.target_scores(rows)
     run = document["run"]
     met = ": MET" in document["goal"]
     parts = [
@@ -212,7 +212,7 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
         "<h2>All metrics (variant × metric)</h2>",
         _table(document["rows"], summary.SUMMARY_KEYS),
         "<h2>By kind of scene</h2>",
-        _table(document["by_scene"], ["scene", "variant", "n_leaves", "n_errors", "rop_before", "rop_after",
+        _table(document["by_scene"], ["scene", "variant", "n_targets", "n_errors", "rop_before", "rop_after",
                                       "rop_reduction", "outliers_restored", "good_points_lost",
                                       "area_rel_err_median", "area_rel_err_bias", "runtime_s"]),
         "<p>ROP: mean over leaves of outliers / points (points with ≥ 10 % of their footprint power from the leaf; "

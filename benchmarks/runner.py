@@ -119,25 +119,33 @@ def case_rows(case: dict, variants: list[dict]):
     try:
         (scene, scan), simulate_s, _ = measured(simulate_case, case)
         leaves = scoring.prepare_leaves(scene, scan, None if case.targets is None else list(case.targets))
+        wood = scoring.prepare_wood(scene, scan)
     except Exception as exc:  # noqa: BLE001 - a broken case is recorded, not fatal to the run
         for spec in variants:
             yield error_row(case, spec, _message(exc))
         return
     for spec in variants:
         try:
-            variant = get_variant(spec["name"]).with_params(**spec["params"])
-            if variant.prepare is not None and leaves:
+            variant = case_variant(case, spec)
+            targets, score = (wood, scoring.score_wood) if variant.target == "wood" else (leaves, scoring.score_leaf)
+            if variant.prepare is not None and targets:
                 variant.prepare(scan)
             scores, runtime, peaks = [], 0.0, []
-            for leaf in leaves:
-                output, elapsed, peak = measured(variant, leaf.scan, leaf.mask)
+            for target in targets:
+                output, elapsed, peak = measured(variant, target.scan, target.mask)
                 runtime += elapsed
                 peaks.append(peak)
-                scores.append(scoring.score_leaf(leaf, output))
+                scores.append(score(target, output))
             peak = None if not peaks or any(p is None for p in peaks) else max(peaks)
-            yield _row(case, spec, {"leaves": scores}, runtime, peak, simulate_s, None)
+            yield _row(case, spec, {"targets": scores}, runtime, peak, simulate_s, None)
         except Exception as exc:  # noqa: BLE001 - a failing variant is recorded, the others still run
-            yield _row(case, spec, {"leaves": []}, None, None, simulate_s, _message(exc))
+            yield _row(case, spec, {"targets": []}, None, None, simulate_s, _message(exc))
+
+
+def case_variant(case: Case, spec: dict) -> Variant:
+    """The variant of ``spec`` with the case's own parameters for it applied (by family, then by name)."""
+    variant = get_variant(spec["name"]).with_params(**spec["params"])
+    return variant.with_params(**case.params.get(variant.family, {})).with_params(**case.params.get(variant.name, {}))
 
 
 def _heightfield_rows(case: Case, variants: list[dict]):
@@ -150,13 +158,12 @@ def _heightfield_rows(case: Case, variants: list[dict]):
         return
     for spec in variants:
         try:
-            variant = get_variant(spec["name"]).with_params(**spec["params"]).with_params(
-                **case.scene.get("sfs_params", {}))
+            variant = case_variant(case, spec)
             result, runtime, peak = measured(variant.reconstruct_heights, sampled)
             scores = scoring.json_ready(heightfields.score_heights(case.scene, sampled, result))
-            yield _row(case, spec, {"leaves": [scores]}, runtime, peak, sample_s, None)
+            yield _row(case, spec, {"targets": [scores]}, runtime, peak, sample_s, None)
         except Exception as exc:  # noqa: BLE001 - a failing variant is recorded, the others still run
-            yield _row(case, spec, {"leaves": []}, None, None, sample_s, _message(exc))
+            yield _row(case, spec, {"targets": []}, None, None, sample_s, _message(exc))
 
 
 def applies(variant: Variant, case: Case) -> bool:
@@ -171,7 +178,7 @@ def run_case(case: dict, variants: list[dict]) -> list[dict]:
 
 def error_row(case: Case, spec: dict, message: str) -> dict:
     """The row of a variant that could not be run on a case."""
-    return _row(case, spec, {"leaves": []}, None, None, None, message)
+    return _row(case, spec, {"targets": []}, None, None, None, message)
 
 
 def _message(exc: BaseException) -> str:

@@ -218,6 +218,66 @@ def prepare_leaves(scene, scan, targets: list[str] | None = None,
     return leaves
 
 
+@dataclass
+class WoodTruth:
+    """A woody object of a simulated scan: its truth cylinders and the pulses it dominates.
+
+    Attributes
+    ----------
+    object_id : int
+    name, object_type : str
+    truth : dict
+        ``cylinders`` and ``volume_m3`` (docs/contracts.md).
+    scan : tlssim.Scan
+    mask : ndarray of bool
+        Pulses whose dominant object is this one (the per-tree isolation
+        from ground-truth labels of the woody spec, C.1).
+    """
+
+    object_id: int
+    name: str
+    object_type: str
+    truth: dict
+    scan: object
+    mask: np.ndarray
+
+
+#: Fewest returned points a woody object needs to be reconstructed.
+MIN_WOOD_POINTS = 10
+
+
+def prepare_wood(scene, scan) -> list[WoodTruth]:
+    """Every woody object (truth with ``cylinders``) with at least :data:`MIN_WOOD_POINTS` returns."""
+    valid = scan.valid
+    return [WoodTruth(oid, obj.name, obj.type, obj.truth, scan, valid & (scan.truth_id == oid))
+            for oid, obj in enumerate(scene.objects)
+            if "cylinders" in obj.truth and int((valid & (scan.truth_id == oid)).sum()) >= MIN_WOOD_POINTS]
+
+
+def score_wood(wood: WoodTruth, output: VariantOutput) -> dict:
+    """Scores of reconstructed cylinders against a woody object's truth (:func:`woody.score`).
+
+    Returns
+    -------
+    dict
+        ``diameter_err_bias_m``, ``diameter_err_mae_m``, ``diameter_err_rmse_m``,
+        ``wood_completeness``, ``wood_precision``, ``detection_rate``,
+        ``volume_rel_err`` (signed), ``volume_true_m3``, ``volume_rec_m3``, the
+        method's stats.
+    """
+    import woody
+
+    scores = woody.score(wood.truth, output.traits["cylinders"])
+    diameter = scores["diameter_error_m"]
+    return json_ready({"target": wood.name, "object_id": wood.object_id, "object_type": wood.object_type,
+                       "n_points": int(wood.mask.sum()), "diameter_err_bias_m": diameter["bias"],
+                       "diameter_err_mae_m": diameter["mae"], "diameter_err_rmse_m": diameter["rmse"],
+                       "wood_completeness": scores["completeness"], "wood_precision": scores["precision"],
+                       "detection_rate": scores["detection_rate"], "volume_rel_err": scores["volume_error"],
+                       "volume_true_m3": scores["volume_true_m3"], "volume_rec_m3": scores["volume_rec_m3"],
+                       **output.stats})
+
+
 def output_distance(leaf: LeafTruth, output: VariantOutput):
     """A variant's output points on a leaf and their signed distance to the truth.
 
@@ -256,7 +316,7 @@ def score_leaf(leaf: LeafTruth, output: VariantOutput) -> dict:
     """
     _, kept, distance = output_distance(leaf, output)
     before, after = np.abs(leaf.distance), np.abs(distance)
-    scores = {"leaf": leaf.name, "object_id": leaf.object_id, "object_type": leaf.object_type,
+    scores = {"target": leaf.name, "object_id": leaf.object_id, "object_type": leaf.object_type,
               **leaf.scan_stats, "tau_m": leaf.taus["auto"]}
     for label, tau in leaf.taus.items():
         suffix = "" if label == "auto" else f"_{label}"

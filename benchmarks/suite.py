@@ -16,10 +16,13 @@ file looks like::
         scanner: {n_subrays: 19}
         vary: {distance_m: [1.5, 3, 5], incidence_deg: [0, 60]}
 
-``vary`` expands an entry into the Cartesian product of its lists; a key
-``scanner.FIELD`` varies a scanner override instead of a scene parameter,
-a dotted key such as ``sfs_params.n_smooth`` a nested scene parameter, and
-the name template may use every varied key by its last part (``{FIELD}``).
+``params`` sets method parameters for the case, by variant family or name
+(``params: {prop-sfs: {n_smooth: 5}, step: {r_max_m: 0.6}}``). ``vary``
+expands an entry into the Cartesian product of its lists; a key
+``scanner.FIELD`` varies a scanner override and ``params.FAMILY.PARAM`` a
+method parameter instead of a scene parameter, a dotted key such as
+``surface_params.radius`` a nested scene parameter, and the name template
+may use every varied key by its last part (``{FIELD}``).
 The seed of a case defaults to a hash of its name, so the same case gets the
 same scan in every suite. Files are read with ``yaml.safe_load``.
 """
@@ -43,7 +46,7 @@ from tlssim.scanner import ScannerModel
 #: Directory of the built-in suites (``<name>.yaml``).
 SUITE_DIR = Path(__file__).parent / "suites"
 
-_CASE_KEYS = {"name", "scene", "scanner", "seed", "targets", "vary"}
+_CASE_KEYS = {"name", "scene", "scanner", "seed", "targets", "params", "vary"}
 #: Scanner-section keys a case may override besides the scanner-model fields.
 _SECTION_KEYS = {"preset", "position", "orientation", "window"}
 
@@ -65,7 +68,11 @@ class Case:
     seed : int
         Seed of the simulation.
     targets : tuple of str or None
-        Objects to score (default: every leaf).
+        Objects to score (default: every leaf and analytic surface).
+    params : dict
+        Method parameters for this case, ``{family or variant name: {param:
+        value}}`` (e.g. the thesis' smoothing and quantisation per synthetic
+        experiment, or STEP's radius range for a large cylinder).
     """
 
     name: str
@@ -73,18 +80,19 @@ class Case:
     scanner: dict
     seed: int
     targets: tuple[str, ...] | None = None
+    params: dict = dataclasses.field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """JSON-ready description (what workers receive and the store keeps)."""
         return {"name": self.name, "scene": self.scene, "scanner": self.scanner, "seed": self.seed,
-                "targets": None if self.targets is None else list(self.targets)}
+                "targets": None if self.targets is None else list(self.targets), "params": self.params}
 
     @classmethod
     def from_dict(cls, data: dict) -> "Case":
         """Inverse of :meth:`to_dict`."""
         targets = data.get("targets")
         return cls(data["name"], dict(data["scene"]), dict(data.get("scanner") or {}), int(data["seed"]),
-                   None if targets is None else tuple(targets))
+                   None if targets is None else tuple(targets), dict(data.get("params") or {}))
 
 
 @dataclass(frozen=True)
@@ -199,6 +207,9 @@ def _expand(entry) -> list[Case]:
     targets = entry.get("targets")
     if targets is not None and not (isinstance(targets, list) and all(isinstance(t, str) for t in targets)):
         raise BenchError(f"'targets' must be a list of object names, got {targets!r}")
+    params = entry.get("params") or {}
+    if not (isinstance(params, dict) and all(isinstance(v, dict) for v in params.values())):
+        raise BenchError(f"'params' must map variant families or names to parameter mappings, got {params!r}")
     seed = entry.get("seed")
     if seed is not None and not isinstance(seed, int):
         raise BenchError(f"'seed' must be an integer, got {seed!r}")
@@ -207,18 +218,18 @@ def _expand(entry) -> list[Case]:
         raise BenchError("'vary' must map parameter names to non-empty lists of values")
     cases = []
     for values in itertools.product(*vary.values()):
-        case = {"scene": copy.deepcopy(scene), "scanner": dict(scanner)}
+        case = {"scene": copy.deepcopy(scene), "scanner": dict(scanner), "params": copy.deepcopy(params)}
         fields = {}
         for key, value in zip(vary, values):
             path = key.split(".")
-            target = case if path[0] == "scanner" else case["scene"]
+            target = case if path[0] in ("scanner", "params") else case["scene"]
             for part in path[:-1]:
                 if not isinstance(target.setdefault(part, {}), dict):
                     raise BenchError(f"vary key {key!r}: {part!r} is not a mapping")
                 target = target[part]
             target[path[-1]] = value
             fields[path[-1]] = value
-        case_scene, case_scanner = case["scene"], case["scanner"]
+        case_scene, case_scanner, case_params = case["scene"], case["scanner"], case["params"]
         try:
             name = entry["name"].format(**fields)
         except (KeyError, IndexError, ValueError) as exc:
@@ -226,7 +237,7 @@ def _expand(entry) -> list[Case]:
         check_scene(case_scene)
         _check_scanner(case_scanner)
         cases.append(Case(name, case_scene, case_scanner, case_seed(name) if seed is None else seed,
-                          None if targets is None else tuple(targets)))
+                          None if targets is None else tuple(targets), case_params))
     if vary and len({c.name for c in cases}) < len(cases):
         raise BenchError(f"name template {entry['name']!r} must use every varied key to give unique names")
     return cases

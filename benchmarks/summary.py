@@ -24,8 +24,9 @@ drown 60 single-leaf cases):
 - ``runtime_s``: median wall time of the variant on one case (all its
   leaves); ``runtime_total_s``: sum over cases; ``peak_mem_mb``: largest
   peak over cases;
-- ``diameter_err_median_m``, ``volume_rel_err``: woody metrics (``None``
-  until woody variants are registered).
+- woody objects (scored with :func:`woody.score`): ``diameter_err_median_m``,
+  median over cases of the median over woody objects of the mean absolute
+  diameter error; ``volume_rel_err``, the same with |relative volume error|.
 
 A metric that does not apply (no leaf with that truth, or a variant that
 does not estimate it) is ``None``.
@@ -45,7 +46,7 @@ GOAL_AREA_REL_ERR = 0.05
 MIN_VISIBILITY = 0.8
 
 #: Keys of a summary row, in display order.
-SUMMARY_KEYS = ("suite", "variant", "family", "n_cases", "n_leaves", "n_leaves_traits", "n_errors", "rop_before",
+SUMMARY_KEYS = ("suite", "variant", "family", "n_cases", "n_targets", "n_leaves_traits", "n_errors", "rop_before",
                 "rop_after", "rop_reduction", "rop_before_1cm", "rop_after_1cm", "rop_reduction_1cm", "good_points_lost",
                 "outliers_restored", "good_points_damaged", "completeness", "flag_precision", "flag_recall",
                 "rppp_1", "abs_eps_mean", "within_5pct", "surface_rmse_m",
@@ -64,10 +65,10 @@ HEADLINE_HEIGHTS = (("variant", "variant", "{}"), ("mean |height err|", "abs_eps
                     ("runtime/case", "runtime_s", "{:.3f} s"), ("errors", "n_errors", "{}"))
 
 
-def leaf_scores(rows: list[dict]) -> list[dict]:
-    """Every per-leaf score of result rows, with ``case`` and ``variant`` added."""
-    return [{"case": r["case_name"], "variant": r["variant"], **leaf}
-            for r in rows if not r["error"] for leaf in r["metrics"]["leaves"]]
+def target_scores(rows: list[dict]) -> list[dict]:
+    """Every per-target score (leaf, surface, woody object) of result rows, with ``case`` and ``variant`` added."""
+    return [{"case": r["case_name"], "variant": r["variant"], **target}
+            for r in rows if not r["error"] for target in r["metrics"]["targets"]]
 
 
 def _values(leaves: list[dict], key: str, absolute: bool = False) -> np.ndarray:
@@ -79,7 +80,7 @@ def _over_cases(rows: list[dict], key: str, reduce=np.mean, absolute: bool = Fal
     """``reduce`` of a per-leaf score within each case, then over the cases (None when no case has it)."""
     per_case = []
     for row in rows:
-        leaves = row["metrics"]["leaves"]
+        leaves = row["metrics"]["targets"]
         if visible:
             leaves = [leaf for leaf in leaves if (leaf.get("visibility") or 0.0) >= MIN_VISIBILITY]
         values = _values(leaves, key, absolute)
@@ -115,9 +116,9 @@ def summarize_by_scene(rows: list[dict], suite: str) -> list[dict]:
 def _summary_row(mine: list[dict], labels: dict) -> dict:
     """Aggregate the result rows of one variant (see the module docstring)."""
     ok = [r for r in mine if not r["error"]]
-    leaves = leaf_scores(ok)
+    leaves = target_scores(ok)
     row = {**labels, "variant": mine[0]["variant"], "family": mine[0]["family"], "n_cases": len(mine),
-           "n_leaves": len(leaves), "n_errors": len(mine) - len(ok)}
+           "n_targets": len(leaves), "n_errors": len(mine) - len(ok)}
     for suffix in ("", "_1cm"):
         before, after = _over_cases(ok, "rop_before" + suffix), _over_cases(ok, "rop_after" + suffix)
         row.update({f"rop_before{suffix}": before, f"rop_after{suffix}": after,
@@ -131,8 +132,8 @@ def _summary_row(mine: list[dict], labels: dict) -> dict:
     row["area_rel_err_bias"] = _over_cases(ok, "area_rel_err", np.median, visible=True)
     row["elevation_err_median_deg"] = _over_cases(ok, "elevation_err_deg", np.median, visible=True)
     row["azimuth_err_median_deg"] = _over_cases(ok, "azimuth_err_deg", np.median, visible=True)
-    row["diameter_err_median_m"] = None
-    row["volume_rel_err"] = None
+    row["diameter_err_median_m"] = _over_cases(ok, "diameter_err_mae_m", np.median)
+    row["volume_rel_err"] = _over_cases(ok, "volume_rel_err", np.median, absolute=True)
     runtimes = [r["runtime_s"] for r in ok if r["runtime_s"] is not None]
     peaks = [r["peak_mem_mb"] for r in ok if r["peak_mem_mb"] is not None]
     row["runtime_s"] = float(np.median(runtimes)) if runtimes else None

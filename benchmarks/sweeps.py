@@ -125,7 +125,7 @@ def sweep_table(rows: list[dict], kind: str) -> list[dict]:
     """Per swept value: the raw scan's properties and the ROP each variant leaves.
 
     Columns: ``value``; for footprint sweeps ``footprint_mm`` (1/e² diameter
-    at the leaf); ``n_leaves``; the means over leaves of ``rop_before``,
+    at the leaf); ``n_targets``; the means over leaves of ``rop_before``,
     ``rop_before_1cm``, ``sigma_range_m``, ``intensity_dn``,
     ``points_per_cm2``, ``n_points``; ``rop_after:<variant>`` for every
     variant except ``raw``.
@@ -137,18 +137,18 @@ def sweep_table(rows: list[dict], kind: str) -> list[dict]:
     table = []
     for value in sorted(by_value):
         group = by_value[value]
-        reference = [leaf for r in group if r["variant"] == group[0]["variant"] for leaf in r["metrics"]["leaves"]]
+        reference = [leaf for r in group if r["variant"] == group[0]["variant"] for leaf in r["metrics"]["targets"]]
         entry = {"value": value}
         if kind == "footprint":
             model = get_preset("faro-ls880", **group[0]["case_spec"]["scanner"])
             ranges = [leaf["range_m"] for leaf in reference]
             entry["footprint_mm"] = 2e3 * model.beam_radius_m(float(np.mean(ranges))) if ranges else None
-        entry["n_leaves"] = len(reference)
+        entry["n_targets"] = len(reference)
         for key in _SCAN_COLUMNS:
             entry[key] = _mean(reference, key)
         for variant in dict.fromkeys(r["variant"] for r in group):
             if variant != "raw":
-                leaves = [leaf for r in group if r["variant"] == variant for leaf in r["metrics"]["leaves"]]
+                leaves = [leaf for r in group if r["variant"] == variant for leaf in r["metrics"]["targets"]]
                 entry[f"rop_after:{variant}"] = _mean(leaves, "rop_after")
         table.append(entry)
     return table

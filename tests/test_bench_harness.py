@@ -11,10 +11,12 @@ import time
 from html.parser import HTMLParser
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
 from benchmarks import cli, registry
+from benchmarks.report import report_document
 from benchmarks.runner import execute, run_case
 from benchmarks.store import Store
 from benchmarks.suite import load_suite
@@ -60,15 +62,15 @@ def test_inline_run_stores_every_pair_with_consistent_scores(tiny_run):
         assert store.run_info(run_id)["status"] == "complete"
         assert all(r["runtime_s"] > 0 and r["simulate_s"] > 0 for r in store.results(run_id))
     for case in ("leaf-3.0m", "leaf-5.0m", "edge"):
-        raw, shadow = rows[(case, "raw")]["metrics"]["leaves"][0], rows[(case, "shadow")]["metrics"]["leaves"][0]
+        raw, shadow = rows[(case, "raw")]["metrics"]["targets"][0], rows[(case, "shadow")]["metrics"]["targets"][0]
         assert rows[(case, "raw")]["error"] is None
         assert raw["rop_before"] == shadow["rop_before"] > 0.05, "edge outliers exist before any filter"
         assert raw["rop_after"] == raw["rop_before"] and raw["good_points_lost"] == 0.0
         assert shadow["rop_after"] < 0.2 * shadow["rop_before"]
-    leaf = rows[("leaf-5.0m", "raw")]["metrics"]["leaves"][0]
+    leaf = rows[("leaf-5.0m", "raw")]["metrics"]["targets"][0]
     assert leaf["object_type"] == "leaf" and leaf["range_m"] == pytest.approx(5.0, abs=0.05)
     assert leaf["area_true_m2"] > 0 and -0.5 < leaf["area_rel_err"] < 0.5
-    assert "area_rel_err" not in rows[("edge", "raw")]["metrics"]["leaves"][0], "the knife-edge plate has no area truth"
+    assert "area_rel_err" not in rows[("edge", "raw")]["metrics"]["targets"][0], "the knife-edge plate has no area truth"
 
 
 def test_process_pool_gives_the_same_scores(tiny_path, tiny_run, tmp_path):
@@ -112,14 +114,13 @@ def test_worker_pool_replaces_a_silent_worker(tmp_path):
         {"name": "edge", "scene": {"builtin": "knife-edge"}, "targets": ["plate"]}]}
     rows = _run_suite_file(tmp_path, suite, registry.resolve(["raw"]), timeout_s=8.0)
     assert "no result within 8 s" in rows[("orchard", "raw")]["error"]
-    assert rows[("edge", "raw")]["error"] is None and rows[("edge", "raw")]["metrics"]["leaves"]
+    assert rows[("edge", "raw")]["error"] is None and rows[("edge", "raw")]["metrics"]["targets"]
 
 
 def test_height_field_cases_run_only_height_field_methods(tmp_path):
     suite = {"name": "hf", "cases": [{"name": "hemisphere", "scene": {
-        "heightfield": "hemisphere", "side": 31, "alpha_noise_deg": 1.4,
-        "sfs_params": {"n_smooth": 5, "quantization": "percentile", "eps_alpha": 0.2, "alpha_max_deg": 85,
-                       "rim_px": 0}}}]}
+        "heightfield": "hemisphere", "side": 31, "alpha_noise_deg": 1.4}, "params": {"prop-sfs": {
+            "n_smooth": 5, "quantization": "percentile", "eps_alpha": 0.2, "alpha_max_deg": 85, "rim_px": 0}}}]}
     path = tmp_path / "hf.yaml"
     path.write_text(yaml.safe_dump(suite))
     with Store(tmp_path / "r.sqlite") as store:
@@ -127,17 +128,44 @@ def test_height_field_cases_run_only_height_field_methods(tmp_path):
         rows = store.results(outcome.run_id)
         assert store.run_info(outcome.run_id)["status"] == "complete"
     assert [r["variant"] for r in rows] == ["buffer"]
-    (score,) = rows[0]["metrics"]["leaves"]
-    assert rows[0]["params"]["n_smooth"] == 20, "the variant's own parameters are stored"
+    (score,) = rows[0]["metrics"]["targets"]
+    assert rows[0]["params"]["n_smooth"] == 20 and rows[0]["case_spec"]["params"]["prop-sfs"]["n_smooth"] == 5
     assert score["object_type"] == "heightfield" and score["completeness"] > 0.9
     assert score["within_5pct"] > 0.9, "thesis: > 95 % within 5 % of the radius at 1.4 deg noise"
+
+
+def test_woody_variants_score_woody_objects(tmp_path):
+    import woody
+
+    if not hasattr(woody, "step"):
+        pytest.skip("the woody package of this checkout has no reconstruction methods yet")
+    suite = {"name": "wood", "cases": [{"name": "branch", "scene": {"generator": "branch", "radius_m": 0.05},
+                                        "scanner": {"step_deg": 0.05}, "params": {"step": {"r_max_m": 0.1}}}]}
+    path = tmp_path / "wood.yaml"
+    path.write_text(yaml.safe_dump(suite))
+    with Store(tmp_path / "r.sqlite") as store:
+        outcome = execute(load_suite(str(path)), registry.resolve(["raw", "step", "cylinders"]), store, workers=0,
+                          progress=False)
+        rows = {r["variant"]: r for r in store.results(outcome.run_id)}
+    assert rows["raw"]["metrics"]["targets"] == [], "leaf variants find no leaf on a branch"
+    with Store(tmp_path / "r.sqlite") as store:
+        summaries = {r["variant"]: r for r in report_document(store, outcome.run_id)["rows"]}
+    for name in ("step", "cylinders"):
+        assert rows[name]["error"] is None, rows[name]["error"]
+        (score,) = rows[name]["metrics"]["targets"]
+        assert score["target"] == "branch" and score["n_points"] > 100 and 0 <= score["wood_completeness"] <= 1
+        assert score["volume_true_m3"] == pytest.approx(np.pi * 0.05 ** 2 * 0.6, rel=1e-6)
+        assert score["volume_rel_err"] == pytest.approx(score["volume_rec_m3"] / score["volume_true_m3"] - 1)
+        assert summaries[name]["diameter_err_median_m"] == pytest.approx(score["diameter_err_mae_m"])
+        assert summaries[name]["volume_rel_err"] == pytest.approx(abs(score["volume_rel_err"]))
+    assert rows["step"]["params"]["r_max_m"] == 0.3 and rows["step"]["case_spec"]["params"] == {"step": {"r_max_m": 0.1}}
 
 
 def test_a_failing_case_is_recorded_not_fatal():
     case = {"name": "bad", "scene": {"generator": "plate-leaf"}, "scanner": {"step_deg": -1.0}, "seed": 0,
             "targets": None}
     rows = run_case(case, [{"name": "raw", "family": "raw", "params": {"mesh_max_edge_m": 0.01, "mesh_smoothing_m": 0.002}}])
-    assert len(rows) == 1 and "step_deg" in rows[0]["error"] and rows[0]["metrics"] == {"leaves": []}
+    assert len(rows) == 1 and "step_deg" in rows[0]["error"] and rows[0]["metrics"] == {"targets": []}
 
 
 def _stored_rows(db):
@@ -242,8 +270,8 @@ def test_compare_flags_regressions_beyond_noise(tiny_run, capsys):
         worse = store.create_run("tiny", "x", {}, "worse", commit="c")
         for r in rows:
             if r["variant"] == "shadow":
-                r["metrics"] = {"leaves": [{**leaf, "rop_after": leaf["rop_after"] + 0.05}
-                                           for leaf in r["metrics"]["leaves"]]}
+                r["metrics"] = {"targets": [{**leaf, "rop_after": leaf["rop_after"] + 0.05}
+                                           for leaf in r["metrics"]["targets"]]}
         store.add_results(worse, rows)
     assert cli.main(["compare", run_a, same, "--db", str(db)]) == 0
     assert "0 regression(s)" in capsys.readouterr().out
@@ -259,7 +287,7 @@ def test_sweep_command_writes_table_and_plot(tmp_path, capsys):
             "--db", str(tmp_path / "r.sqlite"), "-o", str(tmp_path / "sw")]
     assert cli.main(argv) == 0
     lines = (tmp_path / "sw" / "sweep-distance.csv").read_text().splitlines()
-    assert lines[0].split(",")[:3] == ["value", "n_leaves", "rop_before"] and len(lines) == 3
+    assert lines[0].split(",")[:3] == ["value", "n_targets", "rop_before"] and len(lines) == 3
     assert "rop_after:shadow" in lines[0]
     assert (tmp_path / "sw" / "sweep-distance.png").read_bytes()[:4] == b"\x89PNG"
     assert "sweep distance" in capsys.readouterr().out

@@ -121,14 +121,14 @@ def test_trait_errors():
 def test_summaries_weigh_cases_equally_and_gate_traits_on_visibility():
     def row(case, variant, leaves, error=None):
         return {"case_name": case, "variant": variant, "family": "raw", "case_spec": {"scene": {"builtin": case}},
-                "metrics": {"leaves": leaves}, "runtime_s": 1.0, "peak_mem_mb": 2.0, "error": error}
+                "metrics": {"targets": leaves}, "runtime_s": 1.0, "peak_mem_mb": 2.0, "error": error}
 
     single = [{"rop_before": 0.2, "rop_after": 0.1, "area_rel_err": -0.1, "visibility": 1.0}]
     tree = [{"rop_before": 0.0, "rop_after": 0.0, "area_rel_err": e, "visibility": v}
             for e, v in ((0.3, 1.0), (0.5, 0.9), (-0.9, 0.2))]
     rows = [row("leaf", "raw", single), row("tree", "raw", tree), row("broken", "raw", [], error="SfsError: x")]
     (summary,) = summarize(rows, "s")
-    assert summary["n_cases"] == 3 and summary["n_errors"] == 1 and summary["n_leaves"] == 4
+    assert summary["n_cases"] == 3 and summary["n_errors"] == 1 and summary["n_targets"] == 4
     assert summary["rop_before"] == pytest.approx(0.1) and summary["rop_after"] == pytest.approx(0.05)
     assert summary["rop_reduction"] == pytest.approx(0.5)
     # Per case: median |error| of the visible leaves (0.1; 0.4 of 0.3 and 0.5), then the median of the cases.

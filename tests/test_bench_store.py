@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def row(case, variant="raw", **metrics):
     return {"case_name": case, "variant": variant, "family": "raw", "params": {"k": 1}, "case_spec": {"name": case},
-            "metrics": {"leaves": [], **metrics}, "runtime_s": 0.5, "peak_mem_mb": 3.0, "simulate_s": 0.1,
+            "metrics": {"targets": [], **metrics}, "runtime_s": 0.5, "peak_mem_mb": 3.0, "simulate_s": 0.1,
             "error": None}
 
 
@@ -26,7 +26,7 @@ def test_runs_results_and_resolution(tmp_path):
         assert store.add_results(first, [row("a"), row("c")]) == 1, "a stored result is never replaced"
         assert store.done_pairs(first) == {("a", "raw"), ("b", "sor"), ("c", "raw")}
         stored = store.results(first)
-        assert stored[0]["params"] == {"k": 1} and stored[0]["metrics"] == {"leaves": []}
+        assert stored[0]["params"] == {"k": 1} and stored[0]["metrics"] == {"targets": []}
         assert store.find_resumable("cfg", "abc") == first
         assert store.find_resumable("cfg", "other-commit") is None
         store.finish_run(first)
@@ -60,7 +60,7 @@ path, run, name = sys.argv[1:]
 with Store(path) as store:
     for i in range(80):
         store.add_results(run, [{"case_name": f"{name}-{i}", "variant": "raw", "family": "raw", "params": {},
-                                 "case_spec": {}, "metrics": {"leaves": [], "i": i}, "runtime_s": 0.0,
+                                 "case_spec": {}, "metrics": {"targets": [], "i": i}, "runtime_s": 0.0,
                                  "peak_mem_mb": None, "simulate_s": 0.0, "error": None}])
 """
 

@@ -55,11 +55,16 @@ def test_malformed_suites_name_the_file_and_the_problem(tmp_path, data, message)
     assert str(path) in str(info.value)
 
 
-def test_vary_reaches_nested_parameters():
-    suite = parse_suite({"name": "t", "cases": [{"name": "h-{n_smooth}", "scene": {
-        "heightfield": "hemisphere", "sfs_params": {"eps_alpha": 0.2}}, "vary": {"sfs_params.n_smooth": [1, 5]}}]})
-    assert [c.scene["sfs_params"] for c in suite.cases] == [{"eps_alpha": 0.2, "n_smooth": 1},
-                                                            {"eps_alpha": 0.2, "n_smooth": 5}]
+def test_vary_reaches_nested_and_method_parameters():
+    suite = parse_suite({"name": "t", "cases": [{"name": "h-{n_smooth}-{radius}", "scene": {
+        "heightfield": "hemisphere"}, "params": {"prop-sfs": {"eps_alpha": 0.2}},
+        "vary": {"params.prop-sfs.n_smooth": [1, 5], "surface_params.radius": [10.0]}}]})
+    assert [c.params for c in suite.cases] == [{"prop-sfs": {"eps_alpha": 0.2, "n_smooth": 1}},
+                                               {"prop-sfs": {"eps_alpha": 0.2, "n_smooth": 5}}]
+    assert suite.cases[0].scene == {"heightfield": "hemisphere", "surface_params": {"radius": 10.0}}
+    assert suite.cases[1].name == "h-5-10.0"
+    with pytest.raises(BenchError, match="'params' must map"):
+        parse_suite({"name": "t", "cases": [{"name": "h", "scene": {"heightfield": "hemisphere"}, "params": [1]}]})
     with pytest.raises(BenchError, match="side"):
         parse_suite({"name": "t", "cases": [{"name": "h", "scene": {"heightfield": "hemisphere", "side": 3}}]})
 
@@ -86,7 +91,7 @@ def test_builtin_suites_hold_what_they_promise():
     assert {c.scene.get("alpha_noise_deg") for c in synthetic} >= {1.4, 2.8, 5.7}
     assert {c.scene.get("alpha_bias_deg") for c in synthetic} >= {-7.0, -3.5, 3.5, 7.0}
     assert {c.scene.get("side") for c in synthetic if c.scene["heightfield"] == "hemisphere"} >= {25, 34, 41, 47, 53, 58}
-    assert {c.scene["sfs_params"].get("seed_cutoff") for c in synthetic} >= {0.061, 0.029, 0.019}
+    assert {c.params["prop-sfs"].get("seed_cutoff") for c in synthetic} >= {0.061, 0.029, 0.019}
 
 
 def test_plate_leaf_truth_matches_its_pose():
