@@ -5,8 +5,10 @@ against: for each target leaf its points (the pulses with at least 10 % of
 their power from it), the distance of each measured point to the true
 surface of the object it is attributed to, the range noise and the outlier
 thresholds. :func:`score_leaf` then scores one variant's output on one leaf
-with the definitions of :mod:`benchmarks.metrics`. :func:`summarize`
-aggregates per-leaf scores over a suite.
+with the definitions of :mod:`benchmarks.metrics`. Woody objects
+(:func:`prepare_wood`, :func:`score_wood`) are scored with the woody
+package's own :func:`woody.score`. :mod:`benchmarks.summary` aggregates the
+scores over a suite.
 """
 
 from __future__ import annotations
@@ -30,22 +32,42 @@ CROP_MARGIN_PX = 8
 
 
 @dataclass
-class LeafTruth:
-    """What the variants are scored against on one leaf.
+class Target:
+    """An object of a simulated scan that variants are scored on.
 
     Attributes
     ----------
     object_id : int
-        Scene object id of the leaf.
+        Scene object id.
     name, object_type : str
         Object name and type.
     truth : dict
-        The object's truth fields (``area_m2``, ``elevation_deg``, ... for leaves).
+        The object's truth fields (``area_m2``, ``elevation_deg``, ... for
+        leaves; ``cylinders`` and ``volume_m3`` for woody objects).
     scan : tlssim.Scan
-        The part of the scan around the leaf (the leaf's points plus
-        :data:`CROP_MARGIN_PX` pixels), which the variants receive.
+        The scan, or the part of it that the variants receive.
     mask : ndarray of bool, shape of ``scan``
-        The leaf's points: returns with at least ``min_share`` of their power from it.
+        The object's points in ``scan``.
+    """
+
+    object_id: int
+    name: str
+    object_type: str
+    truth: dict
+    scan: object
+    mask: np.ndarray
+
+
+@dataclass
+class LeafTruth(Target):
+    """What the variants are scored against on one leaf (or analytic surface).
+
+    ``scan`` is the part of the scan around the leaf (its points plus
+    :data:`CROP_MARGIN_PX` pixels); ``mask`` selects the leaf's points: the
+    returns with at least ``min_share`` of their power from it.
+
+    Attributes
+    ----------
     own : ndarray of bool, (n,)
         Which of the masked points the leaf dominates (``truth_id`` is the leaf).
     attributed : ndarray of int, (n,)
@@ -55,23 +77,17 @@ class LeafTruth:
     taus : dict of str to float
         Outlier thresholds by label (``auto``: max(3 σ, 2 mm); ``1cm``), m.
     scan_stats : dict
-        Properties of the scan on this leaf (range, incidence, noise, intensity, density).
+        Properties of the scan on this leaf (range, incidence, noise, intensity, density, visibility).
     surfaces : TruthSurfaces
         Distances to the scene's true surfaces (shared by the leaves of a scan).
     """
 
-    object_id: int
-    name: str
-    object_type: str
-    truth: dict
-    scan: object
-    mask: np.ndarray
     own: np.ndarray
     attributed: np.ndarray
     distance: np.ndarray
     taus: dict
     scan_stats: dict
-    surfaces: TruthSurfaces
+    surfaces: "TruthSurfaces"
 
 
 def crop_scan(scan, rows: slice, cols: slice):
@@ -218,43 +234,23 @@ def prepare_leaves(scene, scan, targets: list[str] | None = None,
     return leaves
 
 
-@dataclass
-class WoodTruth:
-    """A woody object of a simulated scan: its truth cylinders and the pulses it dominates.
-
-    Attributes
-    ----------
-    object_id : int
-    name, object_type : str
-    truth : dict
-        ``cylinders`` and ``volume_m3`` (docs/contracts.md).
-    scan : tlssim.Scan
-    mask : ndarray of bool
-        Pulses whose dominant object is this one (the per-tree isolation
-        from ground-truth labels of the woody spec, C.1).
-    """
-
-    object_id: int
-    name: str
-    object_type: str
-    truth: dict
-    scan: object
-    mask: np.ndarray
-
-
 #: Fewest returned points a woody object needs to be reconstructed.
 MIN_WOOD_POINTS = 10
 
 
-def prepare_wood(scene, scan) -> list[WoodTruth]:
-    """Every woody object (truth with ``cylinders``) with at least :data:`MIN_WOOD_POINTS` returns."""
+def prepare_wood(scene, scan) -> list[Target]:
+    """Every woody object (truth with ``cylinders``) with at least :data:`MIN_WOOD_POINTS` returns.
+
+    Its points are the pulses it dominates (the per-tree isolation from
+    ground-truth labels of the woody spec, C.1), on the whole scan.
+    """
     valid = scan.valid
-    return [WoodTruth(oid, obj.name, obj.type, obj.truth, scan, valid & (scan.truth_id == oid))
+    return [Target(oid, obj.name, obj.type, obj.truth, scan, valid & (scan.truth_id == oid))
             for oid, obj in enumerate(scene.objects)
             if "cylinders" in obj.truth and int((valid & (scan.truth_id == oid)).sum()) >= MIN_WOOD_POINTS]
 
 
-def score_wood(wood: WoodTruth, output: VariantOutput) -> dict:
+def score_wood(wood: Target, output: VariantOutput) -> dict:
     """Scores of reconstructed cylinders against a woody object's truth (:func:`woody.score`).
 
     Returns
