@@ -12,11 +12,12 @@ Generators place their targets in front of the scanner at the origin, which
 looks along +x, and return a scanner section whose window covers every
 target with a margin, so that no edge outlier falls outside the scan.
 
-The flat elliptic "plate" leaves stand in for procedural leaves until the
-scenes package provides them; they are typed ``leaf`` and carry the leaf
-truth fields of the data contract (``area_m2``, ``normal``,
-``elevation_deg``, ``azimuth_deg``, ``outline``, ``length_m``,
-``half_width_m``).
+Generators: ``single-leaf`` (a procedural pear leaf of :mod:`scenes`),
+``plate-leaf`` (a flat elliptic leaf, an exactly known shape for controlled
+tests; it carries the leaf truth fields of the data contract),
+``analytic-surface`` (the thesis' test surfaces at leaf size) and ``branch``
+(a cylinder with truth cylinders, for the woody methods); all but the
+branch stand in front of a background wall that the edge pulses mix with.
 """
 
 from __future__ import annotations
@@ -287,59 +288,6 @@ def plate_leaf(distance_m: float = 1.5, incidence_deg: float = 0.0, axis: str = 
     if background_gap_m is not None:
         objects.append(background_wall(objects, distance_m + background_gap_m, background_reflectance))
     return Scene(objects, scanner_window([leaf]))
-
-
-@generator("plate-cluster", "several flat elliptic leaves at random depths, tilts and sizes that occlude one "
-                           "another, in front of a background wall (seeded layout)")
-def plate_cluster(n_leaves: int = 5, distance_m: float = 1.5, depth_spread_m: float = 0.15,
-                 lateral_spread_m: float = 0.05, max_incidence_deg: float = 60.0, seed: int = 0,
-                 background_gap_m: float = 0.5, background_reflectance: float = 0.3) -> Scene:
-    """A cluster of leaves of pear size (length 6.5 ± 0.5 cm) that partly hide one another.
-
-    Parameters
-    ----------
-    n_leaves : int
-        Number of leaves.
-    distance_m : float
-        Distance of the cluster centre along +x, m.
-    depth_spread_m, lateral_spread_m : float
-        Spread of leaf centres along and across the view direction (uniform
-        in depth, normal with this standard deviation across), m.
-    max_incidence_deg : float
-        Leaf tilts are uniform in [0, max_incidence_deg] about a random axis.
-    seed : int
-        Seed of the layout.
-    background_gap_m, background_reflectance : float
-        Wall behind the deepest leaf.
-    """
-    if not (isinstance(n_leaves, int) and n_leaves >= 1):
-        raise BenchError(f"plate-cluster n_leaves must be a positive integer, got {n_leaves!r}")
-    rng = np.random.default_rng(seed)
-    leaves: list[SceneObject] = []
-    centers: list[np.ndarray] = []
-    attempts = 0
-    while len(leaves) < n_leaves:
-        attempts += 1
-        if attempts > 1000:
-            raise BenchError(f"plate-cluster: cannot place {n_leaves} leaves without overlap; widen the spreads")
-        length = max(0.02, rng.normal(PEAR_LENGTH_M, 0.005))
-        center = np.array([distance_m + rng.uniform(-0.5, 0.5) * depth_spread_m,
-                           rng.normal(0.0, lateral_spread_m), rng.normal(0.0, lateral_spread_m)])
-        # Keep blades apart in 3-D (they may overlap in the scanner's view).
-        if any(np.linalg.norm(center - c) < 0.6 * length for c in centers):
-            continue
-        to_scanner = -center / np.linalg.norm(center)
-        tilt_axis = rotate(orthonormal_frame(to_scanner)[0], to_scanner, rng.uniform(0, 2 * np.pi))
-        normal = rotate(to_scanner, tilt_axis, math.radians(rng.uniform(0.0, max_incidence_deg)))
-        u, v, _ = orthonormal_frame(normal)
-        roll = rng.uniform(0.0, 2 * np.pi)
-        leaves.append(elliptic_leaf(f"leaf-{len(leaves) + 1:02d}", center, normal,
-                                    math.cos(roll) * v + math.sin(roll) * u, length,
-                                    PEAR_WIDTH_RATIO * length * rng.uniform(0.85, 1.15), group="cluster"))
-        centers.append(center)
-    deepest = max(c[0] for c in centers) + 0.05
-    wall = background_wall(leaves, deepest + background_gap_m, background_reflectance)
-    return Scene(leaves + [wall], scanner_window(leaves))
 
 
 @generator("analytic-surface", "an analytic test surface of the PROP-SFS thesis (scenes.surfaces: hemisphere, "

@@ -115,14 +115,15 @@ def test_plate_leaf_truth_matches_its_pose():
     assert wall.vertices[:, 0].min() == pytest.approx(2.5)
 
 
-def test_plate_cluster_is_deterministic_and_seeded():
-    a = build_scene({"generator": "plate-cluster", "n_leaves": 4, "seed": 3})
-    b = build_scene({"generator": "plate-cluster", "n_leaves": 4, "seed": 3})
-    c = build_scene({"generator": "plate-cluster", "n_leaves": 4, "seed": 4})
-    assert [o.name for o in a.objects] == ["leaf-01", "leaf-02", "leaf-03", "leaf-04", "background"]
-    assert all(np.array_equal(x.vertices, y.vertices) for x, y in zip(a.objects, b.objects))
-    assert not np.array_equal(a.objects[0].vertices, c.objects[0].vertices)
-    assert all(0.045 < o.truth["length_m"] < 0.085 for o in a.objects[:-1])  # 6.5 cm +- 4 sd
+def test_single_leaf_is_a_seeded_procedural_leaf():
+    a = build_scene({"generator": "single-leaf", "distance_m": 2.0, "incidence_deg": 40.0, "seed": 3})
+    b = build_scene({"generator": "single-leaf", "distance_m": 2.0, "incidence_deg": 40.0, "seed": 3})
+    c = build_scene({"generator": "single-leaf", "distance_m": 2.0, "incidence_deg": 40.0, "seed": 4})
+    leaf = a.objects[0]
+    assert leaf.type == "leaf" and {"area_m2", "elevation_deg", "azimuth_deg", "outline"} <= set(leaf.truth)
+    assert np.array_equal(leaf.vertices, b.objects[0].vertices)
+    assert not np.array_equal(leaf.vertices, c.objects[0].vertices)
+    assert a.objects[1].name == "background" and a.objects[1].vertices[:, 0].min() == pytest.approx(2.5)
 
 
 def test_generator_errors():
