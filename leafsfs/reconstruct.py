@@ -263,8 +263,9 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
     for leaf in leaves:
         region = labels == leaf.label
         box = leaf.frame.box
-        leaf.traits = {**leaf_traits(leaf.frame, leaf.heights.height, shares[leaf.label][box],
-                                     params.trait_smoothing_m),
+        # The traits of the output: corrected distances of the leaf's outliers, measured ones of its inliers.
+        height = leaf.frame.height(np.where(region & corrected, out_range, np.nan)[box])
+        leaf.traits = {**leaf_traits(leaf.frame, height, shares[leaf.label][box], params.trait_smoothing_m),
                        "n_points": int(region.sum()), "n_outliers": int((outlier & region).sum()),
                        "unreliable_alpha_fraction": float(np.mean(~reliable[region])), **leaf.traits}
     return result

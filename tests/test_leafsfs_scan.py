@@ -78,12 +78,14 @@ def test_leaf_traits_and_redundancy(leaf_scan, leaf_result):
     scene, _, _ = leaf_scan
     truth = scene.objects[0].truth
     (traits,) = leaf_result.traits()
-    assert traits["area_m2"] == pytest.approx(truth["area_m2"], rel=0.35)
+    # Measured: -1 % area, 0.3 deg elevation and azimuth, 1.4 deg normal (before the mixed-pulse attribution
+    # and the share-weighted, local-plane traits: +28 %, 5.6, 7.6 and 11 deg).
+    assert traits["area_m2"] == pytest.approx(truth["area_m2"], rel=0.05)
     # the scan cannot tell the tip from the petiole: compare the midrib azimuth modulo 180 deg
-    assert abs((traits["azimuth_deg"] - truth["azimuth_deg"] + 90) % 180 - 90) < 15
-    assert abs(traits["elevation_deg"] - truth["elevation_deg"]) < 10
+    assert abs((traits["azimuth_deg"] - truth["azimuth_deg"] + 90) % 180 - 90) < 3
+    assert abs(traits["elevation_deg"] - truth["elevation_deg"]) < 3
     normal = np.array(truth["normal"]) * np.sign(truth["normal"][2] or 1)
-    assert np.degrees(np.arccos(np.clip(np.dot(normal, traits["normal"]), -1, 1))) < 15
+    assert np.degrees(np.arccos(np.clip(np.dot(normal, traits["normal"]), -1, 1))) < 5
     rppp = leaf_result.rppp()
     assert rppp["rppp_0"] < 0.05 and rppp["rppp_1"] > 0.6
     assert traits["n_outliers"] == int((leaf_result.outlier & (leaf_result.labels == traits["leaf"])).sum())
@@ -104,8 +106,13 @@ def test_leaf_cluster_segmentation_separates_the_leaves():
         purity.append(np.mean(scan.truth_id[labels == best] == index))
         regions.add(best)
     assert len(regions) == len(purity) == 8  # a region per leaf
-    # little else in them: mixed edge points, and the twig next to the smallest leaf
-    assert min(purity) > 0.6 and np.median(purity) > 0.8
+    # Little else in them: the mixed pulses go to the surface that returned most of their power; only the twig
+    # where it touches the smallest leaf (same distance, linked) stays in that leaf's region.
+    assert min(purity) > 0.75 and np.median(purity) > 0.99
+    # The twig is not a leaf: no region is mostly wood.
+    wood = scan.object_names.index("shoot/wood")
+    for label in np.unique(labels[labels > 0]):
+        assert np.mean(scan.truth_id[labels == label] == wood) < 0.25
 
 
 def test_corrected_scan_round_trip_and_cli(leaf_scan, tmp_path, monkeypatch):
