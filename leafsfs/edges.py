@@ -15,12 +15,12 @@ pulses that :func:`leafsfs.leaves.link_components` joins by plausible
 steps). Their distances at a mixed pulse are extrapolated from a local
 least-squares plane of their own pulses nearest to it, a third of the band
 inside their border (the outermost pulses of a surface may still hold a
-little of the other one). The pair of
-surfaces is the nearest pair (in pixels) whose extrapolated distances
-bracket the measured one. The pulse belongs to the surface that returned
-most of its power (``w >= 0.5``): that is the surface the issue's outlier
-definition judges it against, and the one whose distance it should be
-given.
+little of the other one). A pulse within the range noise of a surface is
+that surface's own; otherwise its pair of surfaces is the nearest pair (in
+pixels) whose extrapolated distances bracket the measured one. The pulse
+belongs to the surface that returned most of its power (``w >= 0.5``):
+that is the surface the issue's outlier definition judges it against, and
+the one whose distance it should be given.
 
 The *geometric* share of the footprint (what a leaf area needs) differs
 from the power share when the two surfaces return different powers per
@@ -53,9 +53,11 @@ class MixedPulses:
     surfaces : ndarray of int, 2-D
         Surface label of every pure pulse (0: none, i.e. mixed or no return).
     pair : ndarray of int, (rows, cols, 2)
-        The two surfaces a mixed pulse straddles (0, 0 where none was found).
+        The two surfaces a mixed pulse straddles; ``(label, 0)`` for a pulse
+        within the range noise of one surface, ``(0, 0)`` where none was found.
     share : ndarray, 2-D
-        Power share of ``pair[..., 0]`` (NaN where no pair was found).
+        Power share of ``pair[..., 0]`` (1 for a pulse of one surface, NaN
+        where none was found).
     pair_range : ndarray, (rows, cols, 2)
         Distances of the two surfaces extrapolated to the pulse, m.
     pair_intensity : ndarray, (rows, cols, 2)

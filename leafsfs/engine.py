@@ -300,7 +300,8 @@ def _run_part(part, smoothed, levels, height, valid, unreliable, grid: PixelGrid
         alpha = _domain_alpha(smoothed[rim], params)
         spread = float(np.std(np.tan(np.minimum(smoothed[rim], math.radians(params.alpha_max_deg)))))
     for level, region in chain[1:]:
-        # The domain's alpha from its reliable pixels (else the new pixels', else the previous domain's).
+        # The domain's alpha from its reliable pixels (else the new reliable ones', else the previous domain's,
+        # else any new pixel's).
         known = region & ~previous & np.isfinite(smoothed)
         new = known & ~unreliable
         in_domain = new & (levels == level)

@@ -96,9 +96,12 @@ class SfsParams:
         whose surface uses them only at the seeds (measured in
         :mod:`leafsfs.accuracy`).
     trait_smoothing_m : float
-        Gaussian smoothing of the corrected heights before the leaf traits
-        are computed, m (assumption: leaf shape varies on centimetre scales,
-        range noise on sub-millimetre ones; :mod:`leafsfs.traits`).
+        Scale of the local planes of the corrected surface that the leaf
+        traits are computed from, m (:mod:`leafsfs.traits`; assumption: leaf
+        shape varies on centimetre scales, range noise on sub-millimetre
+        ones; measured with ``leafsfs accuracy``: 2 mm leaves the buffer
+        variant's crossing cliffs in its areas, +10..+25 % at 0.8 m, 5 mm
+        brings them within +-5 % and changes the fused areas by < 1 %).
     sigma_alpha_deg : float
         Standard deviation of the intensity-derived alpha (fused variant),
         degrees (assumption; take it from the calibration residuals).

@@ -86,8 +86,7 @@ class SfsResult:
         Range of the candidate distances per pixel, m (NaN without candidates).
     outlier : ndarray of bool
         Measured points judged outliers, whose distance was replaced: mixed
-        pulses, and points farther than the outlier threshold from the
-        reconstruction (:func:`outlier_threshold`).
+        pulses, and the leaf points ``params.inliers`` replaces.
     alpha : ndarray
         Intensity-derived incidence, rad (smoothed on leaves).
     background : ndarray of bool
@@ -158,10 +157,11 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
     pulses (:func:`leafsfs.leaves.segment_scan`): every mixed pulse goes to
     the surface that returned most of its power, and those dominated by a
     surface that is not a leaf (the wall behind) take that surface's
-    distance; per leaf the engine on its local frame; the measured points
-    whose distance disagrees with the reconstruction beyond the threshold
-    (and every mixed pulse) are outliers and take the corrected distance;
-    traits with every pulse weighted by the leaf's share of its footprint.
+    distance (with a given ``mask``, they are left alone); per leaf the
+    engine on its local frame; the leaf's mixed pulses, and the inliers as
+    ``params.inliers`` says, take the corrected distance (they are the
+    outliers); traits of that surface with every pulse weighted by the
+    leaf's share of its footprint.
 
     Parameters
     ----------
@@ -245,8 +245,8 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
         done = region[box] & np.isfinite(heights.height)
         threshold = params.outlier_threshold_m or outlier_threshold(scan.range[box], region[box] & ~unreliable[box])
         with np.errstate(invalid="ignore"):
-            moved = unreliable[box] | {"keep": False, "replace": True,
-                                       "test": np.abs(measured - heights.height) > threshold}[inliers]
+            disagree = np.abs(measured - heights.height) > threshold
+        moved = unreliable[box] | (disagree if inliers == "test" else inliers == "replace")
         sub = out_range[box]
         sub[done & moved] = frame.range(heights.height[done & moved])
         corrected[box] |= done
@@ -256,8 +256,7 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
         spread[box] = np.where(region[box], r_hi - r_lo, spread[box])
         smoothed[box] = np.where(region[box], heights.alpha, smoothed[box])
         leaves.append(LeafResult(int(label), frame, heights, {"outlier_threshold_m": float(threshold)}))
-    with np.errstate(invalid="ignore"):
-        outlier = corrected & (np.abs(scan.range - out_range) > 0)
+    outlier = corrected & (out_range != scan.range)
     result = SfsResult(scan, variant, params, labels, out_range, corrected, candidates, spread, outlier, smoothed,
                        background, leaves, skipped)
     for leaf in leaves:

@@ -4,10 +4,15 @@ Thesis ch.7 §1.5 sums the areas of the PROP-SFS mesh triangles and takes the
 leaf orientation from their area-weighted mean normal, assuming a symmetric
 leaf whose lateral axis is horizontal. With sub-millimetre pixels, range
 noise of a millimetre makes such a mesh rough and its area several times too
-large, so here the corrected heights are first smoothed (a masked Gaussian
-of ``smoothing_m``, about the scale on which a leaf's shape varies), turned
-into world points on the pixel grid, and the area is the sum of the grid's
-area elements ``|dP/di x dP/dj|``.
+large (and the cliffs where propagation lines cross inflate it further), so
+here every pixel gets the Gaussian-weighted least-squares plane of the
+surface around it (``smoothing_m``, the scale on which a leaf's shape
+varies; a plane, unlike a mean, keeps the slope of a steep leaf up to its
+border), and the area is the sum of the world area elements ``|dP/di x
+dP/dj|`` of those planes, each weighted by the leaf's share of the pixel's
+footprint: mixed edge pulses count for the part of the footprint on the
+leaf, also those the background dominates, so the outline is neither
+dilated by the footprint nor eroded (:mod:`leafsfs.edges`).
 
 The project's truth (docs/contracts.md) is the midrib: elevation above the
 horizontal in [-90, 90] deg and azimuth from +x counter-clockwise. The
@@ -29,6 +34,9 @@ from scipy import ndimage
 from leafsfs.frame import LocalFrame
 from leafsfs.grid import gaussian_planes
 
+#: Smallest smoothing, pixels: fewer would let the range noise roughen the surface (and inflate the area).
+MIN_SMOOTHING_PX = 2.0
+
 
 def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoothing_m: float) -> dict:
     """Traits of one leaf.
@@ -44,7 +52,8 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoot
         fraction on mixed edge pulses, 0 off the leaf); a boolean region
         counts its pixels whole.
     smoothing_m : float
-        Standard deviation of the Gaussian smoothing of the heights, m.
+        Standard deviation of the Gaussian weights of the local planes, m
+        (at least :data:`MIN_SMOOTHING_PX` pixels).
 
     Returns
     -------
@@ -59,7 +68,7 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoot
              "azimuth_deg": math.nan, "length_m": 0.0}
     if known.sum() < 4:
         return empty
-    smooth, slope, fitted = gaussian_planes(height, known, smoothing_m / frame.grid.pixel_size)
+    smooth, slope, fitted = gaussian_planes(height, known, max(smoothing_m / frame.grid.pixel_size, MIN_SMOOTHING_PX))
     # Where no plane could be fitted (isolated pixels), the pixel's own height and the nearest fit's slope.
     nearest = tuple(ndimage.distance_transform_edt(~fitted, return_distances=False, return_indices=True))
     smooth = np.where(fitted, smooth, np.where(known, height, smooth[nearest]))
@@ -96,4 +105,3 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoot
         "azimuth_deg": math.degrees(math.atan2(axis[1], axis[0])) % 360.0,
         "length_m": float(along.max() - along.min()),
     }
-
