@@ -15,10 +15,17 @@ Scores (issue 7's definitions; the truth is used here only):
   their power from it); ROP after: the same on the output points (corrected
   ranges where the variant corrected them, measured ones elsewhere, none
   where it dropped them);
-- **area** relative error ``(estimate - truth) / truth``; midrib
-  **elevation** and **azimuth** errors as undirected axes;
+- **good points damaged**: inliers that are outliers after; **inlier p90**:
+  the 90th percentile of their distance to the truth after;
+- **area** relative error ``(estimate - truth) / truth``, and the
+  **visible area ratio** (:func:`visible_area`: what a single scan can see
+  at all); midrib **elevation** and **azimuth** errors as undirected axes;
 - **purity** of the leaf's region (the share of its pixels that the leaf
   dominates) and **coverage** (the share of the leaf's own pulses in it).
+
+These follow :mod:`benchmarks.metrics` (issue 7), which the benchmark
+harness scores every variant with; this module keeps the leaf engine's own
+measurement runnable on its own.
 """
 
 from __future__ import annotations
@@ -176,8 +183,8 @@ def score_leaf(scene, scan, result, object_id: int, distance: TruthDistance | No
               "good_points_damaged": float(np.mean(kept[inlier] & (after[inlier] > tau))),
               "inlier_p90_m": float(np.quantile(after[inlier & kept], 0.9)) if (inlier & kept).any() else math.nan,
               "visible_area_ratio": visible_area(scan, object_id) / scene.objects[object_id].truth["area_m2"]}
-    for label, tau in (("", tau), ("_1cm", TAU_TRUE_M)):
-        out_before, out_after = before > tau, kept & (after > tau)
+    for label, threshold in (("", tau), ("_1cm", TAU_TRUE_M)):
+        out_before, out_after = before > threshold, kept & (after > threshold)
         rop_before = float(out_before.mean())
         rop_after = float(out_after.sum() / max(kept.sum(), 1))
         scores[f"rop_before{label}"] = rop_before
