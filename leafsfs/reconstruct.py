@@ -210,12 +210,13 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
         background = unreliable & (mixed.owner > 0) & ~np.isin(mixed.owner, segmentation.leaf_surfaces)
         out_range[background] = mixed.owner_range()[background]
     else:
-        # A given region counts its pixels whole, except the mixed pulses of its main surface.
+        # A given region counts its pixels whole, except the mixed pulses of its main surface, which count (inside
+        # the region or just outside it) for their share of that surface.
         shares = {}
         for k in np.unique(labels[labels > 0]):
             main = _main_surface(mixed.surfaces, labels == k)
-            paired = np.isfinite(mixed.share) & (mixed.pair == main).any(axis=-1)
-            shares[k] = np.where(labels == k, np.where(paired, mixed.share_of(main, gain), 1.0), 0.0)
+            paired = (mixed.surfaces == 0) & (mixed.pair == main).any(axis=-1)
+            shares[k] = np.where(paired, mixed.share_of(main, gain), (labels == k).astype(float))
     labels = np.where(valid, labels, 0)
     if not labels.any():
         raise SfsError("no leaf pixel with a valid return: the mask (or the leaf segmentation) selects none")

@@ -91,6 +91,15 @@ def test_leaf_traits_and_redundancy(leaf_scan, leaf_result):
     assert traits["n_outliers"] == int((leaf_result.outlier & (leaf_result.labels == traits["leaf"])).sum())
 
 
+def test_a_given_mask_counts_the_mixed_pulses_of_its_leaf(leaf_scan, leaf_result):
+    # The automatic region given back as a mask: the same leaf, the same area (its mixed pulses outside the mask,
+    # which the wall dominates, still count for the leaf's share of their footprints).
+    _, scan, calibration = leaf_scan
+    given = reconstruct(scan, mask=leaf_result.labels > 0, calibration=calibration)
+    assert given.traits()[0]["area_m2"] == pytest.approx(leaf_result.traits()[0]["area_m2"], rel=1e-6)
+    assert not given.background.any() and leaf_result.background.sum() > 1000
+
+
 def test_leaf_cluster_segmentation_separates_the_leaves():
     _, scan = _simulate("leaf-cluster")
     alpha, _ = scan_alpha(scan.intensity, scan.range, LambertCalibration(scan.scanner_model, 0.48))
