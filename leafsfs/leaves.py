@@ -205,9 +205,10 @@ def split_thin_parts(surfaces: np.ndarray, range_m: np.ndarray, step_rad: float,
         if radius < 1:
             continue
         disc = np.hypot(*np.mgrid[-radius:radius + 1, -radius:radius + 1]) <= radius
-        parts, n = ndimage.label(inside & ~ndimage.binary_opening(inside, disc))
+        parts, _ = ndimage.label(inside & ~ndimage.binary_opening(inside, disc))
         sizes = np.bincount(parts.ravel())
-        for part in np.nonzero(sizes >= min_pixels)[0][1:] if n else []:
+        sizes[0] = 0
+        for part in np.nonzero(sizes >= min_pixels)[0]:
             count += 1
             out[box][parts == part] = count
     return out

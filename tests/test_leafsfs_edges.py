@@ -6,7 +6,7 @@ import pytest
 from leafsfs.edges import attribute_mixed, geometric_share
 from leafsfs.frame import local_frame
 from leafsfs.grid import gaussian_planes
-from leafsfs.leaves import range_noise
+from leafsfs.leaves import range_noise, split_thin_parts, surface_widths
 from leafsfs.traits import leaf_traits
 from tlssim.pattern import beam_frame
 
@@ -98,3 +98,19 @@ def test_area_weights_count_the_partly_covered_pulses():
     pixel = step**2  # at 1 m, on the beam axis (cos terms below 1e-6)
     assert traits["area_m2"] == pytest.approx((40 * 60 + 0.25 * 60) * pixel, rel=1e-3)
     assert abs(traits["normal_zenith_deg"] - 90) < 0.1  # the plate is vertical
+
+
+def test_a_twig_linked_to_a_leaf_is_split_off_and_is_not_a_leaf():
+    # A 3 cm blade and a 2 mm wide, 5 cm long twig touching it, 2 m away (pixels of 0.63 mm).
+    step = np.radians(0.018)
+    rows, cols = np.mgrid[0:120, 0:200]
+    blade = np.hypot(rows - 60, cols - 50) < 24
+    twig = (np.abs(rows - 60) < 2) & (cols >= 70) & (cols < 150)
+    surfaces = (blade | twig).astype(int)
+    range_m = np.full(rows.shape, 2.0)
+    split = split_thin_parts(surfaces, range_m, step, 0.004, 100)
+    # the twig goes (but for a few pulses where it joins), the blade keeps its pulses
+    assert np.mean(split[twig & ~blade] == split[60, 120]) > 0.95 and split[60, 120] != split[60, 50]
+    assert np.mean(split[blade] == split[60, 50]) > 0.99
+    widths = surface_widths(split, range_m, step)
+    assert widths[split[60, 50]] == pytest.approx(0.03, rel=0.1) and widths[split[60, 120]] < 0.004
