@@ -135,18 +135,18 @@ def attribute_mixed(range_m: np.ndarray, surfaces: np.ndarray, band_px: int, int
     boxes = ndimage.find_objects(surfaces)
     # Surfaces are extrapolated from their pulses at least `margin` pixels inside: their outermost pulses can
     # still hold a little of the other surface's power (steps within the noise link them).
-    margin = max(1, int(band_px) // 3)
+    band = int(band_px)
+    margin = max(1, band // 3)
     cores = np.zeros(shape, dtype=int)
     for k in labels:
-        b = int(band_px)
-        box = tuple(slice(max(s.start - b, 0), min(s.stop + b, n)) for s, n in zip(boxes[k - 1], shape))
+        box = tuple(slice(max(s.start - band, 0), min(s.stop + band, n)) for s, n in zip(boxes[k - 1], shape))
         inside = surfaces[box] == k
         core = ndimage.distance_transform_edt(inside) > margin
         core = core if core.sum() >= 3 else inside
         cores[box][core] = k
         distance = ndimage.distance_transform_edt(~inside)
         ii, jj = ndimage.distance_transform_edt(~core, return_distances=False, return_indices=True)
-        near = mixed[box] & (distance <= b)
+        near = mixed[box] & (distance <= band)
         rows, cols = np.nonzero(near)
         pixel.append((rows + box[0].start) * shape[1] + cols + box[1].start)
         source.append((ii[near] + box[0].start) * shape[1] + jj[near] + box[1].start)
