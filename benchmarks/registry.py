@@ -51,12 +51,17 @@ class VariantOutput:
     flags : ndarray of bool or None
         The measured points the method judges to be outliers (removed or
         corrected), for the detection precision and recall.
+    region : ndarray of bool or None
+        For methods that segment the scan into leaves themselves: the pixels
+        of the region they reconstructed as this leaf (for the purity and
+        coverage of the segmentation).
     """
 
     xyz: np.ndarray
     traits: dict | None = None
     stats: dict = field(default_factory=dict)
     flags: np.ndarray | None = None
+    region: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
