@@ -11,7 +11,9 @@ them, the leaf traits. Families:
 - ``prop-sfs``: the PROP-SFS variants of :func:`leafsfs.reconstruct`
   (``simple``, ``sps``, ``buffer``, ``fused`` with the shell-rule set T3, and
   ``buffer-T1``, ``buffer-T2``, ``buffer-T3*``), calibrated by simulating the
-  scan's scanner model;
+  scan's scanner model; they segment the scan around the leaf into leaves
+  themselves (the mixed pulses a background dominates take its distance),
+  and the region holding most of the leaf's points is scored;
 - ``woody``: ``step`` (:func:`woody.step`) and ``cylinders``
   (:func:`woody.follow_cylinders`) on the points of each woody object,
   registered once the woody package provides them with :func:`woody.score`.
@@ -245,15 +247,20 @@ def _calibration(scan):
 
 def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
     def run(scan, mask, **params):
+        """PROP-SFS on the scan around the leaf, segmenting it into leaves itself (the leaf's mask only picks
+        which of its leaf regions is scored: the one holding most of the mask's pixels)."""
         import leafsfs
-        from tlssim.scan import grid_to_xyz
 
-        result = leafsfs.reconstruct(scan, mask=mask, variant=engine, params=leafsfs.SfsParams(**params),
+        result = leafsfs.reconstruct(scan, variant=engine, params=leafsfs.SfsParams(**params),
                                      calibration=_calibration(scan))
-        xyz = grid_to_xyz(result.range, scan.theta, scan.psi, scan.pose)
-        # A leaf PROP-SFS could not reconstruct gets no traits: its area estimate is zero.
-        traits = result.leaves[0].traits if result.leaves else {"area_m2": 0.0}
-        return VariantOutput(xyz, traits, {**result.rppp(), "skipped": len(result.skipped)}, flags=result.outlier)
+        found = result.labels[mask]
+        label = int(np.bincount(found).argmax()) if len(found) else 0
+        region = (result.labels == label) if label else np.zeros(scan.shape, bool)
+        # A leaf PROP-SFS did not find or could not reconstruct gets no traits: its area estimate is zero.
+        traits = next((t for t in result.traits() if t["leaf"] == label), {"area_m2": 0.0})
+        return VariantOutput(result.corrected_scan().xyz, traits,
+                             {**result.rppp(region), "skipped": len(result.skipped)}, flags=result.outlier,
+                             region=region)
 
     def heights(sample, **params):
         import leafsfs

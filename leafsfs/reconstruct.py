@@ -140,9 +140,9 @@ class SfsResult:
         """One entry per reconstructed leaf (label plus :attr:`LeafResult.traits`)."""
         return [{"leaf": leaf.label, **leaf.traits} for leaf in self.leaves]
 
-    def rppp(self, n_max: int = 3) -> dict[str, float]:
-        """Redundancy ratios over all reconstructed leaf pixels (see :meth:`HeightResult.rppp`)."""
-        counts = self.candidates[self.labels > 0]
+    def rppp(self, region: np.ndarray | None = None, n_max: int = 3) -> dict[str, float]:
+        """Redundancy ratios over the reconstructed leaf pixels, or those of ``region`` (see :meth:`HeightResult.rppp`)."""
+        counts = self.candidates[self.labels > 0 if region is None else region]
         total = max(len(counts), 1)
         out = {f"rppp_{n}": float(np.sum(counts == n) / total) for n in range(n_max + 1)}
         out["rppp_more"] = float(np.sum(counts > n_max) / total)

@@ -58,7 +58,7 @@ def test_measured_outliers_move_to_the_true_surface(leaf_scan, leaf_result):
     measured = np.abs(scan.range - scan.truth_range)
     corrected = np.abs(leaf_result.range - scan.truth_range)
     # The phase-shift outliers: mixed pulses (the buffer variant keeps the measured distance of pure pulses,
-    # whose range-noise tails are left alone; see leafsfs.accuracy for the numbers behind that choice).
+    # whose range-noise tails are left alone; see tests/test_bench_prop_sfs.py for the numbers behind that choice).
     outliers = on_leaf & (measured > 0.005) & (scan.mixed_fraction > 0.01)
     assert outliers.sum() > 300
     assert np.mean(corrected[outliers] < measured[outliers]) > 0.95
