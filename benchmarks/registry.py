@@ -13,7 +13,8 @@ them, the leaf traits. Families:
   ``buffer-T1``, ``buffer-T2``, ``buffer-T3*``), calibrated by simulating the
   scan's scanner model; they segment the scan around the leaf into leaves
   themselves (the mixed pulses a background dominates take its distance),
-  and the region holding most of the leaf's points is scored;
+  and the region holding most of the leaf's points is scored (where they
+  find none, they are given the leaf's points as its mask);
 - ``woody``: ``step`` (:func:`woody.step`) and ``cylinders``
   (:func:`woody.follow_cylinders`) on the points of each woody object,
   registered once the woody package provides them with :func:`woody.score`.
@@ -247,20 +248,31 @@ def _calibration(scan):
 
 def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
     def run(scan, mask, **params):
-        """PROP-SFS on the scan around the leaf, segmenting it into leaves itself (the leaf's mask only picks
-        which of its leaf regions is scored: the one holding most of the mask's pixels)."""
+        """PROP-SFS on the scan around the leaf, segmented into leaves by leafsfs itself; the region holding most
+        of the leaf's points is scored. Where the segmentation finds no leaf there (a leaf that links to its
+        neighbours up to the window's border, or a surface too wide to be taken for a leaf), leafsfs is given
+        the leaf's points as its mask (stat ``given_mask``)."""
         import leafsfs
 
-        result = leafsfs.reconstruct(scan, variant=engine, params=leafsfs.SfsParams(**params),
-                                     calibration=_calibration(scan))
-        found = result.labels[mask]
-        label = int(np.bincount(found).argmax()) if len(found) else 0
-        region = (result.labels == label) if label else np.zeros(scan.shape, bool)
-        # A leaf PROP-SFS did not find or could not reconstruct gets no traits: its area estimate is zero.
+        def reconstruct(given):
+            return leafsfs.reconstruct(scan, mask=given, variant=engine, params=leafsfs.SfsParams(**params),
+                                       calibration=_calibration(scan))
+
+        try:
+            result = reconstruct(None)
+            found = result.labels[mask]
+            label = int(np.bincount(found).argmax()) if len(found) else 0
+        except leafsfs.SfsError:
+            label = 0
+        given = not label
+        if given:
+            result, label = reconstruct(mask), 1
+        region = result.labels == label
+        # A leaf PROP-SFS could not reconstruct gets no traits: its area estimate is zero.
         traits = next((t for t in result.traits() if t["leaf"] == label), {"area_m2": 0.0})
-        return VariantOutput(result.corrected_scan().xyz, traits,
-                             {**result.rppp(region), "skipped": len(result.skipped)}, flags=result.outlier,
-                             region=region)
+        stats = {**result.rppp(region), "skipped": len(result.skipped), "given_mask": int(given)}
+        return VariantOutput(result.corrected_scan().xyz, traits, stats, flags=result.outlier,
+                             region=None if given else region)
 
     def heights(sample, **params):
         import leafsfs

@@ -157,7 +157,7 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
     pulses (:func:`leafsfs.leaves.segment_scan`): every mixed pulse goes to
     the surface that returned most of its power, and those dominated by a
     surface that is not a leaf (the wall behind) take that surface's
-    distance (with a given ``mask``, they are left alone); per leaf the
+    distance (also those inside a given ``mask``); per leaf the
     engine on its local frame; the leaf's mixed pulses, and the inliers as
     ``params.inliers`` says, take the corrected distance (they are the
     outliers); traits of that surface with every pulse weighted by the
@@ -211,12 +211,16 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
         out_range[background] = mixed.owner_range()[background]
     else:
         # A given region counts its pixels whole, except the mixed pulses of its main surface, which count (inside
-        # the region or just outside it) for their share of that surface.
+        # the region or just outside it) for their share of that surface; its mixed pulses that another surface
+        # dominates (the wall behind) take that surface's distance and leave the region.
         shares = {}
         for k in np.unique(labels[labels > 0]):
             main = _main_surface(mixed.surfaces, labels == k)
             paired = (mixed.surfaces == 0) & (mixed.pair == main).any(axis=-1)
             shares[k] = np.where(paired, mixed.share_of(main, gain), (labels == k).astype(float))
+            background |= unreliable & (labels == k) & (mixed.owner > 0) & (mixed.owner != main)
+        out_range[background] = mixed.owner_range()[background]
+        labels = np.where(background, 0, labels)
     labels = np.where(valid, labels, 0)
     if not labels.any():
         raise SfsError("no leaf pixel with a valid return: the mask (or the leaf segmentation) selects none")
