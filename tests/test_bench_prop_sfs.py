@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from benchmarks import scoring
+from benchmarks.errors import BenchError
 from benchmarks.generators import build_scene
 from benchmarks.registry import get_variant
 from tlssim.simulate import setup_from_section, simulate
@@ -55,3 +56,14 @@ def test_buffer_keeps_the_measured_inliers_and_fused_improves_them(scores):
     for buffer, fused in zip(scores[::2], scores[1::2]):
         assert fused["inlier_p90_m"] <= buffer["inlier_p90_m"] * 1.02
         assert buffer["inlier_p90_m"] < 3.5 * buffer["sigma_range_m"]
+
+
+def test_given_the_leafs_points_as_mask_the_correction_holds():
+    leaf = leaf_case(3.0, 20.0, 2)
+    variant = get_variant("buffer").with_params(segmentation="mask")
+    variant.prepare(leaf.scan)
+    scores = scoring.score_leaf(leaf, variant(leaf.scan, leaf.mask))
+    assert scores["found"] == 1 and "purity" not in scores
+    assert scores["rop_reduction"] > 0.8 and abs(scores["area_rel_err"]) < 0.06
+    with pytest.raises(BenchError, match="segmentation"):
+        get_variant("buffer").with_params(segmentation="truth")(leaf.scan, leaf.mask)
