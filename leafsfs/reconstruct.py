@@ -208,7 +208,6 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
         shares = {k: mixed.share_of(s, gain) for k, s in surface_of.items()}
         # Mixed pulses dominated by a surface that is not a leaf (the wall behind) take its distance.
         background = unreliable & (mixed.owner > 0) & ~np.isin(mixed.owner, segmentation.leaf_surfaces)
-        out_range[background] = mixed.owner_range()[background]
     else:
         # A given region counts its pixels whole, except the mixed pulses of its main surface, which count (inside
         # the region or just outside it) for their share of that surface; its mixed pulses that another surface
@@ -219,8 +218,8 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
             paired = (mixed.surfaces == 0) & (mixed.pair == main).any(axis=-1)
             shares[k] = np.where(paired, mixed.share_of(main, gain), (labels == k).astype(float))
             background |= unreliable & (labels == k) & (mixed.owner > 0) & (mixed.owner != main)
-        out_range[background] = mixed.owner_range()[background]
         labels = np.where(background, 0, labels)
+    out_range[background] = mixed.owner_range()[background]
     labels = np.where(valid, labels, 0)
     if not labels.any():
         raise SfsError("no leaf pixel with a valid return: the mask (or the leaf segmentation) selects none")
