@@ -27,7 +27,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import ndimage
 from scipy.spatial import cKDTree
 from trimesh.triangles import closest_point
 
@@ -251,39 +250,40 @@ def auto_tau(sigma_range_m: float) -> float:
     return TAU_FLOOR_M if not np.isfinite(sigma_range_m) else max(3.0 * sigma_range_m, TAU_FLOOR_M)
 
 
-def leaf_power_share(truth_id: np.ndarray, mixed_fraction: np.ndarray, object_id: int,
-                     reach_px: int) -> np.ndarray:
+def leaf_power_share(truth_id: np.ndarray, mixed_fraction: np.ndarray, second_id: np.ndarray,
+                     second_fraction: np.ndarray, object_id: int) -> np.ndarray:
     """Share of each pulse's returned power that came from one object.
 
-    The scan records the dominant object of each pulse (``truth_id``) and
-    the power share of all others (``mixed_fraction``). On pulses dominated
-    by the object the share is ``1 − mixed_fraction``; on pulses dominated by
-    another object but within ``reach_px`` pixels of the object's own pulses
-    (the footprint can reach it) the minority power is attributed to the
-    object, which is exact where two objects meet and an upper bound where a
-    third one shares the footprint.
+    A simulated scan records, per pulse, the object that returned the most
+    power (``truth_id``) and the share of all others (``mixed_fraction``),
+    and the object with the next largest power (layer ``truth_second_id``)
+    with its share (layer ``second_fraction``). The object's share is
+    ``1 − mixed_fraction`` where it dominates, ``second_fraction`` where it
+    comes second and 0 elsewhere: exact wherever at most two objects share
+    a footprint (where three or more do, an object ranked third or lower
+    gets 0, at most ``mixed_fraction − second_fraction`` too little).
 
     Parameters
     ----------
     truth_id : ndarray of int, (rows, cols)
         Dominant object of each pulse (-1: none).
     mixed_fraction : ndarray, (rows, cols)
-        Power share not from the dominant object.
+        Power share not from the dominant object (NaN where nothing returned).
+    second_id : ndarray of int, (rows, cols)
+        Object with the second largest returned power (-1: none).
+    second_fraction : ndarray, (rows, cols)
+        Its power share.
     object_id : int
         The object.
-    reach_px : int
-        How far (pixels) the footprint of a pulse reaches.
 
     Returns
     -------
     ndarray, (rows, cols)
         Power share in [0, 1].
     """
-    own = truth_id == object_id
     mixed = np.nan_to_num(np.asarray(mixed_fraction, dtype=np.float64), nan=0.0)
-    size = 2 * max(int(reach_px), 0) + 1
-    near = ndimage.maximum_filter(own, size=size) & ~own & (truth_id >= 0)
-    return np.where(own, 1.0 - mixed, np.where(near, mixed, 0.0))
+    second = np.nan_to_num(np.asarray(second_fraction, dtype=np.float64), nan=0.0)
+    return np.where(truth_id == object_id, 1.0 - mixed, np.where(second_id == object_id, second, 0.0))
 
 
 def outlier_scores(outlier_before: np.ndarray, kept: np.ndarray, outlier_after: np.ndarray) -> dict:

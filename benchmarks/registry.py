@@ -11,7 +11,11 @@ them, the leaf traits. Families:
 - ``prop-sfs``: the PROP-SFS variants of :func:`leafsfs.reconstruct`
   (``simple``, ``sps``, ``buffer``, ``fused`` with the shell-rule set T3, and
   ``buffer-T1``, ``buffer-T2``, ``buffer-T3*``), calibrated by simulating the
-  scan's scanner model;
+  scan's scanner model; they segment the scan around the leaf into leaves
+  themselves (the mixed pulses a background dominates take its distance),
+  and the region holding most of the leaf's points is scored (a leaf they
+  do not find keeps its measured points and gets no area; parameter
+  ``segmentation: mask`` gives them the target's points instead);
 - ``woody``: ``step`` (:func:`woody.step`) and ``cylinders``
   (:func:`woody.follow_cylinders`) on the points of each woody object,
   registered once the woody package provides them with :func:`woody.score`.
@@ -51,12 +55,17 @@ class VariantOutput:
     flags : ndarray of bool or None
         The measured points the method judges to be outliers (removed or
         corrected), for the detection precision and recall.
+    region : ndarray of bool or None
+        For methods that segment the scan into leaves themselves: the pixels
+        of the region they reconstructed as this leaf (for the purity and
+        coverage of the segmentation).
     """
 
     xyz: np.ndarray
     traits: dict | None = None
     stats: dict = field(default_factory=dict)
     flags: np.ndarray | None = None
+    region: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -224,7 +233,7 @@ def _register_prop_sfs() -> None:
 
     if not hasattr(leafsfs, "reconstruct"):
         return
-    defaults = leafsfs.SfsParams().to_dict()
+    defaults = {"segmentation": "auto", **leafsfs.SfsParams().to_dict()}
     for engine in leafsfs.VARIANTS:
         register_variant(_prop_sfs_variant(engine, engine, defaults))
     for shell in ("T1", "T2", "T3*"):
@@ -238,19 +247,38 @@ def _calibration(scan):
     return resolve_calibration("model", scan)
 
 
+#: How a PROP-SFS variant finds the leaf: ``auto``, its own segmentation of the scan around the leaf (as on a real
+#: scan), or ``mask``, the target's points given as its mask (for targets its segmentation does not take for leaves,
+#: such as the knife edge's plate, which reaches the window's border).
+SEGMENTATIONS = ("auto", "mask")
+
+
 def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
-    def run(scan, mask, **params):
+    def run(scan, mask, segmentation, **params):
+        """PROP-SFS on the scan around the leaf; the region holding most of the leaf's points is scored. A leaf
+        its segmentation does not find (too few pixels, or linked to surfaces that reach the window's border)
+        keeps its measured points and gets no area."""
         import leafsfs
-        from tlssim.scan import grid_to_xyz
 
-        result = leafsfs.reconstruct(scan, mask=mask, variant=engine, params=leafsfs.SfsParams(**params),
-                                     calibration=_calibration(scan))
-        xyz = grid_to_xyz(result.range, scan.theta, scan.psi, scan.pose)
-        # A leaf PROP-SFS could not reconstruct gets no traits: its area estimate is zero.
-        traits = result.leaves[0].traits if result.leaves else {"area_m2": 0.0}
-        return VariantOutput(xyz, traits, {**result.rppp(), "skipped": len(result.skipped)}, flags=result.outlier)
+        if segmentation not in SEGMENTATIONS:
+            raise BenchError(f"PROP-SFS segmentation must be one of {SEGMENTATIONS}, got {segmentation!r}")
+        params = leafsfs.SfsParams(**params)
+        try:
+            result = leafsfs.reconstruct(scan, mask=mask if segmentation == "mask" else None, variant=engine,
+                                         params=params, calibration=_calibration(scan))
+        except leafsfs.SfsError:  # with valid parameters and calibration: no leaf in the scan
+            return VariantOutput(scan.xyz, {"area_m2": 0.0}, {"found": 0}, flags=np.zeros(scan.shape, bool),
+                                 region=np.zeros(scan.shape, bool))
+        found = result.labels[mask]
+        label = int(np.bincount(found).argmax()) if len(found) else 0
+        region = (result.labels == label) if label else np.zeros(scan.shape, bool)
+        # A leaf PROP-SFS did not find or could not reconstruct gets no traits: its area estimate is zero.
+        traits = next((t for t in result.traits() if t["leaf"] == label), {"area_m2": 0.0})
+        stats = {**result.rppp(region), "skipped": len(result.skipped), "found": int(label > 0)}
+        return VariantOutput(result.corrected_scan().xyz, traits, stats, flags=result.outlier,
+                             region=region if segmentation == "auto" else None)
 
-    def heights(sample, **params):
+    def heights(sample, segmentation, **params):
         import leafsfs
 
         return leafsfs.reconstruct_heights(sample.alpha, sample.height, sample.mask, sample.grid, engine,

@@ -29,6 +29,8 @@ from tlssim.scan import GRID_KEYS, TRUTH_KEYS
 PURE_MIXED_FRACTION = 1e-3
 #: Pixels kept around a leaf's points when its part of the scan is cut out for the variants.
 CROP_MARGIN_PX = 8
+#: Truth layers of a simulated scan naming each pulse's second object and its power share.
+SECOND_LAYERS = ("truth_second_id", "second_fraction")
 
 
 @dataclass
@@ -110,11 +112,20 @@ def grid_steps(scan) -> tuple[float, float]:
     return math.radians(theta_deg), math.radians(psi_deg)
 
 
-def footprint_reach_px(scan, distance_m: float) -> int:
-    """How many pixels the beam footprint reaches at ``distance_m``: twice the 1/e² radius over the spacing."""
-    model = scan.scanner_model
-    radius = model["beam_waist_radius_m"] + distance_m * math.tan(math.radians(model["divergence_deg"]))
-    return int(math.ceil(2.0 * radius / (distance_m * min(grid_steps(scan))))) + 1
+def power_share(scan, object_id: int) -> np.ndarray:
+    """Power share of one object in every pulse of a simulated scan (:func:`benchmarks.metrics.leaf_power_share`)."""
+    missing = [k for k in SECOND_LAYERS if k not in scan.layers]
+    if missing:
+        raise BenchError(f"the scan lacks the truth layers {missing} (simulated by an older tlssim): re-simulate it")
+    return metrics.leaf_power_share(scan.truth_id, scan.mixed_fraction, scan.layers["truth_second_id"],
+                                    scan.layers["second_fraction"], object_id)
+
+
+def area_elements(scan) -> np.ndarray:
+    """Surface area each pulse's central ray stands for on the surface it hits, ``r² sin(psi) dtheta dpsi / cos(incidence)``, m²."""
+    d_theta = np.abs(np.gradient(scan.theta, axis=1))
+    d_psi = np.abs(np.gradient(scan.psi, axis=0))
+    return scan.truth_range ** 2 * d_theta * d_psi * np.sin(scan.psi) / np.cos(scan.incidence)
 
 
 def visibility(scan, object_id: int, outline, distance_m: float) -> float:
@@ -200,16 +211,13 @@ def prepare_leaves(scene, scan, targets: list[str] | None = None,
     leaves = []
     valid = scan.valid
     surfaces = TruthSurfaces(scene)
+    elements = area_elements(scan)
     for oid in target_ids(scene, targets):
         own_grid = valid & (scan.truth_id == oid)
         if not own_grid.any():
             continue
         distance_m = float(np.median(scan.range[own_grid]))
-        reach = footprint_reach_px(scan, distance_m)
-        near = _window(own_grid, reach)
-        share = np.zeros(scan.shape)
-        share[near] = metrics.leaf_power_share(scan.truth_id[near], scan.mixed_fraction[near], oid, reach)
-        points = valid & (share >= min_share)
+        points = valid & (power_share(scan, oid) >= min_share)
         window = _window(points, CROP_MARGIN_PX)
         part, mask = crop_scan(scan, *window), points[window]
         attributed = part.truth_id[mask]
@@ -228,6 +236,7 @@ def prepare_leaves(scene, scan, targets: list[str] | None = None,
             "points_per_cm2": int(own.sum()) / (area * 1e4) if area else math.nan,
             "visibility": visibility(scan, oid, obj.truth["outline"], distance_m) if "outline" in obj.truth
             else math.nan,
+            "visible_area_ratio": float(elements[own_grid].sum()) / area if area else math.nan,
         }
         leaves.append(LeafTruth(oid, obj.name, obj.type, obj.truth, part, mask, own, attributed, distance,
                                 {"auto": metrics.auto_tau(sigma), "1cm": metrics.TAU_TRUE_M}, stats, surfaces))
@@ -284,8 +293,8 @@ def output_distance(leaf: LeafTruth, output: VariantOutput):
     kept : ndarray of bool, (n,)
         Pixels the variant kept.
     distance : ndarray, (n,)
-        Signed distance of each output point to the true surface of its
-        object, m (recomputed only for moved points).
+        Signed distance of each output point to the true surface of the
+        object its pulse is attributed to, m (recomputed only for moved points).
     """
     points = np.asarray(output.xyz)[leaf.mask]
     kept = np.isfinite(points).all(axis=1)
@@ -304,28 +313,39 @@ def score_leaf(leaf: LeafTruth, output: VariantOutput) -> dict:
         JSON-ready: the leaf's name, id and object type, its scan properties; ``tau_m``; per threshold the
         outlier scores of :func:`benchmarks.metrics.outlier_scores` (the
         ``auto`` threshold unsuffixed, τ = 1 cm with the suffix ``_1cm``);
-        ``surface_rmse_m`` and ``completeness`` (share of the leaf's own
-        pulses with an output point within τ); ``flag_precision`` and
-        ``flag_recall`` of the points the method flags as outliers against
-        the true outliers (τ auto); leaf-trait errors where both
-        the truth and the method give the trait; the method's own stats.
+        ``inlier_p90_m``, the 90th percentile of the distance after of the
+        kept inliers; ``surface_rmse_m`` and ``completeness`` (share of the
+        leaf's own pulses with an output point within τ); ``flag_precision``
+        and ``flag_recall`` of the points the method flags as outliers
+        against the true outliers (τ auto); for methods that segment leaves
+        (``output.region``), ``purity`` (share of the region's pulses that
+        the leaf dominates) and ``coverage`` (share of the leaf's own pulses
+        in the region); leaf-trait errors where both the truth and the
+        method give the trait; the method's own stats.
     """
     _, kept, distance = output_distance(leaf, output)
     before, after = np.abs(leaf.distance), np.abs(distance)
+    tau = leaf.taus["auto"]
     scores = {"target": leaf.name, "object_id": leaf.object_id, "object_type": leaf.object_type,
-              **leaf.scan_stats, "tau_m": leaf.taus["auto"]}
-    for label, tau in leaf.taus.items():
+              **leaf.scan_stats, "tau_m": tau}
+    for label, threshold in leaf.taus.items():
         suffix = "" if label == "auto" else f"_{label}"
-        for key, value in metrics.outlier_scores(before > tau, kept, after > tau).items():
+        for key, value in metrics.outlier_scores(before > threshold, kept, after > threshold).items():
             scores[key + suffix] = value
+    inliers = kept & (before <= tau)
+    scores["inlier_p90_m"] = float(np.quantile(after[inliers], 0.9)) if inliers.any() else math.nan
     if output.flags is not None:
         flagged = np.asarray(output.flags)[leaf.mask]
-        truly = before > leaf.taus["auto"]
+        truly = before > tau
         scores["flag_precision"] = metrics.ratio(int((flagged & truly).sum()), int(flagged.sum()))
         scores["flag_recall"] = metrics.ratio(int((flagged & truly).sum()), int(truly.sum()))
     scores["surface_rmse_m"] = metrics.rms(distance[kept])
     own = max(int(leaf.own.sum()), 1)
-    scores["completeness"] = int((leaf.own & kept & (after <= leaf.taus["auto"])).sum()) / own
+    scores["completeness"] = int((leaf.own & kept & (after <= tau)).sum()) / own
+    if output.region is not None:
+        region = np.asarray(output.region, dtype=bool)
+        scores["purity"] = float(np.mean(leaf.scan.truth_id[region] == leaf.object_id)) if region.any() else math.nan
+        scores["coverage"] = float(np.mean(region[leaf.mask][leaf.own]))
     scores.update(trait_errors(leaf.truth, output.traits))
     scores.update(output.stats)
     return json_ready(scores)

@@ -50,9 +50,20 @@ class MeshBuilder:
         return self._vertices[:self.count].copy(), self._pixels[:self.count].copy(), faces
 
 
+#: Most (triangle, candidate pixel) pairs tested at once: bounds the memory to some hundred MB.
+_CHUNK_PAIRS = 1 << 20
+_EPS = 1e-9
+
+
 def rasterize_triangles(corners_px: np.ndarray, exclusive: np.ndarray, shape: tuple[int, int]
                         ) -> tuple[np.ndarray, np.ndarray]:
     """Pixel centres covered by triangles.
+
+    Candidates are the pixel centres of each row a triangle spans between
+    the row's crossings with the triangle's edges (a scanline fill, so long
+    thin triangles cost their area, not their bounding box); each candidate
+    is then tested exactly with barycentric coordinates. Triangles are
+    processed in chunks of at most ``_CHUNK_PAIRS`` candidates.
 
     Parameters
     ----------
@@ -68,19 +79,59 @@ def rasterize_triangles(corners_px: np.ndarray, exclusive: np.ndarray, shape: tu
     -------
     triangle, pixel : ndarray of int
         For every (triangle, covered pixel) pair: the triangle index and the
-        flat pixel index.
+        flat pixel index, ordered by triangle.
     """
-    if not len(corners_px):
+    corners_px = np.asarray(corners_px, dtype=float)
+    exclusive = np.asarray(exclusive, dtype=bool)
+    lo = np.maximum(np.ceil(corners_px[:, :, 0].min(axis=1) - _EPS).astype(int), 0)
+    hi = np.minimum(np.floor(corners_px[:, :, 0].max(axis=1) + _EPS).astype(int), shape[0] - 1)
+    n_rows = np.maximum(hi - lo + 1, 0)
+    # (triangle, row) pairs and each row's span of columns
+    tri = np.repeat(np.arange(len(corners_px)), n_rows)
+    rows = lo[tri] + np.arange(n_rows.sum()) - np.repeat(np.cumsum(n_rows) - n_rows, n_rows)
+    first, last = _row_span(corners_px[tri], rows.astype(float), shape[1])
+    counts = np.maximum(last - first + 1, 0)
+    out_tri, out_pix = [], []
+    bounds = np.cumsum(counts)
+    start = 0
+    while start < len(counts):
+        stop = max(int(np.searchsorted(bounds, bounds[start] - counts[start] + _CHUNK_PAIRS, side="right")),
+                   start + 1)
+        part = slice(start, stop)
+        t, p = _covered(corners_px, exclusive, tri[part], rows[part], first[part], counts[part], shape)
+        out_tri.append(t)
+        out_pix.append(p)
+        start = stop
+    if not out_tri:
         return np.zeros(0, int), np.zeros(0, int)
-    lo = np.maximum(np.ceil(corners_px.min(axis=1) - 1e-9).astype(int), 0)
-    hi = np.minimum(np.floor(corners_px.max(axis=1) + 1e-9).astype(int), np.array(shape) - 1)
-    extent = np.maximum(hi - lo + 1, 0)
-    counts = extent[:, 0] * extent[:, 1]
-    tri = np.repeat(np.arange(len(corners_px)), counts)
-    local = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    width = np.maximum(extent[tri, 1], 1)
-    rows = lo[tri, 0] + local // width
-    cols = lo[tri, 1] + local % width
+    return np.concatenate(out_tri), np.concatenate(out_pix)
+
+
+def _row_span(corners: np.ndarray, rows: np.ndarray, n_cols: int) -> tuple[np.ndarray, np.ndarray]:
+    """First and last candidate column of each (triangle, row) pair: the row's crossings with the edges."""
+    low = np.full(len(rows), np.inf)
+    high = np.full(len(rows), -np.inf)
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        u, v = corners[:, i], corners[:, j]
+        d_row = v[:, 0] - u[:, 0]
+        crosses = (np.minimum(u[:, 0], v[:, 0]) - _EPS <= rows) & (rows <= np.maximum(u[:, 0], v[:, 0]) + _EPS)
+        flat = np.abs(d_row) < _EPS
+        t = np.clip((rows - u[:, 0]) / np.where(flat, 1.0, d_row), 0.0, 1.0)
+        at = u[:, 1] + t * (v[:, 1] - u[:, 1])
+        for col in (at, np.where(flat, v[:, 1], at)):  # a flat edge on the row spans both its ends
+            low = np.where(crosses, np.minimum(low, col), low)
+            high = np.where(crosses, np.maximum(high, col), high)
+    first = np.maximum(np.ceil(low - 1e-6), 0)
+    last = np.minimum(np.floor(high + 1e-6), n_cols - 1)
+    ok = np.isfinite(first) & np.isfinite(last)
+    return np.where(ok, first, 0).astype(int), np.where(ok, last, -1).astype(int)
+
+
+def _covered(corners_px, exclusive, tri, rows, first, counts, shape) -> tuple[np.ndarray, np.ndarray]:
+    """The candidates of some (triangle, row) spans that lie in their triangle (barycentric test)."""
+    pair = np.repeat(np.arange(len(tri)), counts)
+    cols = first[pair] + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    tri, rows = tri[pair], rows[pair]
     a, b, c = corners_px[tri, 0], corners_px[tri, 1], corners_px[tri, 2]
     p = np.stack([rows, cols], axis=1).astype(float)
 
@@ -91,6 +142,5 @@ def rasterize_triangles(corners_px: np.ndarray, exclusive: np.ndarray, shape: tu
     ok = np.abs(area) > 1e-12
     safe = np.where(ok, area, 1.0)
     lam = np.stack([edge(b, c, p), edge(c, a, p), edge(a, b, p)], axis=1) / safe[:, None]
-    eps = 1e-9
-    inside = np.all(np.where(exclusive[tri], lam > eps, lam >= -eps), axis=1) & ok
+    inside = np.all(np.where(exclusive[tri], lam > _EPS, lam >= -_EPS), axis=1) & ok
     return tri[inside], rows[inside] * shape[1] + cols[inside]

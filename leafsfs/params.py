@@ -94,12 +94,12 @@ class SfsParams:
         ``replace``: none. ``auto``: ``replace`` for the fused variant, whose
         surface fuses the measured heights, ``keep`` for the thesis variants,
         whose surface uses them only at the seeds (measured in
-        :mod:`leafsfs.accuracy`).
+        the benchmark, :mod:`benchmarks.scoring`).
     trait_smoothing_m : float
         Scale of the local planes of the corrected surface that the leaf
         traits are computed from, m (:mod:`leafsfs.traits`; assumption: leaf
         shape varies on centimetre scales, range noise on sub-millimetre
-        ones; measured with ``leafsfs accuracy``: 2 mm leaves the buffer
+        ones; measured with the benchmark (``tlsbench``): 2 mm leaves the buffer
         variant's crossing cliffs in its areas, +10..+25 % at 0.8 m, 5 mm
         brings them within +-5 % and changes the fused areas by < 1 %).
     sigma_alpha_deg : float

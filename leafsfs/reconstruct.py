@@ -140,9 +140,9 @@ class SfsResult:
         """One entry per reconstructed leaf (label plus :attr:`LeafResult.traits`)."""
         return [{"leaf": leaf.label, **leaf.traits} for leaf in self.leaves]
 
-    def rppp(self, n_max: int = 3) -> dict[str, float]:
-        """Redundancy ratios over all reconstructed leaf pixels (see :meth:`HeightResult.rppp`)."""
-        counts = self.candidates[self.labels > 0]
+    def rppp(self, region: np.ndarray | None = None, n_max: int = 3) -> dict[str, float]:
+        """Redundancy ratios over the reconstructed leaf pixels, or those of ``region`` (see :meth:`HeightResult.rppp`)."""
+        counts = self.candidates[self.labels > 0 if region is None else region]
         total = max(len(counts), 1)
         out = {f"rppp_{n}": float(np.sum(counts == n) / total) for n in range(n_max + 1)}
         out["rppp_more"] = float(np.sum(counts > n_max) / total)
@@ -157,7 +157,7 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
     pulses (:func:`leafsfs.leaves.segment_scan`): every mixed pulse goes to
     the surface that returned most of its power, and those dominated by a
     surface that is not a leaf (the wall behind) take that surface's
-    distance (with a given ``mask``, they are left alone); per leaf the
+    distance (also those inside a given ``mask``); per leaf the
     engine on its local frame; the leaf's mixed pulses, and the inliers as
     ``params.inliers`` says, take the corrected distance (they are the
     outliers); traits of that surface with every pulse weighted by the
@@ -208,15 +208,18 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
         shares = {k: mixed.share_of(s, gain) for k, s in surface_of.items()}
         # Mixed pulses dominated by a surface that is not a leaf (the wall behind) take its distance.
         background = unreliable & (mixed.owner > 0) & ~np.isin(mixed.owner, segmentation.leaf_surfaces)
-        out_range[background] = mixed.owner_range()[background]
     else:
         # A given region counts its pixels whole, except the mixed pulses of its main surface, which count (inside
-        # the region or just outside it) for their share of that surface.
+        # the region or just outside it) for their share of that surface; its mixed pulses that another surface
+        # dominates (the wall behind) take that surface's distance and leave the region.
         shares = {}
         for k in np.unique(labels[labels > 0]):
             main = _main_surface(mixed.surfaces, labels == k)
             paired = (mixed.surfaces == 0) & (mixed.pair == main).any(axis=-1)
             shares[k] = np.where(paired, mixed.share_of(main, gain), (labels == k).astype(float))
+            background |= unreliable & (labels == k) & (mixed.owner > 0) & (mixed.owner != main)
+        labels = np.where(background, 0, labels)
+    out_range[background] = mixed.owner_range()[background]
     labels = np.where(valid, labels, 0)
     if not labels.any():
         raise SfsError("no leaf pixel with a valid return: the mask (or the leaf segmentation) selects none")

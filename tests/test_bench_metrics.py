@@ -84,20 +84,27 @@ def test_outlier_scores_for_a_filter_and_a_correction():
     assert s["rop_before"] == 0.0 and math.isnan(s["rop_reduction"])
 
 
-def test_leaf_power_share_attributes_minority_power_near_the_leaf():
+def test_leaf_power_share_from_the_first_and_second_objects():
     truth_id = np.full((5, 12), 1)
     truth_id[:, :4] = 0          # the leaf on the left
     truth_id[0, -1] = -1         # a pulse that hit nothing
+    second = np.full((5, 12), -1)
     mixed = np.zeros((5, 12))
-    mixed[:, 3] = 0.3            # leaf-dominated edge pulses
-    mixed[:, 4] = 0.4            # wall-dominated edge pulses: 40 % from the leaf
-    mixed[:, 10] = 0.2           # far from the leaf: the minority is someone else
-    share = metrics.leaf_power_share(truth_id, mixed, 0, reach_px=2)
+    second_fraction = np.zeros((5, 12))
+    mixed[:, 3], second[:, 3], second_fraction[:, 3] = 0.3, 1, 0.3     # leaf-dominated edge pulses
+    mixed[:, 4], second[:, 4], second_fraction[:, 4] = 0.4, 0, 0.4     # wall-dominated: 40 % from the leaf
+    mixed[:, 5], second[:, 5], second_fraction[:, 5] = 0.5, 0, 0.3     # a third object has 20 %
+    mixed[:, 10], second[:, 10], second_fraction[:, 10] = 0.2, 2, 0.2  # the minority is someone else
+    mixed[0, -1] = np.nan
+    share = metrics.leaf_power_share(truth_id, mixed, second, second_fraction, 0)
     np.testing.assert_allclose(share[:, :3], 1.0)
     np.testing.assert_allclose(share[:, 3], 0.7)
     np.testing.assert_allclose(share[:, 4], 0.4)
+    np.testing.assert_allclose(share[:, 5], 0.3)
     np.testing.assert_allclose(share[:, 6:], 0.0)
-    assert (share >= metrics.MIN_POWER_SHARE).sum() == 5 * 5
+    np.testing.assert_allclose(metrics.leaf_power_share(truth_id, mixed, second, second_fraction, 1)[:, 3:5],
+                               [[0.3, 0.6]] * 5)
+    assert (share >= metrics.MIN_POWER_SHARE).sum() == 6 * 5
 
 
 def test_axis_angle_errors_ignore_the_sense_and_wrap_azimuth():

@@ -28,6 +28,9 @@ def test_leaf_points_include_mixed_pulses_and_visibility_sees_occlusion(two_leav
     back, front = leaves
     assert (back.name, front.name) == ("back", "front")
     assert front.scan_stats["visibility"] == pytest.approx(1.0)
+    # What the pulses it dominates see of the front leaf (flat, facing the scanner): its whole area, to the pixel.
+    assert front.scan_stats["visible_area_ratio"] == pytest.approx(1.0, abs=0.1)
+    assert back.scan_stats["visible_area_ratio"] == pytest.approx(0.5, abs=0.15)
     assert back.scan_stats["visibility"] == pytest.approx(0.5, abs=0.1)
     # The leaf's points: its own pulses plus wall- or leaf-dominated pulses with >= 10 % of their power from it.
     assert front.own.sum() < front.mask.sum()
@@ -60,7 +63,7 @@ def test_raw_and_an_oracle_correction(two_leaves):
                                                                    "elevation_deg": front.truth["elevation_deg"],
                                                                    "azimuth_deg": front.truth["azimuth_deg"]}))
     assert oracle["rop_after"] < 0.01 and oracle["outliers_restored"] > 0.99
-    assert oracle["completeness"] > 0.99 and oracle["surface_rmse_m"] < 1e-6
+    assert oracle["completeness"] > 0.99 and oracle["surface_rmse_m"] < 1e-6 and oracle["inlier_p90_m"] < 1e-6
     assert oracle["area_rel_err"] == 0.0 and oracle["elevation_err_deg"] == pytest.approx(0.0, abs=1e-6)
     # Dropping every point leaves no outlier and loses every good point.
     dropped = scoring.score_leaf(front, VariantOutput(np.full_like(xyz, np.nan)))

@@ -111,3 +111,39 @@ def test_tangent_estimators_on_digitised_circles():
         assert improved < 2.5 + 40.0 / radius  # 10.5 deg at r = 5 down to 3.3 deg at r = 50
     points, tangents = marching_squares_path(_disc(20)[0])
     assert signed_area(points) > 0 and np.allclose(np.linalg.norm(tangents, axis=1), 1)
+
+
+def test_rasterize_triangles_matches_the_exact_inside_test_and_shares_exclusive_edges(monkeypatch):
+    from leafsfs import mesh
+    from leafsfs.mesh import rasterize_triangles
+
+    rng = np.random.default_rng(3)
+    shape = (40, 30)
+    # Random triangles (half with corners on pixel centres) plus long slivers across the grid.
+    corners = rng.uniform(-3, 43, (300, 3, 2))
+    corners[::2] = np.round(corners[::2])
+    corners[:20, 1] = corners[:20, 0] + [60.0, 45.0]
+    corners[:20, 2] = corners[:20, 0] + [30.4, 22.0]
+    exclusive = rng.random((300, 3)) < 0.5
+    tri, pixel = rasterize_triangles(corners, exclusive, shape)
+    # Brute force: every pixel centre of the grid against every triangle.
+    rows, cols = np.divmod(np.arange(shape[0] * shape[1]), shape[1])
+    p = np.stack([rows, cols], axis=1).astype(float)
+    expected = set()
+    for t, (a, b, c) in enumerate(corners):
+        def edge(u, v, w):
+            return (v[0] - u[0]) * (w[:, 1] - u[1]) - (v[1] - u[1]) * (w[:, 0] - u[0])
+        area = edge(a, b, c[None])[0]
+        if abs(area) <= 1e-12:
+            continue
+        lam = np.stack([edge(b, c, p), edge(c, a, p), edge(a, b, p)], axis=1) / area
+        inside = np.all(np.where(exclusive[t], lam > 1e-9, lam >= -1e-9), axis=1)
+        expected |= {(t, int(k)) for k in np.nonzero(inside)[0]}
+    assert set(zip(tri.tolist(), pixel.tolist())) == expected and len(tri) == len(expected)
+    assert np.all(np.diff(tri) >= 0)
+    monkeypatch.setattr(mesh, "_CHUNK_PAIRS", 50)  # many chunks: the same pairs
+    assert np.array_equal(np.stack(rasterize_triangles(corners, exclusive, shape)), np.stack([tri, pixel]))
+    # Two triangles sharing a diagonal through pixel centres: exclusive on one side, each centre counted once.
+    square = np.array([[[0, 0], [4, 4], [0, 4]], [[0, 0], [4, 4], [4, 0]]], float)
+    tri, pixel = rasterize_triangles(square, np.array([[False] * 3, [False, False, True]]), (5, 5))
+    assert len(pixel) == len(set(pixel.tolist())) == 25

@@ -5,6 +5,7 @@ import sys
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 import scenes
 import tlssim
@@ -58,7 +59,7 @@ def test_measured_outliers_move_to_the_true_surface(leaf_scan, leaf_result):
     measured = np.abs(scan.range - scan.truth_range)
     corrected = np.abs(leaf_result.range - scan.truth_range)
     # The phase-shift outliers: mixed pulses (the buffer variant keeps the measured distance of pure pulses,
-    # whose range-noise tails are left alone; see leafsfs.accuracy for the numbers behind that choice).
+    # whose range-noise tails are left alone; see tests/test_bench_prop_sfs.py for the numbers behind that choice).
     outliers = on_leaf & (measured > 0.005) & (scan.mixed_fraction > 0.01)
     assert outliers.sum() > 300
     assert np.mean(corrected[outliers] < measured[outliers]) > 0.95
@@ -98,6 +99,20 @@ def test_a_given_mask_counts_the_mixed_pulses_of_its_leaf(leaf_scan, leaf_result
     given = reconstruct(scan, mask=leaf_result.labels > 0, calibration=calibration)
     assert given.traits()[0]["area_m2"] == pytest.approx(leaf_result.traits()[0]["area_m2"], rel=1e-6)
     assert not given.background.any() and leaf_result.background.sum() > 1000
+
+
+def test_a_wide_mask_gives_its_background_pulses_the_backgrounds_distance(leaf_scan, leaf_result):
+    # A mask 4 pixels wider than the leaf holds mixed pulses that the wall dominates: they take the wall's
+    # distance (as in the automatic segmentation) instead of the leaf's, and the area stays.
+    scene, scan, calibration = leaf_scan
+    wide = ndimage.binary_dilation(leaf_result.labels > 0, iterations=4)
+    given = reconstruct(scan, mask=wide, calibration=calibration)
+    walled = wide & leaf_result.background
+    assert walled.sum() > 1000 and np.array_equal(given.background, walled)
+    assert np.array_equal(given.range[walled], leaf_result.range[walled])
+    assert np.median(np.abs(given.range - scan.truth_range)[walled]) < 0.002
+    assert np.median(np.abs(scan.range - scan.truth_range)[walled]) > 0.1
+    assert given.traits()[0]["area_m2"] == pytest.approx(leaf_result.traits()[0]["area_m2"], rel=0.01)
 
 
 def test_leaf_cluster_segmentation_separates_the_leaves():
