@@ -246,6 +246,7 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
         if not heights.count.any():
             skipped.append((int(label), "no seed curve could be initialised (seed regions too small or unmeasured)"))
             continue
+        heights.height[~plausible(heights.height, measured, region[box] & ~unreliable[box], frame)] = np.nan
         done = region[box] & np.isfinite(heights.height)
         threshold = params.outlier_threshold_m or outlier_threshold(scan.range[box], region[box] & ~unreliable[box])
         with np.errstate(invalid="ignore"):
@@ -272,6 +273,25 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
                        "n_points": int(region.sum()), "n_outliers": int((outlier & region).sum()),
                        "unreliable_alpha_fraction": float(np.mean(~reliable[region])), **leaf.traits}
     return result
+
+
+def plausible(height: np.ndarray, measured: np.ndarray, pure: np.ndarray, frame: LocalFrame) -> np.ndarray:
+    """Which reconstructed heights a leaf can have: within its pure pulses' heights widened by its width, m.
+
+    A propagation that runs away (incidences near 90 deg, where ``tan(alpha)``
+    explodes) gives heights far outside anything the leaf spans; such pixels
+    keep their measured distance. The bound lets the surface rise or fall by
+    the diagonal of its bounding box (a 45 deg slope across the whole leaf)
+    beyond the heights of its pure pulses.
+    """
+    rows, cols = np.nonzero(pure)
+    if not len(rows):
+        return np.isfinite(height)
+    corners = frame.grid.to_continuous(np.array([[rows.min(), cols.min()], [rows.max(), cols.max()]], float))
+    width = float(np.linalg.norm(corners[1] - corners[0]))
+    low, high = np.nanmin(measured[pure]) - width, np.nanmax(measured[pure]) + width
+    with np.errstate(invalid="ignore"):
+        return (height >= low) & (height <= high)
 
 
 def outlier_threshold(range_m: np.ndarray, pure: np.ndarray) -> float:

@@ -15,6 +15,7 @@ from leafsfs.frame import local_frame
 from leafsfs.grid import local_planes
 from leafsfs.leaves import segment_leaves
 from leafsfs.preprocess import resolve_calibration, scan_alpha
+from leafsfs.reconstruct import plausible
 from leafsfs.synthetic import LambertCalibration
 from tlssim.pattern import beam_frame
 
@@ -50,6 +51,23 @@ def test_local_frame_makes_the_eikonal_relation_exact():
     slope = np.linalg.norm(local_planes(heights, np.isfinite(heights), frame.grid, centres, 2).gradient, axis=1)
     assert np.allclose(slope, np.tan(incidence[frame.box][centres[:, 0], centres[:, 1]]), rtol=0.004)
     assert np.allclose(frame.range(heights), range_m[frame.box])
+
+
+def test_runaway_heights_are_not_plausible():
+    # A flat 40 x 40 px leaf 1.5 m away (pixels of 0.47 mm: a 2.7 cm bounding-box diagonal): heights up to a
+    # diagonal beyond its pure pulses' heights are plausible, a runaway propagation's are not (no overflow).
+    step = np.radians(0.018)
+    theta, psi = np.meshgrid(step * np.arange(-30, 30), np.pi / 2 + step * np.arange(-30, 30))
+    leaf = np.zeros(theta.shape, bool)
+    leaf[10:50, 10:50] = True
+    frame = local_frame(theta, psi, np.full(theta.shape, 1.5), leaf)
+    measured = frame.height(np.full(theta.shape, 1.5))[frame.box]
+    diagonal = 39 * np.sqrt(2) * 1.5 * step
+    height = np.array([0.0, 0.9 * diagonal, -0.9 * diagonal, 1.1 * diagonal, 1e6, -np.inf, np.nan])
+    pure = leaf[frame.box]
+    assert plausible(height, measured, pure, frame).tolist() == [True, True, True, False, False, False, False]
+    with np.errstate(over="raise"):
+        frame.range(np.where(plausible(height, measured, pure, frame), height, np.nan))
 
 
 def test_measured_outliers_move_to_the_true_surface(leaf_scan, leaf_result):
