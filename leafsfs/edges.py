@@ -66,6 +66,11 @@ class MixedPulses:
     owner : ndarray of int, 2-D
         Surface that returned most of the pulse's power: ``surfaces`` on pure
         pulses, the dominant member of the pair on mixed ones, 0 where unknown.
+    thin : ndarray of bool, 2-D
+        Mixed pulses of a thin part attached to a surface (a petiole): paired
+        with that surface beyond the band, at the distance where the part is
+        attached (``reach_px`` of :func:`attribute_mixed`). They are no part
+        of that surface (:meth:`share_of` gives them 0).
     """
 
     surfaces: np.ndarray
@@ -74,6 +79,7 @@ class MixedPulses:
     pair_range: np.ndarray
     pair_intensity: np.ndarray
     owner: np.ndarray
+    thin: np.ndarray
 
     @property
     def straddling(self) -> np.ndarray:
@@ -88,7 +94,7 @@ class MixedPulses:
         """
         share = (self.surfaces == label).astype(float)
         for member, other, fraction in ((0, 1, self.share), (1, 0, 1.0 - self.share)):
-            sel = self.pair[..., member] == label
+            sel = (self.pair[..., member] == label) & ~self.thin
             value = fraction[sel]
             if gain_dn is not None:
                 value = geometric_share(value, self.pair_intensity[..., member][sel],
@@ -103,7 +109,7 @@ class MixedPulses:
 
 
 def attribute_mixed(range_m: np.ndarray, surfaces: np.ndarray, band_px: int, intensity: np.ndarray | None = None,
-                    *, radius_px: float = 8.0, tolerance_m: float = 0.006) -> MixedPulses:
+                    *, radius_px: float = 8.0, tolerance_m: float = 0.006, reach_px: int = 0) -> MixedPulses:
     """Find the two surfaces each mixed pulse straddles and the power share of each.
 
     Parameters
@@ -122,47 +128,98 @@ def attribute_mixed(range_m: np.ndarray, surfaces: np.ndarray, band_px: int, int
     tolerance_m : float
         How far outside the two surfaces' distances a measured range may lie
         (range noise), m.
+    reach_px : int
+        How far along a thin part attached to a surface (pixels) its mixed
+        pulses may lie (0: not looked for). A part narrower than the
+        footprint, such as a petiole, has no pure pulse: every pulse mixes
+        it with what lies behind, and no pair of surfaces within the band
+        brackets them. Such a pulse is paired, where a pair brackets it,
+        with the surfaces its 8-connected run of mixed pulses touches up to
+        ``reach_px`` away, the far one at the distance of its nearest core
+        pulse (where the part is attached: the thin part's own distance is
+        unknown); these pulses are flagged ``thin``.
 
     Returns
     -------
     MixedPulses
     """
-    shape = range_m.shape
     valid = np.isfinite(range_m)
     mixed = valid & (surfaces == 0)
-    labels = np.unique(surfaces[surfaces > 0])
-    pixel, label, gap, source = [], [], [], []
-    boxes = ndimage.find_objects(surfaces)
+    band = int(band_px)
+    out = _empty(surfaces)
+    if not surfaces.any():
+        return out
     # Surfaces are extrapolated from their pulses at least `margin` pixels inside: their outermost pulses can
     # still hold a little of the other surface's power (steps within the noise link them).
-    band = int(band_px)
-    margin = max(1, band // 3)
+    cores = _cores(surfaces, band, max(1, band // 3))
+    sources = (range_m, intensity)
+    _attribute(out, sources, surfaces, cores, mixed, band, band, radius_px, tolerance_m)
+    if reach_px > band:
+        unresolved = mixed & (out.pair[..., 0] == 0)
+        runs, _ = ndimage.label(mixed, structure=np.ones((3, 3), bool))
+        # (run, surface) pairs that touch: a run's pulses next to a surface's pulses.
+        grown = ndimage.grey_dilation(runs, size=(3, 3))
+        touching = np.unique(grown[surfaces > 0].astype(np.int64) * (surfaces.max() + 1) + surfaces[surfaces > 0])
+        keys = runs.astype(np.int64) * (surfaces.max() + 1)
+        before = out.pair.copy()
+        _attribute(out, sources, surfaces, cores, unresolved, int(reach_px), band, radius_px, tolerance_m,
+                   allowed=lambda pixel, k: np.isin(keys.ravel()[pixel] + k, touching))
+        out.thin = unresolved & (out.pair[..., 0] > 0) & (before[..., 0] == 0)
+    return out
+
+
+def _cores(surfaces: np.ndarray, band: int, margin: int) -> np.ndarray:
+    """Surface labels of the pulses more than ``margin`` pixels inside their surface (all of a sliver's)."""
+    shape = surfaces.shape
     cores = np.zeros(shape, dtype=int)
-    for k in labels:
-        box = tuple(slice(max(s.start - band, 0), min(s.stop + band, n)) for s, n in zip(boxes[k - 1], shape))
+    for k, box in enumerate(ndimage.find_objects(surfaces), start=1):
+        if box is None:
+            continue
+        box = tuple(slice(max(s.start - band, 0), min(s.stop + band, n)) for s, n in zip(box, shape))
         inside = surfaces[box] == k
         core = ndimage.distance_transform_edt(inside) > margin
-        core = core if core.sum() >= 3 else inside
-        cores[box][core] = k
-        distance = ndimage.distance_transform_edt(~inside)
-        ii, jj = ndimage.distance_transform_edt(~core, return_distances=False, return_indices=True)
-        near = mixed[box] & (distance <= band)
+        cores[box][core if core.sum() >= 3 else inside] = k
+    return cores
+
+
+def _attribute(out: MixedPulses, sources: tuple, surfaces: np.ndarray, cores: np.ndarray, targets: np.ndarray,
+               reach: int, band: int, radius_px: float, tolerance_m: float, allowed=None) -> None:
+    """Pair the ``targets`` pulses with surfaces up to ``reach`` pixels away and write the pairs found into ``out``.
+
+    A surface's distance (and intensity) at a pulse is the local plane around
+    its nearest core pulse up to ``band`` pixels away, that pulse's own value
+    beyond. ``allowed(pixels, k)`` may veto candidates (flat pixel indices).
+    """
+    range_m, intensity = sources
+    shape = range_m.shape
+    pixel, label, gap, source = [], [], [], []
+    for k, box in enumerate(ndimage.find_objects(surfaces), start=1):
+        if box is None:
+            continue
+        box = tuple(slice(max(s.start - reach, 0), min(s.stop + reach, n)) for s, n in zip(box, shape))
+        distance = ndimage.distance_transform_edt(surfaces[box] != k)
+        near = targets[box] & (distance <= reach)
+        if not near.any():
+            continue
+        ii, jj = ndimage.distance_transform_edt(cores[box] != k, return_distances=False, return_indices=True)
         rows, cols = np.nonzero(near)
-        pixel.append((rows + box[0].start) * shape[1] + cols + box[1].start)
-        source.append((ii[near] + box[0].start) * shape[1] + jj[near] + box[1].start)
-        label.append(np.full(len(rows), k))
-        gap.append(distance[near])
-    empty = _empty(surfaces)
-    if not pixel or not sum(len(p) for p in pixel):
-        return empty
+        flat = (rows + box[0].start) * shape[1] + cols + box[1].start
+        keep = allowed(flat, k) if allowed is not None else np.ones(len(flat), bool)
+        pixel.append(flat[keep])
+        source.append(((ii[near] + box[0].start) * shape[1] + jj[near] + box[1].start)[keep])
+        label.append(np.full(keep.sum(), k))
+        gap.append(distance[near][keep])
+    if not sum(len(p) for p in pixel):
+        return
     pixel, label, gap, source = map(np.concatenate, (pixel, label, gap, source))
     extrapolated = np.full((len(pixel), 2), np.nan)  # range, intensity
-    for k in labels:
-        sel = label == k
-        if sel.any():
-            extrapolated[sel, 0] = _extrapolate(range_m, cores == k, source[sel], pixel[sel], radius_px)
-            if intensity is not None:
-                extrapolated[sel, 1] = _extrapolate(intensity, cores == k, source[sel], pixel[sel], radius_px)
+    for column, image in enumerate(sources):
+        if image is None:
+            continue
+        for k in np.unique(label):
+            sel = label == k
+            value = _extrapolate(image, cores == k, source[sel], pixel[sel], radius_px)
+            extrapolated[sel, column] = np.where(gap[sel] <= band, value, image.ravel()[source[sel]])
     keep = np.isfinite(extrapolated[:, 0])
     order = np.lexsort((gap[keep], pixel[keep]))
     pixel, label, gap, extrapolated = (a[keep][order] for a in (pixel, label, gap, extrapolated))
@@ -203,20 +260,20 @@ def attribute_mixed(range_m: np.ndarray, surfaces: np.ndarray, band_px: int, int
     found = pair[:, 0] > 0
     with np.errstate(invalid="ignore", divide="ignore"):
         share = np.where(pair[:, 1] > 0, (measured - picked[:, 1, 0]) / (picked[:, 0, 0] - picked[:, 1, 0]), 1.0)
-    share = np.where(found, np.clip(share, 0.0, 1.0), np.nan)
-    out = empty
+    share = np.clip(share, 0.0, 1.0)
+    unique, pair, picked, share = unique[found], pair[found], picked[found], share[found]
     out.pair.reshape(-1, 2)[unique] = pair
     out.pair_range.reshape(-1, 2)[unique] = picked[..., 0]
     out.pair_intensity.reshape(-1, 2)[unique] = picked[..., 1]
     out.share.ravel()[unique] = share
-    out.owner.ravel()[unique] = np.where(found, np.where(share >= 0.5, pair[:, 0], pair[:, 1]), 0)
-    return out
+    out.owner.ravel()[unique] = np.where(share >= 0.5, pair[:, 0], pair[:, 1])
 
 
 def _empty(surfaces: np.ndarray) -> MixedPulses:
     shape = surfaces.shape
     return MixedPulses(surfaces.copy(), np.zeros((*shape, 2), int), np.full(shape, np.nan),
-                       np.full((*shape, 2), np.nan), np.full((*shape, 2), np.nan), surfaces.copy())
+                       np.full((*shape, 2), np.nan), np.full((*shape, 2), np.nan), surfaces.copy(),
+                       np.zeros(shape, bool))
 
 
 def _extrapolate(range_m: np.ndarray, mask: np.ndarray, source: np.ndarray, target: np.ndarray,

@@ -125,7 +125,7 @@ def range_noise(range_m: np.ndarray) -> float:
 def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha: np.ndarray | None = None, *,
                  min_pixels: int = 100, max_slope_deg: float = 80.0, alpha_margin_deg: float = 25.0,
                  noise_m: float | None = None, drop_border: bool = True, band_m: float = 0.01,
-                 min_width_m: float = 0.004, intensity: np.ndarray | None = None) -> Segmentation:
+                 min_width_m: float = 0.004, reach_m: float = 0.05, intensity: np.ndarray | None = None) -> Segmentation:
     """Surfaces, mixed pulses and leaf regions of a scan.
 
     Parameters
@@ -157,6 +157,12 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         pulses are nearly all mixed and which have no sand-pile surface to
         propagate (assumption: 4 mm, a footprint diameter of a FARO-class
         beam at 2 m; a 9 cm pear leaf seen at 80 deg is still 6 mm wide at 5 m).
+    reach_m : float
+        How far along a thin part attached to a surface (a petiole, too
+        narrow to have pure pulses) its mixed pulses are paired with that
+        surface, m (``reach_px`` of :func:`leafsfs.edges.attribute_mixed`;
+        assumption: 5 cm, the longest pear petioles). They belong to no leaf
+        region.
     intensity : ndarray, 2-D, optional
         Intensities, DN, for the geometric shares of the mixed pulses
         (:meth:`leafsfs.edges.MixedPulses.share_of`).
@@ -176,7 +182,8 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     step = angular_step(theta, psi)
     surfaces = split_thin_parts(lookup[component], range_m, step, min_width_m, min_pixels)
     band = band_pixels(band_m, range_m, surfaces, step)
-    mixed = attribute_mixed(range_m, surfaces, band, intensity, tolerance_m=3 * sigma)
+    mixed = attribute_mixed(range_m, surfaces, band, intensity, tolerance_m=3 * sigma,
+                            reach_px=band_pixels(reach_m, range_m, surfaces, step) if reach_m > 0 else 0)
     leaf = surface_widths(surfaces, range_m, step) >= min_width_m
     leaf[0] = False
     if drop_border:
@@ -184,7 +191,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     leaf_surfaces = np.nonzero(leaf)[0]
     relabel = np.zeros(len(leaf), dtype=int)
     relabel[leaf_surfaces] = np.arange(1, len(leaf_surfaces) + 1)
-    return Segmentation(relabel[mixed.owner], leaf_surfaces, mixed)
+    return Segmentation(np.where(mixed.thin, 0, relabel[mixed.owner]), leaf_surfaces, mixed)
 
 
 def split_thin_parts(surfaces: np.ndarray, range_m: np.ndarray, step_rad: float, min_width_m: float,

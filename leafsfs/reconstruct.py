@@ -206,8 +206,9 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
         labels = segmentation.leaves
         surface_of = {k: segmentation.region_surface(k) for k in np.unique(labels[labels > 0])}
         shares = {k: mixed.share_of(s, gain) for k, s in surface_of.items()}
-        # Mixed pulses dominated by a surface that is not a leaf (the wall behind) take its distance.
-        background = unreliable & (mixed.owner > 0) & ~np.isin(mixed.owner, segmentation.leaf_surfaces)
+        # Mixed pulses dominated by a surface that is not a leaf (the wall behind) take its distance; so do those of
+        # a thin part attached to a leaf (a petiole), at the distance where it is attached when it dominates them.
+        background = unreliable & (mixed.owner > 0) & (~np.isin(mixed.owner, segmentation.leaf_surfaces) | mixed.thin)
     else:
         # A given region counts its pixels whole, except the mixed pulses of its main surface, which count (inside
         # the region or just outside it) for their share of that surface; its mixed pulses that another surface

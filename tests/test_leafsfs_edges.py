@@ -114,3 +114,43 @@ def test_a_twig_linked_to_a_leaf_is_split_off_and_is_not_a_leaf():
     assert np.mean(split[blade] == split[60, 50]) > 0.99
     widths = surface_widths(split, range_m, step)
     assert widths[split[60, 50]] == pytest.approx(0.03, rel=0.1) and widths[split[60, 120]] < 0.004
+
+
+def _petiole_scene():
+    """A square plate 1.5 m away with a thin strip (a petiole) leaving its right edge, a wall 2.5 m away.
+
+    The strip, 60 px long, is narrower than the footprint: its share falls from 0.7 on its axis across a
+    Gaussian profile (no pure pulse). A second, detached strip floats 40 px below. Returns the range image,
+    the plate's and strips' power share of every pulse, the surface labels of the pure pulses, the attached
+    strip's pulses and the wall's distance.
+    """
+    rows, cols = np.mgrid[0:100, 0:150]
+    inside = np.minimum.reduce([rows - 19.5, 59.5 - rows, cols - 19.5, 59.5 - cols])
+    share = np.clip(0.5 + inside / 8.0, 0.0, 1.0)
+    strip = 0.7 * np.exp(-0.5 * ((rows - 40) / 2.0) ** 2) * (cols >= 60) * (cols < 120)
+    detached = 0.7 * np.exp(-0.5 * ((rows - 85) / 2.0) ** 2) * (cols >= 60) * (cols < 120)
+    share = np.maximum.reduce([share, strip, detached])
+    wall = 2.5 + 0.0004 * cols
+    range_m = share * 1.5 + (1 - share) * wall
+    surfaces = np.where(share >= 0.999, 1, np.where(share <= 0.001, 2, 0))
+    # the strip's pulses more than the range noise (3 mm) off the wall, beyond the band of the plate
+    return range_m, share, surfaces, (strip > 0.003) & (cols >= 75), (detached > 0.003), wall
+
+
+def test_the_mixed_pulses_of_a_thin_part_attached_to_a_surface_go_to_the_dominant_one():
+    range_m, share, surfaces, strip, detached, wall = _petiole_scene()
+    mixed = attribute_mixed(range_m, surfaces, 12, tolerance_m=0.003, reach_px=80)
+    # beyond the band (15 px and more from the plate) the strip's pulses are paired with the plate and the wall:
+    # the wall-dominated ones take the wall's distance, the strip-dominated ones the plate's where the strip leaves it
+    assert mixed.thin[strip].all() and not mixed.thin[surfaces > 0].any()
+    assert np.allclose(mixed.share_of(1)[strip], 0.0)  # a thin part is no part of the plate (area)
+    assert np.array_equal(mixed.owner[strip] == 2, share[strip] < 0.5)
+    owner_range = np.where(share >= 0.5, 1.5, wall)
+    assert np.all(np.abs(mixed.owner_range() - owner_range)[strip] < 0.002)
+    # the detached strip touches no surface in front of the wall: no pair, as without the reach
+    assert (mixed.owner[detached] == 0).all() and not mixed.thin[detached].any()
+    plain = attribute_mixed(range_m, surfaces, 12, tolerance_m=0.003)
+    assert (plain.owner[strip] == 0).all() and not plain.thin.any()
+    # the pulses paired within the band keep their pairs
+    paired = plain.pair[..., 0] > 0
+    assert np.array_equal(mixed.pair[paired], plain.pair[paired]) and not mixed.thin[paired].any()
