@@ -284,13 +284,7 @@ def _extrapolate(range_m: np.ndarray, mask: np.ndarray, source: np.ndarray, targ
     centres = np.stack(np.divmod(unique, cols), axis=1)
     planes = local_planes(range_m, mask, PixelGrid(), centres, radius_px)
     offset = np.stack(np.divmod(target, cols), axis=1) - centres[inverse]
-    slope = np.sum(planes.gradient[inverse] * offset, axis=1)
-    # The slope term shrunk by its own uncertainty (a zero-slope prior, Wiener weight): a plane from a narrow strip of
-    # pulses (a sliver of wall at the window's border) is not extrapolated across the strip on its noise alone.
-    variance = np.einsum("ni,nij,nj->n", offset, planes.covariance[inverse], offset)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        weight = np.where(variance > 0, slope**2 / (slope**2 + variance), 1.0)
-    value = planes.height[inverse] + weight * slope
+    value = planes.height[inverse] + np.sum(planes.gradient[inverse] * offset, axis=1)
     # Too few pixels for a plane (a sliver): the nearest pixel's range.
     return np.where(np.isfinite(value), value, range_m.ravel()[source])
 
