@@ -125,7 +125,8 @@ def range_noise(range_m: np.ndarray) -> float:
 def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha: np.ndarray | None = None, *,
                  min_pixels: int = 100, max_slope_deg: float = 80.0, alpha_margin_deg: float = 25.0,
                  noise_m: float | None = None, drop_border: bool = True, band_m: float = 0.01,
-                 min_width_m: float = 0.004, reach_m: float = 0.05, intensity: np.ndarray | None = None) -> Segmentation:
+                 min_width_m: float = 0.004, reach_m: float = 0.05,
+                 intensity: np.ndarray | None = None) -> Segmentation:
     """Surfaces, mixed pulses and leaf regions of a scan.
 
     Parameters

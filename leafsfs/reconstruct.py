@@ -91,7 +91,9 @@ class SfsResult:
         Intensity-derived incidence, rad (smoothed on leaves).
     background : ndarray of bool
         Mixed pulses that a surface other than a leaf (the background)
-        dominates; they took that surface's distance.
+        dominates, or that a thin part attached to a leaf (a petiole)
+        shares with the background; they took the dominant surface's
+        distance (the leaf's where the part is attached).
     leaves : list of LeafResult
     skipped : list of (label, reason)
         Leaf regions that could not be reconstructed.
@@ -224,7 +226,7 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
     labels = np.where(valid, labels, 0)
     if not labels.any():
         raise SfsError("no leaf pixel with a valid return: the mask (or the leaf segmentation) selects none")
-    inliers = params.inliers if params.inliers != "auto" else ("replace" if variant == "fused" else "keep")
+    inliers = params.inliers if params.inliers != "auto" else ("refine" if variant == "fused" else "keep")
     corrected = background.copy()
     candidates = np.zeros(scan.shape, dtype=int)
     spread = np.full(scan.shape, np.nan)
@@ -252,7 +254,7 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
         threshold = params.outlier_threshold_m or outlier_threshold(scan.range[box], region[box] & ~unreliable[box])
         with np.errstate(invalid="ignore"):
             disagree = np.abs(measured - heights.height) > threshold
-        moved = unreliable[box] | (disagree if inliers == "test" else inliers == "replace")
+        moved = unreliable[box] | {"keep": False, "test": disagree, "refine": ~disagree, "replace": True}[inliers]
         sub = out_range[box]
         sub[done & moved] = frame.range(heights.height[done & moved])
         corrected[box] |= done
