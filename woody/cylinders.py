@@ -153,7 +153,7 @@ class FollowParams:
     radius: str = "median"
     merge_mode: str = "strict"
     section_radii: float = 4.0
-    min_branch_points: int = 5
+    min_branch_points: int = 10
     max_balance_passes: int = 50
 
     def __post_init__(self):
@@ -322,21 +322,36 @@ class _Branch:
             lean = direction[2]
         return direction if lean >= 0 else -direction
 
-    def tracked_direction(self, n: int, total: np.ndarray, outer: np.ndarray, normal_outer: np.ndarray) -> np.ndarray | None:
-        """Axis from running sums (None below 3 points).
+    def shape_direction(self, n: int, total: np.ndarray, outer: np.ndarray, normal_outer: np.ndarray):
+        """Axis with ``direction="normals"``, or None; also returns the covariance eigenvectors.
 
-        With ``direction="normals"``, the direction least aligned with the
-        normals when that is decisive; otherwise the covariance eigenvector
-        closest to the current axis.
+        In order of trust: the direction least aligned with the normals when
+        they clearly lie in one plane (a curved patch, ring or tube of a wide
+        stem); the long axis of an elongated cluster (largest covariance
+        eigenvalue at least 4x the next: a thin twig whose normals are
+        noise); the normals' direction when merely decisive.
         """
+        centroid = total / n
+        values, vectors = np.linalg.eigh(outer / n - np.outer(centroid, centroid))
+        strong = _normal_axis(normal_outer, max_flatness=0.1)
+        if strong is not None:
+            return strong, vectors
+        if values[2] >= 4.0 * values[1]:
+            return vectors[:, 2], vectors
+        return _normal_axis(normal_outer), vectors
+
+    def tracked_direction(self, n: int, total: np.ndarray, outer: np.ndarray, normal_outer: np.ndarray) -> np.ndarray | None:
+        """Axis from running sums (None below 3 points): :meth:`shape_direction` in "normals" mode, else
+        the covariance eigenvector closest to the current axis."""
         if n < 3:
             return None
+        centroid = total / n
         if self.normals is not None:
-            axis = _normal_axis(normal_outer)
+            axis, vectors = self.shape_direction(n, total, outer, normal_outer)
             if axis is not None:
                 return axis
-        centroid = total / n
-        _, vectors = np.linalg.eigh(outer / n - np.outer(centroid, centroid))
+        else:
+            vectors = np.linalg.eigh(outer / n - np.outer(centroid, centroid))[1]
         if self.direction is None:
             return vectors[:, -1]
         return vectors[:, int(np.argmax(np.abs(self.direction @ vectors)))]
@@ -359,7 +374,7 @@ class _Branch:
         """Whether free seeding is over: ``n_s`` points, or an axis at least two diameters long (10 points or more)."""
         if self.n >= self.params.n_s(self.order):
             return True
-        return self.n >= 10 and self.direction is not None and self.t1 - self.t0 >= 4.0 * self.reference_radius()
+        return self.n >= 6 and self.direction is not None and self.t1 - self.t0 >= 4.0 * self.reference_radius()
 
     def add(self, index: int) -> None:
         """Include a point and update the cylinder (exactly when the branch has grown by 10 %)."""
@@ -389,24 +404,25 @@ class _Branch:
         self.n = len(pts)
         self.sum = pts.sum(axis=0)
         self.outer = pts.T @ pts
-        normal_axis = None
         if self.normals is not None:
             normals = self.normals[self.points]
             self.normal_outer = normals.T @ normals
-            normal_axis = _normal_axis(self.normal_outer) if self.n >= 3 else None
         self.exact_n = self.n
         self.axis_point, self.fitted = self.sum / self.n, False
         if self.n < 2:
             self.direction, self.t0, self.t1 = None, 0.0, 0.0
             self.r_max = self.d_sum = self.r_median = self.envelope = 0.0
             return
-        if normal_axis is not None:
-            direction = normal_axis
-        elif self.n == 2:
+        if self.n == 2:
             direction = pts[1] - pts[0]
             direction = direction / max(np.linalg.norm(direction), 1e-12)
         else:
-            direction = fit_direction(pts, "covariance" if self.params.direction == "normals" else self.params.direction)
+            direction = None
+            if self.normals is not None:
+                direction, _ = self.shape_direction(self.n, self.sum, self.outer, self.normal_outer)
+            if direction is None:
+                method = "covariance" if self.params.direction == "normals" else self.params.direction
+                direction = fit_direction(pts, method)
         self.direction = self.orient(direction)
         if self.params.axis == "circle" and self.n >= 8 and self.curved():
             self._fit_axis_point(pts)
@@ -453,16 +469,17 @@ class _Branch:
         return float(np.sqrt(max(rel @ rel - t * t, 0.0))), t_d
 
 
-def _normal_axis(normal_outer: np.ndarray, min_ratio: float = 0.02) -> np.ndarray | None:
+def _normal_axis(normal_outer: np.ndarray, min_ratio: float = 0.02, max_flatness: float = 0.5) -> np.ndarray | None:
     """The direction least aligned with a set of normals (summed ``n n^T``), or None when not decisive.
 
     Normals of a cylinder are perpendicular to its axis, so the axis is the
     eigenvector of the smallest eigenvalue. It is decisive when the normals
     spread across the axis (the middle eigenvalue is at least ``min_ratio``
-    of the largest; a flat patch fails) and the smallest is well below the middle one.
+    of the largest; a flat patch fails) and the smallest is at most
+    ``max_flatness`` of the middle one.
     """
     values, vectors = np.linalg.eigh(normal_outer)
-    if values[1] < min_ratio * values[2] or values[0] > 0.5 * values[1]:
+    if values[1] < min_ratio * values[2] or values[0] > max_flatness * values[1]:
         return None
     return vectors[:, 0]
 
@@ -609,6 +626,7 @@ def follow_cylinders(points, params: FollowParams | None = None, *, progress: bo
     branches = _dissolve_small(branches, params)
     branches = _merge_siblings(branches, params)
     branches = _merge_into_parents(branches, params)
+    branches = _merge_contained(branches)
     passes = _balance_volume(branches, points, params)
     timings["merge_s"] = time.perf_counter() - clock
 
@@ -648,7 +666,9 @@ def _grow(points: np.ndarray, normals: np.ndarray | None, graph: np.ndarray, par
     def closer_elsewhere(branch: _Branch, index: int, d: float) -> bool:
         near = graph[index]
         others = {int(o) for o in owner[near[near >= 0]] if o >= 0 and o != branch.id}
-        return any(branches[o].distance(points[index][None])[0] < d for o in others)
+        # Ties (e.g. a point inside two overlapping cylinders, distance 0) go to the older branch.
+        return any(branches[o].distance(points[index][None])[0] < d + (1e-12 if o < branch.id else 0.0)
+                   for o in others)
 
     def closest_point(branch: _Branch) -> int:
         """Index of the branch's closest admissible unassigned point, or -1."""
@@ -802,6 +822,28 @@ def _merge_into_parents(branches: list[_Branch], params: FollowParams) -> list[_
     return branches
 
 
+def _merge_contained(branches: list[_Branch]) -> list[_Branch]:
+    """Merge each branch whose axis midpoint lies inside an older branch's cylinder into that branch.
+
+    A real child leaves its parent, so its axis midpoint is outside every
+    other cylinder; one inside is a duplicate grown alongside an older
+    branch (they share the points of one stem) or a stub at a junction.
+    """
+    for branch in branches:
+        if not branch.points or branch.parent is None or branch.direction is None:
+            continue
+        middle = 0.5 * (branch.p1() + branch.p2())
+        for older in branches:
+            if older is branch:
+                break
+            if older.points and older.direction is not None and \
+                    older.distance(middle[None])[0] == 0.0 and \
+                    segment_distance(middle[None], older.p1(), older.p2())[0][0] < older.r_median:
+                _absorb(older, branch)
+                break
+    return _live(branches)
+
+
 def _balance_volume(branches: list[_Branch], points: np.ndarray, params: FollowParams) -> int:
     """Clustering (Table 5): move points between parent and child while the total volume drops.
 
@@ -841,7 +883,7 @@ def _balance_pair(source: _Branch, target: _Branch, child: _Branch, parent: _Bra
     tgt_t, tgt_r = _cylinder_stats(points[np.array(target.points)], target.axis_point, target.direction)
     t_lo, t_hi, r_tgt = tgt_t.min(), tgt_t.max(), tgt_r.max()
     keep = np.ones(len(src), bool)
-    while keep.sum() > 3:
+    while keep.sum() > params.min_branch_points:
         rows = np.flatnonzero(keep)
         volume_src = np.pi * r_s[rows].max() ** 2 * (t_s[rows].max() - t_s[rows].min())
         volume_tgt = np.pi * r_tgt ** 2 * (t_hi - t_lo)
@@ -895,7 +937,33 @@ def _records(branches: list[_Branch], params: FollowParams, count: int) -> tuple
                         "direction": None if b.direction is None else b.direction.tolist(),
                         "radius_m": _radius(b, params), "radius_max_m": float(b.r_max), "n_points": len(b.points),
                         "sections": _sections(b, params)})
+        anchor = _significant_record(records, records[-1]["parent"], params)
+        if params.merge_mode == "strict" and anchor is not None:
+            _cap_radii(records[-1], anchor)
     return records, labels
+
+
+def _significant_record(records: list[dict], row: int, params: FollowParams) -> dict | None:
+    """The significant ancestor (Table 2, bottom) among final branch records, starting at ``row``."""
+    while row >= 0:
+        record = records[row]
+        order, count = record["order"], record["n_points"]
+        if order < params.ord_min1 or (order < params.ord_min2 and count > params.n_min_factor * params.n_s(order)):
+            return record
+        row = record["parent"]
+    return None
+
+
+def _cap_radii(record: dict, parent: dict) -> None:
+    """The paper's radius hierarchy applied to the output: no section of a branch is wider than the section of
+    its significant ancestor nearest to its start (a cluster of several thin twigs fitted as one fat
+    cylinder is the usual cause)."""
+    starts = np.array([s[0] for s in parent["sections"]])
+    ends = np.array([s[1] for s in parent["sections"]])
+    dist, _ = segment_distance(np.repeat(np.asarray(record["start"])[None], len(starts), 0), starts, ends)
+    limit = parent["sections"][int(np.argmin(dist))][2]
+    record["sections"] = [(a, b, min(r, limit)) for a, b, r in record["sections"]]
+    record["radius_m"] = min(record["radius_m"], limit)
 
 
 def _radius(branch: _Branch, params: FollowParams) -> float:

@@ -14,7 +14,8 @@ Both the truth (``docs/contracts.md``: a woody object's ``truth`` has
 - completeness is the matched share of the visible truth length; a truth
   branch is detected when at least half of it is matched;
 - reconstructed centrelines are sampled and matched back the same way
-  (tolerance from the truth radius); unmatched reconstructed length is false
+  (tolerance from the truth radius; samples inside another reconstructed
+  cylinder are left out as above); unmatched reconstructed length is false
   positive;
 - length error of a detected branch: ``|L_rec - L_true| / L_true`` with
   ``L_rec`` the reconstructed length matched to it;
@@ -217,10 +218,11 @@ def score(truth, reconstruction, *, step_m: float = 0.01, min_tolerance_m: float
     # Reverse matching: reconstructed length matched to some truth cylinder.
     rec = sample_centrelines(R, step_m)
     back = match_samples(rec, T, min_tolerance_m, max_angle_deg, tolerance_from="target")
-    rec_length = float(rec["length"].sum())
-    matched_rec = back["row"] >= 0
+    shown = ~rec["hidden"]
+    rec_length = float(rec["length"][shown].sum())
+    matched_rec = shown & (back["row"] >= 0)
     out["reconstructed_length_m"] = rec_length
-    out["false_positive_length_m"] = float(rec["length"][~matched_rec].sum())
+    out["false_positive_length_m"] = float(rec["length"][shown & ~matched_rec].sum())
     out["precision"] = float(rec["length"][matched_rec].sum() / rec_length) if rec_length else float("nan")
 
     # Branch-level detection and length error.
