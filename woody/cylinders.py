@@ -249,9 +249,11 @@ def _minimax_search(centred: np.ndarray) -> np.ndarray:
         step /= 2.0
 
 
-def fit_circle(xy: np.ndarray, iterations: int = 5) -> tuple[np.ndarray, float]:
-    """Least-squares circle through 2-D points: algebraic (Kasa) start, then Gauss-Newton on the distances.
+def fit_circle(xy: np.ndarray, iterations: int = 8) -> tuple[np.ndarray, float]:
+    """Robust circle through 2-D points: algebraic (Kasa) start, then reweighted Gauss-Newton on the distances.
 
+    The weights are Huber's with a scale of 1.5 x the median absolute
+    residual, so that a few points of another branch do not drag the circle.
     Returns the centre (2,) and radius; the radius is NaN when the points
     are too few or collinear.
     """
@@ -264,8 +266,11 @@ def fit_circle(xy: np.ndarray, iterations: int = 5) -> tuple[np.ndarray, float]:
     for _ in range(iterations):
         rel = xy - centre
         dist = np.maximum(np.linalg.norm(rel, axis=1), 1e-12)
+        residual = dist - radius
+        scale = max(1.5 * np.median(np.abs(residual)), 1e-9)
+        weight = np.sqrt(np.minimum(1.0, scale / np.maximum(np.abs(residual), 1e-12)))
         jac = np.column_stack([-rel / dist[:, None], -np.ones(len(xy))])
-        step, *_ = np.linalg.lstsq(jac, -(dist - radius), rcond=None)
+        step, *_ = np.linalg.lstsq(jac * weight[:, None], -residual * weight, rcond=None)
         centre, radius = centre + step[:2], radius + step[2]
     return centre, float(radius) if np.isfinite(radius) and radius > 0 else float("nan")
 
@@ -281,7 +286,7 @@ class _Branch:
 
     def __init__(self, bid: int, index: int, parent, order: int, cloud: tuple, params: FollowParams):
         self.id, self.parent, self.order, self.params = bid, parent, order, params
-        self.coords, self.normals = cloud
+        self.coords, self.normals, self.spacing = cloud
         xyz = self.coords[index]
         self.children: list[_Branch] = []
         self.points = [index]
@@ -398,8 +403,8 @@ class _Branch:
         self.r_max = max(self.r_max, orth)
         self.d_sum += orth
 
-    def refit(self) -> None:
-        """Exact cylinder of the current points (O(n))."""
+    def refit(self, direction: np.ndarray | None = None) -> None:
+        """Exact cylinder of the current points (O(n)); ``direction`` imposes the axis direction."""
         pts = self.coords[self.points]
         self.n = len(pts)
         self.sum = pts.sum(axis=0)
@@ -413,11 +418,12 @@ class _Branch:
             self.direction, self.t0, self.t1 = None, 0.0, 0.0
             self.r_max = self.d_sum = self.r_median = self.envelope = 0.0
             return
-        if self.n == 2:
+        if direction is not None:
+            pass
+        elif self.n == 2:
             direction = pts[1] - pts[0]
             direction = direction / max(np.linalg.norm(direction), 1e-12)
         else:
-            direction = None
             if self.normals is not None:
                 direction, _ = self.shape_direction(self.n, self.sum, self.outer, self.normal_outer)
             if direction is None:
@@ -619,7 +625,7 @@ def follow_cylinders(points, params: FollowParams | None = None, *, progress: bo
 
     clock = time.perf_counter()
     normals = pca_normals(points, min(10, len(points))) if params.direction == "normals" else None
-    branches, owner = _grow(points, normals, graph, params, precision, progress)
+    branches, owner = _grow((points, normals, spacing), graph, params, precision, progress)
     timings["growth_s"] = time.perf_counter() - clock
     grown = len(branches)
     clock = time.perf_counter()
@@ -637,13 +643,16 @@ def follow_cylinders(points, params: FollowParams | None = None, *, progress: bo
     return FollowResult(records, labels, stats)
 
 
-def _grow(points: np.ndarray, normals: np.ndarray | None, graph: np.ndarray, params: FollowParams, precision: float,
+def _grow(cloud: tuple, graph: np.ndarray, params: FollowParams, precision: float,
           progress: bool) -> tuple[list[_Branch], np.ndarray]:
-    """The round-robin growth loop (Table 1), with the closest-point search of Table 2."""
+    """The round-robin growth loop (Table 1), with the closest-point search of Table 2.
+
+    ``cloud`` is ``(points, normals or None, nominal spacing)``.
+    """
     from tqdm import tqdm
 
+    points = cloud[0]
     owner = np.full(len(points), -1, np.int64)
-    cloud = (points, normals)
     branches: list[_Branch] = []
 
     def new_branch(index: int, parent, order: int) -> _Branch:
@@ -774,10 +783,20 @@ def _one_cylinder(a: _Branch, b: _Branch, params: FollowParams) -> bool:
 
 
 def _dissolve_small(branches: list[_Branch], params: FollowParams) -> list[_Branch]:
-    """Give the points of branches smaller than ``min_branch_points`` back to their parents (deepest first)."""
+    """Give the points of branches smaller than ``min_branch_points`` back to their parents (deepest first).
+
+    A root that small (the trunk stalled at the lowest points while a child
+    took over the stem) is handed to its largest child, which becomes the root.
+    """
     for branch in reversed(branches):
         if branch.parent is not None and 0 < len(branch.points) < params.min_branch_points:
             _absorb(branch.parent, branch)
+    for root in [b for b in branches if b.parent is None and 0 < len(b.points) < params.min_branch_points]:
+        if root.children:
+            heir = max(root.children, key=lambda c: len(c.points))
+            heir.parent = None
+            root.children.remove(heir)
+            _absorb(heir, root)
     return _live(branches)
 
 
@@ -974,8 +993,12 @@ def _sections(branch: _Branch, params: FollowParams) -> list[tuple]:
     """Cylinders ``(start, end, radius)`` of a branch: the whole branch, or pieces of ``section_radii`` radii.
 
     Each piece is refitted on its own points (direction, axis, radius) so
-    that the cylinders follow taper and curvature; a piece with fewer than 8
-    points keeps the branch's axis and radius.
+    that the cylinders follow taper and curvature; a piece whose own axis is
+    more than 30 deg off the branch's is refitted along the branch's axis,
+    and one with fewer than 8 points keeps the branch's axis and radius. In
+    strict mode no piece is wider than ``max(k_r)`` times the piece before
+    it (the paper's radius hierarchy along the branch; a fork region fitted
+    as one piece is the usual cause).
     """
     whole = [(branch.p1().tolist(), branch.p2().tolist(), _radius(branch, params))]
     if params.section_radii <= 0 or branch.direction is None:
@@ -994,9 +1017,14 @@ def _sections(branch: _Branch, params: FollowParams) -> list[tuple]:
         part.points = members.tolist()
         if len(members) >= 8:
             part.refit()
+            if part.direction is not None and _angle_deg(part.direction, branch.direction) > 30.0:
+                part.refit(branch.direction)  # a piece bends little: an axis far off the branch's is a misfit
         if len(members) < 8 or part.direction is None:
             out.append(((branch.axis_point + lo * branch.direction).tolist(),
                         (branch.axis_point + hi * branch.direction).tolist(), _radius(branch, params)))
         else:
             out.append((part.p1().tolist(), part.p2().tolist(), _radius(part, params)))
+    if params.merge_mode == "strict":  # radii do not grow away from the root (beyond the k_r tolerance)
+        for k in range(1, len(out)):
+            out[k] = (out[k][0], out[k][1], min(out[k][2], max(params.k_r) * out[k - 1][2]))
     return out
