@@ -60,12 +60,17 @@ def ring_viewpoints(points: np.ndarray, normals: np.ndarray, azimuths_deg, heigh
     return scanners[np.argmax(np.einsum("nsi,ni->ns", sight, normals), axis=1)]
 
 
-def _step_runs(cloud, points, viewpoints, truth, **kwargs) -> list[dict]:
-    """STEP with oracle and PCA normals, re-fitted and Hough-only; one scored row each."""
+def _step_runs(cloud, points, viewpoints, truth, variants=(("oracle", False), ("oracle", True), ("pca", False),
+                                                            ("pca", True)), **kwargs) -> list[dict]:
+    """STEP with oracle and PCA normals, Hough-only and re-fitted circles; one scored row per variant."""
     rows = []
     for normals_kind in ("oracle", "pca"):
+        if all(kind != normals_kind for kind, _ in variants):
+            continue
         normals = cloud.normals if normals_kind == "oracle" else pca_normals(points, 16, viewpoints)
         for refine in (False, True):
+            if (normals_kind, refine) not in variants:
+                continue
             start = time.perf_counter()
             result = step(points, normals, refine=refine, **kwargs)
             elapsed = time.perf_counter() - start
@@ -135,9 +140,8 @@ def exp_tube(quick: bool, seed: int) -> list[dict]:
         viewpoints = ring_viewpoints(cloud.points, cloud.normals, azimuths, height_m=1.5)
         points = add_noise(cloud.points, noise, seed=seed + 1)
         for cap in (None, 10):
-            for row in _step_runs(cloud, points, viewpoints, truth, max_tuboids=cap, **kwargs):
-                if row["normals"] == "pca" or row["circles"] == "hs":
-                    continue
+            for row in _step_runs(cloud, points, viewpoints, truth, variants=(("pca", True),), max_tuboids=cap,
+                                  **kwargs):
                 rows.append({"views": views_kind, "kept": keep, "noise_cm": 100 * noise, "cap": cap or 0, **row})
     return rows
 

@@ -96,7 +96,7 @@ class SnakeParams:
     iterations: int = 20
     final_iterations: int = 100
     sigma_stop: float = 0.6
-    energy_stop: float = -0.2
+    energy_stop: float = -0.1
     max_vertices: int = 20_000
 
     def __post_init__(self):

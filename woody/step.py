@@ -147,7 +147,7 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
          r_min_m: float = 0.02, r_max_m: float = 0.30, oriented: bool | None = None, normal_k: int = 16,
          samples_per_bin: int = 1, min_votes: int = 2, params: SnakeParams | None = None,
          max_tuboids: int | None = None, max_seeds: int | None = 5000, min_vertices: int = 3,
-         min_length_radii: float = 1.0, max_mean_energy: float = -0.4, refine: bool = True, progress: bool = False) -> StepResult:
+         min_length_radii: float = 1.0, max_mean_energy: float = -0.3, refine: bool = True, progress: bool = False) -> StepResult:
     """Extract tuboids from a point cloud with STEP.
 
     Parameters
@@ -237,7 +237,8 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
     clock = time.perf_counter()
     if refine:
         tree = cKDTree(points)
-        tuboids = [refine_tuboid(t, points, tree, radius_step_m) for t in tuboids]
+        for _ in range(2):  # the second pass starts from straighter slabs
+            tuboids = [refine_tuboid(t, points, tree, radius_step_m) for t in tuboids]
     timings["refine_s"] = time.perf_counter() - clock
     stats = {"points": len(points), "oriented": bool(oriented), "grid_shape": list(grid.shape),
              "dense_cells": float(np.prod(np.array(grid.shape, float))), "occupied_cells": len(hs.keys),
@@ -358,9 +359,9 @@ def refine_tuboid(tube: Tuboid, points: np.ndarray, tree: cKDTree, radius_step_m
     normal; points farther than ``max(0.3 r, 2 radius_step_m)`` from the
     snake's circle are ignored. The fit (centre in the circle plane and
     radius, soft-L1 loss with scale ``radius_step_m``) replaces the circle
-    only when at least 6 points support it and the radius moves by less
-    than two radius cells; the centres are then smoothed along the tuboid
-    and the normals re-derived.
+    when at least 6 points support it, the radius stays within that band
+    and the median residual is at most one radius cell; the centres are then
+    smoothed along the tuboid and the normals re-derived.
     """
     centres, radii = tube.centres.copy(), tube.radii.copy()
     spacing = np.linalg.norm(np.diff(tube.centres, axis=0), axis=1)
@@ -380,7 +381,8 @@ def refine_tuboid(tube: Tuboid, points: np.ndarray, tree: cKDTree, radius_step_m
         plane = plane[keep]
         fit = least_squares(lambda q: np.linalg.norm(plane - q[:2], axis=1) - q[2], x0=[0.0, 0.0, r],
                             loss="soft_l1", f_scale=radius_step_m)
-        if fit.success and fit.x[2] > 0 and abs(fit.x[2] - r) < 2 * radius_step_m:
+        residual = np.abs(np.linalg.norm(plane - fit.x[:2], axis=1) - fit.x[2])
+        if fit.success and 0 < fit.x[2] and abs(fit.x[2] - r) < band and np.median(residual) <= radius_step_m:
             centres[i] = c + fit.x[0] * u[i] + fit.x[1] * v[i]
             radii[i] = fit.x[2]
     if len(centres) >= 3:
