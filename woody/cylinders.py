@@ -4,65 +4,90 @@
 reconstruction algorithm based on cylinder fitting from mobile terrestrial
 laser scanned point clouds", author manuscript; it follows Pfeifer et al. 2004.)
 
-Each branch is one cylinder: the axis passes through the centroid of the
-branch's points, ``P1`` and ``P2`` are the extreme projections, the volume is
-``h pi r^2``. Growth starts from the lowest point and repeatedly gives each
-active branch its closest unassigned point (round-robin, one point per
-branch and visit; the paper's Table 1 loop, read as the spec's D-M2). The
-first ``n_s(order)`` points of a branch are taken without test ("free
-seeding"); afterwards a point whose inclusion would make the radius exceed
-``k_r(t_d) r``, or the radius of the branch's *significant* ancestor,
-starts a child branch instead (D-M6: both tests, the text's and the
-pseudocode's). Then three passes: merge sibling branches whose angles to
-the parent differ by less than 4 deg, merge children within 11.5 deg of
-their parent, and move points between parent and child where that lowers
-the total volume.
+Each branch is a cylinder: an axis ``P1 -> P2`` (the extreme projections of
+its points) and a radius. Growth starts from the lowest point and
+repeatedly gives each active branch its closest unassigned point
+(round-robin, one point per branch and visit: the paper's Table 1 loop read
+as the spec's D-M2); a point goes to a branch only if no other branch is
+closer (ties to the older branch). The first points of a branch are taken
+without test ("free seeding", ``n_s`` by order, Table 7); afterwards a point
+that lies farther from the refitted axis than ``k_r(t_d)`` times the
+branch's radius, or than the radius of the branch's *significant* ancestor,
+starts a child branch (D-M6: both the text's and the pseudocode's test).
+Then: merge sibling branches whose angles to the parent differ by less than
+4 deg, merge children within 11.5 deg of their parent, and move points
+between parent and child where that lowers the total volume.
 
-Decisions where the paper is silent or contradicts itself (spec Part D):
+Two modes. ``FollowParams()`` (the default, "spec") makes the choices below
+so that the method works on dense and on fully sampled stems;
+``woody.experiments.PAPER_MODE`` reads the paper literally (covariance
+axis through the centroid, radius = largest distance, running-maximum
+test, merges as printed, one cylinder per branch).
 
-- axis (D-M3): of the three covariance eigenvectors, the one minimising the
-  largest orthogonal distance of the points (the paper's own criterion; the
-  "lowest eigenvalue" of the text is right for short ring-shaped clusters,
-  the largest for elongated ones). Between exact refits the axis follows the
-  eigenvector closest to the previous axis. ``direction="iterative"`` uses
-  the polar-azimuth minimax search instead (Rabbani & van den Heuvel 2005);
-- radius (D-M4) and the inclusion test: with the paper's reading (the
-  radius is the largest orthogonal distance, a point is "not aligned" when
-  including it makes that radius exceed ``k_r r``), a smooth surface such as
-  a fork never shows a jump of 5-10 % between consecutive closest points, so
-  the radius creeps and one cylinder swallows the whole fork (observed on
-  the Y-shaped test tree). By default (``inclusion="envelope"``) the test
-  therefore compares the new point's orthogonal distance with ``k_r`` times
-  the branch's envelope radius, the mean plus two standard deviations of
-  its points' distances, which no single point can drag along; the paper's
-  running maximum is ``inclusion="max"``. The reported radius (and volume)
-  is ``radius="mean"`` (mean orthogonal distance, unbiased on a fully
-  sampled cylinder) or ``"max"`` (paper). The volume-balancing pass uses
-  the largest distance, as the paper;
-- distance of a point to a branch (D-M5): ``max(0, d(P, P1P2) - r)``;
-  candidate points are the k nearest neighbours of the branch's points; the
-  default ``Precision`` is 2.5 x the nominal spacing (estimated from the
-  median distance to the 6th neighbour);
-- ``t_d`` is normalised by ``|P2 - P1|`` (D-M7); ``ord_min1 = 2``,
-  ``ord_min2 = 4`` and ``n_min = 2 n_s(order)`` with AND semantics (D-M8);
-- ``order <= threshold`` selects ``n_s`` (D-M9); axes point away from the
-  root (D-M10);
-- sibling merging (D-M11): ``merge_mode="strict"`` (default) also requires
-  the two children to be within 4 deg of each other, since merging mirror
-  images contradicts the pass's stated purpose; ``"faithful"`` compares only
-  their angles to the parent, as printed;
-- volume balancing (D-M12): axes are held fixed within a pass (a refit per
-  candidate point would cost O(n) each); in "strict" mode a move must also
-  leave the child thinner than its parent, in "faithful" mode the printed
-  ``Tmp1.radius < Tmp2.radius`` test applies; at most
-  ``max_balance_passes`` passes;
+Decisions where the paper is silent, contradicts itself or fails on our
+test trees (spec Part D; each a documented departure in the default mode):
+
+- axis direction (D-M3). Paper: a covariance eigenvector through the
+  centroid, the one minimising the largest orthogonal distance
+  (``direction="covariance"``; ``"iterative"`` is the polar-azimuth minimax
+  search after Rabbani & van den Heuvel 2005). That fails on the first
+  points of a wide stem, a patch or an arc along the rim, so by default
+  (``"normals"``) the axis is the direction least aligned with the PCA
+  normals when they clearly lie in one plane, else the long axis of an
+  elongated cluster, else the normals' direction when merely decisive,
+  else the paper's minimax eigenvector;
+- axis position: by default (``axis="circle"``) the centre of a robust
+  circle fitted to the points seen along the axis, once they curve around
+  it (a one-sided scan sees half a stem, whose centroid is 0.64 r off the
+  axis); ``"centroid"`` is the paper's;
+- radius (D-M4) and the inclusion test: with the paper's reading (radius =
+  largest orthogonal distance, a point "not aligned" when the radius would
+  exceed ``k_r r``) a smooth fork never shows a 5-10 % jump between
+  consecutive closest points, the radius creeps and one cylinder swallows
+  the fork (seen on the Y-shaped test tree). By default
+  (``inclusion="envelope"``) the test compares the new point's distance
+  with ``k_r`` times the envelope radius of the branch's last exact fit,
+  the median distance plus three robust standard deviations, which no
+  minority of points can drag along; ``"max"`` is the paper's. The reported
+  radius is ``radius="median"`` (default), ``"mean"`` or ``"max"`` (paper);
+  the volume-balancing pass uses the largest distance, as the paper;
+- free seeding ends after ``n_s`` points or, earlier, once the branch has
+  6 points or more and an axis at least two diameters long (``n_s`` is
+  meant to grow with density, and Table 7 was tuned for sparse mobile
+  scans: at TLS densities 40-80 free points swallow whole forks);
+- distance of a point to a branch (D-M5): ``max(0, d(P, P1P2) - r)`` with
+  the largest distance as ``r``; candidates are the k nearest neighbours of
+  the branch's points; the default ``Precision`` is 2.5 x the nominal
+  spacing (from the median distance to the 6th neighbour);
+- ``t_d`` normalised by ``|P2 - P1|`` (D-M7); ``ord_min1 = 2``,
+  ``ord_min2 = 4``, ``n_min = 2 n_s(order)`` with AND semantics (D-M8);
+  ``order <= threshold`` selects ``n_s`` (D-M9); axes point away from the
+  branch base (D-M10);
+- sibling merging (D-M11): ``mode="strict"`` (default) also requires
+  the two children to be within 4 deg of each other and their union to fit
+  one cylinder (95th-percentile distance within ``max(k_r)`` of the wider
+  one's; the same holds for child-into-parent merges); ``"faithful"``
+  compares only their angles to the parent, as printed;
+- volume balancing (D-M12): axes fixed within a pass (a refit per
+  candidate point would cost O(n)); strict mode keeps the child thinner
+  than its parent, faithful mode applies the printed
+  ``Tmp1.radius < Tmp2.radius``; at most ``max_balance_passes`` passes;
+- clean-up (strict mode, additions): branches with fewer than
+  ``min_branch_points`` points are given back to their parents (a stalled
+  root to its largest child); a branch whose axis midpoint lies inside an
+  older branch's cylinder is merged into it (a duplicate grown alongside);
+- output: each branch is cut into pieces of ``section_radii`` radii, each
+  refitted on its own points (0 gives the paper's one cylinder per
+  branch); in strict mode the paper's radius hierarchy is applied to the
+  output: no piece is wider than ``max(k_r)`` times the piece before it or
+  than its significant ancestor where it starts;
 - orders are recomputed from the trunk after the merges (D-M14).
 
 Cost: a KD-tree and a k-nearest-neighbour graph (O(N log N)), then one heap
 push per neighbour of each included point and amortised O(1) refits
-(running sums of the points and their outer products; the exact O(n)
-radius and extent are recomputed each time a branch grows by 10 %), i.e.
-O(N log N) overall.
+(running sums of the points, their outer products and their normals'
+outer products; the exact O(n) fit is redone each time a branch grows by
+10 %), i.e. O(N log N) overall.
 """
 
 from __future__ import annotations
@@ -75,11 +100,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from woody.cloud import check_points
-from woody.normals import pca_normals
-from woody.errors import WoodyError
 from scenes.primitives import orthonormal_frame
+from woody.cloud import check_points
+from woody.errors import WoodyError
 from woody.geometry import cylinders_mesh, cylinders_volume, segment_distance
+from woody.normals import pca_normals
 
 #: Table 7 of Méndez et al., apple tree: (order threshold, n_s) pairs, "order <= threshold".
 APPLE_FREE_SEED = ((1, 80), (3, 60), (7, 40), (10, 30), (9999, 20))
@@ -114,25 +139,27 @@ class FollowParams:
         Size of the k-nearest-neighbour graph that supplies candidate points.
     sibling_deg, parent_deg : float
         Merge angles (4 and 11.5 deg in the paper).
-    direction : {"covariance", "iterative"}
-        Axis estimator.
+    direction : {"normals", "covariance", "iterative"}
+        Axis estimator (see module docstring).
     axis : {"circle", "centroid"}
         Where the axis passes (see module docstring).
     inclusion : {"envelope", "max"}
         Radius of the inclusion test (see module docstring).
     radius : {"median", "mean", "max"}
         Reported radius (see module docstring).
-    merge_mode : {"strict", "faithful"}
-        Reading of the merge and balancing passes (D-M11, D-M12).
+    mode : {"strict", "faithful"}
+        "strict": the spec's readings of the merge and balancing passes
+        (D-M11, D-M12) with the early end of free seeding, the clean-ups and
+        the output radius caps of the module docstring; "faithful": as
+        printed in the paper.
     section_radii : float
         Length of the output cylinders in branch radii: each branch is cut
         into pieces refitted on their own points (an addition for taper and
         curvature; 0 gives one cylinder per branch, as the paper).
     min_branch_points : int
-        Branches with fewer points are dissolved into their parents before
+        Branches with fewer points are given back to their parents before
         the merge passes (an addition: the points that fail the inclusion
-        test near a fork start one-point branches that never grow; 1
-        disables it).
+        test near a fork start branches that never grow; 1 disables it).
     max_balance_passes : int
         Cap on the volume-balancing passes.
     """
@@ -151,7 +178,7 @@ class FollowParams:
     axis: str = "circle"
     inclusion: str = "envelope"
     radius: str = "median"
-    merge_mode: str = "strict"
+    mode: str = "strict"
     section_radii: float = 4.0
     min_branch_points: int = 10
     max_balance_passes: int = 50
@@ -177,7 +204,7 @@ class FollowParams:
         for name, allowed in (("direction", ("normals", "covariance", "iterative")), ("axis", ("circle", "centroid")),
                               ("inclusion", ("envelope", "max")),
                               ("radius", ("median", "mean", "max")),
-                              ("merge_mode", ("strict", "faithful"))):
+                              ("mode", ("strict", "faithful"))):
             if getattr(self, name) not in allowed:
                 problems.append(f"{name}={getattr(self, name)!r} (allowed: {', '.join(allowed)})")
         if self.section_radii < 0:
@@ -286,7 +313,7 @@ class _Branch:
 
     def __init__(self, bid: int, index: int, parent, order: int, cloud: tuple, params: FollowParams):
         self.id, self.parent, self.order, self.params = bid, parent, order, params
-        self.coords, self.normals, self.spacing = cloud
+        self.coords, self.normals = cloud
         xyz = self.coords[index]
         self.children: list[_Branch] = []
         self.points = [index]
@@ -376,10 +403,12 @@ class _Branch:
         return values[1] >= min_ratio * values[2]
 
     def seeded(self) -> bool:
-        """Whether free seeding is over: ``n_s`` points, or an axis at least two diameters long (10 points or more)."""
+        """Whether free seeding is over: ``n_s`` points or (strict mode) 6 points or more on an axis at least
+        two diameters long."""
         if self.n >= self.params.n_s(self.order):
             return True
-        return self.n >= 6 and self.direction is not None and self.t1 - self.t0 >= 4.0 * self.reference_radius()
+        return (self.params.mode == "strict" and self.n >= 6 and self.direction is not None
+                and self.t1 - self.t0 >= 4.0 * self.reference_radius())
 
     def add(self, index: int) -> None:
         """Include a point and update the cylinder (exactly when the branch has grown by 10 %)."""
@@ -625,14 +654,15 @@ def follow_cylinders(points, params: FollowParams | None = None, *, progress: bo
 
     clock = time.perf_counter()
     normals = pca_normals(points, min(10, len(points))) if params.direction == "normals" else None
-    branches, owner = _grow((points, normals, spacing), graph, params, precision, progress)
+    branches, owner = _grow((points, normals), graph, params, precision, progress)
     timings["growth_s"] = time.perf_counter() - clock
     grown = len(branches)
     clock = time.perf_counter()
     branches = _dissolve_small(branches, params)
     branches = _merge_siblings(branches, params)
     branches = _merge_into_parents(branches, params)
-    branches = _merge_contained(branches)
+    if params.mode == "strict":
+        branches = _merge_contained(branches)
     passes = _balance_volume(branches, points, params)
     timings["merge_s"] = time.perf_counter() - clock
 
@@ -647,7 +677,7 @@ def _grow(cloud: tuple, graph: np.ndarray, params: FollowParams, precision: floa
           progress: bool) -> tuple[list[_Branch], np.ndarray]:
     """The round-robin growth loop (Table 1), with the closest-point search of Table 2.
 
-    ``cloud`` is ``(points, normals or None, nominal spacing)``.
+    ``cloud`` is ``(points, normals or None)``.
     """
     from tqdm import tqdm
 
@@ -699,14 +729,10 @@ def _grow(cloud: tuple, graph: np.ndarray, params: FollowParams, precision: floa
         return -1
 
     def significant(branch):
-        """The significant ancestor rule (Table 2, bottom)."""
-        while branch is not None:
-            if branch.order < params.ord_min1:
-                return branch
-            if branch.order < params.ord_min2 and branch.n > params.n_min_factor * params.n_s(branch.order):
-                return branch
+        """The significant ancestor (Table 2, bottom), starting at ``branch``."""
+        while branch is not None and not _is_significant(branch.order, branch.n, params):
             branch = branch.parent
-        return None
+        return branch
 
     root = int(np.argmin(points[:, 2]))
     new_branch(root, None, 1)
@@ -774,7 +800,7 @@ def _one_cylinder(a: _Branch, b: _Branch, params: FollowParams) -> bool:
     percentile, not the robust envelope: a thin twig is a minority of the
     union's points and would pass a median-based test.)
     """
-    if params.merge_mode == "faithful":
+    if params.mode == "faithful":
         return True
     union = copy.copy(a)
     union.points = a.points + b.points
@@ -814,7 +840,7 @@ def _merge_siblings(branches: list[_Branch], params: FollowParams) -> list[_Bran
             for a, b in pairs:
                 if abs(angles[a] - angles[b]) >= params.sibling_deg:
                     continue
-                if params.merge_mode == "strict" and (
+                if params.mode == "strict" and (
                         _angle_deg(kids[a].direction, kids[b].direction) >= params.sibling_deg
                         or not _one_cylinder(kids[a], kids[b], params)):
                     continue
@@ -915,7 +941,7 @@ def _balance_pair(source: _Branch, target: _Branch, child: _Branch, parent: _Bra
             r_tgt_new = max(r_tgt, r_k)
             v_tgt_new = np.pi * r_tgt_new ** 2 * (max(t_hi, t_k) - min(t_lo, t_k))
             change = (v_src_new - volume_src) + (v_tgt_new - volume_tgt)
-            if params.merge_mode == "strict":
+            if params.mode == "strict":
                 r_child, r_parent = (r_src_new, r_tgt_new) if source is child else (r_tgt_new, r_src_new)
                 allowed = r_child < r_parent
             else:
@@ -957,20 +983,21 @@ def _records(branches: list[_Branch], params: FollowParams, count: int) -> tuple
                         "radius_m": _radius(b, params), "radius_max_m": float(b.r_max), "n_points": len(b.points),
                         "sections": _sections(b, params)})
         anchor = _significant_record(records, records[-1]["parent"], params)
-        if params.merge_mode == "strict" and anchor is not None:
+        if params.mode == "strict" and anchor is not None:
             _cap_radii(records[-1], anchor)
     return records, labels
 
 
+def _is_significant(order: int, count: int, params: FollowParams) -> bool:
+    """Méndez's significance: order below ``ord_min1``, or below ``ord_min2`` with more than ``n_min`` points."""
+    return order < params.ord_min1 or (order < params.ord_min2 and count > params.n_min_factor * params.n_s(order))
+
+
 def _significant_record(records: list[dict], row: int, params: FollowParams) -> dict | None:
-    """The significant ancestor (Table 2, bottom) among final branch records, starting at ``row``."""
-    while row >= 0:
-        record = records[row]
-        order, count = record["order"], record["n_points"]
-        if order < params.ord_min1 or (order < params.ord_min2 and count > params.n_min_factor * params.n_s(order)):
-            return record
-        row = record["parent"]
-    return None
+    """The significant ancestor among final branch records, starting at ``row``."""
+    while row >= 0 and not _is_significant(records[row]["order"], records[row]["n_points"], params):
+        row = records[row]["parent"]
+    return records[row] if row >= 0 else None
 
 
 def _cap_radii(record: dict, parent: dict) -> None:
@@ -1024,7 +1051,7 @@ def _sections(branch: _Branch, params: FollowParams) -> list[tuple]:
                         (branch.axis_point + hi * branch.direction).tolist(), _radius(branch, params)))
         else:
             out.append((part.p1().tolist(), part.p2().tolist(), _radius(part, params)))
-    if params.merge_mode == "strict":  # radii do not grow away from the root (beyond the k_r tolerance)
+    if params.mode == "strict":  # radii do not grow away from the root (beyond the k_r tolerance)
         for k in range(1, len(out)):
             out[k] = (out[k][0], out[k][1], min(out[k][2], max(params.k_r) * out[k - 1][2]))
     return out

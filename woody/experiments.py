@@ -200,7 +200,7 @@ def exp_trees(quick: bool, seed: int) -> list[dict]:
 
 #: Cylinder following read literally from the paper (see woody.cylinders for each choice).
 PAPER_MODE = {"direction": "covariance", "axis": "centroid", "inclusion": "max", "radius": "max",
-              "merge_mode": "faithful", "section_radii": 0.0, "min_branch_points": 1}
+              "mode": "faithful", "section_radii": 0.0, "min_branch_points": 1}
 
 
 def exp_directions(quick: bool, seed: int) -> list[dict]:
