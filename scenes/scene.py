@@ -14,11 +14,13 @@ Objects that come from the same scene-file entry share a ``group`` name.
 from __future__ import annotations
 
 import dataclasses
+from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from scenes.errors import SceneError
+from scenes.primitives import cross
 
 
 @dataclass(frozen=True)
@@ -76,6 +78,9 @@ class SceneObject:
     group : str, optional
         Name of the scene-file entry the object was expanded from (defaults to
         ``name``).
+    face_labels : ndarray, shape (F,), optional
+        Integer label of every triangle (e.g. blade / petiole of a leaf); the
+        label names are listed in ``truth["labels"]``.
     """
 
     name: str
@@ -85,6 +90,7 @@ class SceneObject:
     material: Material
     truth: dict = field(default_factory=dict)
     group: str = ""
+    face_labels: np.ndarray | None = None
 
     def __post_init__(self):
         self.vertices = np.asarray(self.vertices, dtype=np.float64)
@@ -100,6 +106,11 @@ class SceneObject:
             raise SceneError(f"{where}: vertices contain NaN or infinite coordinates")
         if self.faces.min() < 0 or self.faces.max() >= len(self.vertices):
             raise SceneError(f"{where}: face indices must lie in [0, {len(self.vertices) - 1}]")
+        if self.face_labels is not None:
+            self.face_labels = np.asarray(self.face_labels, dtype=np.int32)
+            if self.face_labels.shape != (len(self.faces),):
+                raise SceneError(f"{where}: face_labels must have one entry per face ({len(self.faces)}), "
+                                 f"got shape {self.face_labels.shape}")
         if not np.any(self.face_areas() > 0):
             raise SceneError(f"{where}: the mesh is degenerate (all triangles have zero area)")
 
@@ -115,7 +126,7 @@ class SceneObject:
 
     def _face_cross(self) -> np.ndarray:
         v = self.vertices[self.faces]
-        return np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+        return cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
 
 
 @dataclass
@@ -132,15 +143,18 @@ class Scene:
         The simulator interprets it; the scene package does not.
     name : str, optional
         Scene name.
+    spec : dict, optional
+        The description the scene was built from (see
+        :mod:`scenes.scenefile`); ``None`` for scenes assembled from meshes.
     """
 
     objects: list[SceneObject]
     scanner: dict = field(default_factory=dict)
     name: str = ""
+    spec: dict | None = None
 
     def __post_init__(self):
-        names = [o.name for o in self.objects]
-        duplicated = sorted({n for n in names if names.count(n) > 1})
+        duplicated = sorted(n for n, k in Counter(o.name for o in self.objects).items() if k > 1)
         if duplicated:
             raise SceneError(f"scene {self.name!r}: object names must be unique, repeated: {duplicated}")
 
@@ -187,4 +201,6 @@ class Scene:
 
     def with_scanner(self, **changes) -> "Scene":
         """A copy of the scene whose scanner section is updated with ``changes``."""
-        return dataclasses.replace(self, scanner={**self.scanner, **changes})
+        scanner = {**self.scanner, **changes}
+        spec = None if self.spec is None else {**self.spec, "scanner": scanner}
+        return dataclasses.replace(self, scanner=scanner, spec=spec)

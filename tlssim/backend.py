@@ -8,6 +8,13 @@ sub-rays of a chunk of pulses as one Dr.Jit wavefront: ray generation,
 radiometry and the per-pulse phasor sums stay on the device; only the
 results are converted to numpy, once per chunk.
 
+Options of the scanner model that act per sub-ray live here too: the scan
+smear (each sub-ray is traced at a point of the integration time, so its
+zenith angle is shifted along the fast axis), the optional BSDF (a per-object
+table of the effective reflectance against incidence, :mod:`tlssim.bsdf`)
+and the optional leaf transmission (a second ``ray_intersect_preliminary``
+from the hit points of the sub-rays that met a transmitting material).
+
 The tracing frame is the world frame translated so that the scanner sits at
 the origin, which keeps float32 vertex coordinates precise.
 """
@@ -20,12 +27,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from tlssim.beam import BeamSamples
+from tlssim.bsdf import TABLE_ANGLES
 from tlssim.errors import ScanError
 from tlssim.pattern import ScannerPose
 from tlssim.radiometry import subray_power
 from tlssim.scanner import SPEED_OF_LIGHT_M_S, ScannerModel
 
 BACKENDS = ("auto", "llvm", "cuda")
+
+#: Fractional part of the golden ratio: spreads the sub-rays of a pulse over its integration time.
+_GOLDEN = 0.5 * (math.sqrt(5.0) - 1.0)
+
+#: Distance a transmitted sub-ray is moved past the surface it crossed before it is traced on, m.
+TRANSMISSION_OFFSET_M = 1e-4
 
 
 def select_backend(name: str = "auto") -> str:
@@ -79,7 +93,8 @@ class SubrayHits:
         Real and imaginary parts of the summed phasor, one pair per
         modulation frequency (float64).
     total_power : ndarray
-        Sum of the sub-rays' received power.
+        Sum of the sub-rays' received power (including power returned
+        through transmitting materials).
     axis : ndarray, shape (n, 3)
         Beam direction (world frame).
     central_t : ndarray
@@ -93,7 +108,7 @@ class SubrayHits:
         Triangle hit by that sub-ray (0 when none).
     t, object_id, power, prim : ndarray, shape (n, S)
         Per-sub-ray hit distance (m, ``inf`` on a miss), object id (-1 on a
-        miss), received power and triangle index.
+        miss), received power (first surface only) and triangle index.
     """
 
     phasors: list[tuple[np.ndarray, np.ndarray]]
@@ -126,9 +141,16 @@ class TraceScene:
         Lambertian reflectance of every object.
     origin : ndarray, shape (3,)
         World position of the scanner; it becomes the tracing origin.
+    transmittance : ndarray, shape (n_objects,), optional
+        Transmittance of every object (used when the model enables leaf
+        transmission).
+    reflectance_table : ndarray, shape (n_objects, TABLE_ANGLES), optional
+        Effective reflectance against incidence (:func:`tlssim.bsdf.reflectance_table`);
+        replaces the Lambertian ``reflectance`` when given.
     """
 
-    def __init__(self, vertices, faces, face_object, reflectance, origin):
+    def __init__(self, vertices, faces, face_object, reflectance, origin, transmittance=None,
+                 reflectance_table=None):
         import drjit as dr
         import mitsuba as mi
 
@@ -149,10 +171,15 @@ class TraceScene:
         self._face_normal = mi.Float(self.face_normals.astype(np.float32).ravel())
         self._face_object = mi.Int32(np.asarray(face_object, dtype=np.int32))
         self._reflectance = mi.Float(np.asarray(reflectance, dtype=np.float32))
-        dr.eval(self._face_normal, self._face_object, self._reflectance)
+        self._table = None if reflectance_table is None else mi.Float(
+            np.asarray(reflectance_table, dtype=np.float32).ravel())
+        tau = np.zeros(len(reflectance)) if transmittance is None else np.asarray(transmittance, dtype=np.float32)
+        self._transmittance = mi.Float(tau) if np.any(tau > 0) else None
+        dr.eval(self._face_normal, self._face_object, self._reflectance, self._table, self._transmittance)
 
     def subrays(self, model: ScannerModel, beam: BeamSamples, pose: ScannerPose,
-                theta: np.ndarray, psi: np.ndarray, spin: np.ndarray):
+                theta: np.ndarray, psi: np.ndarray, spin: np.ndarray, smear_rad: float = 0.0,
+                time_shift: np.ndarray | None = None):
         """Build the Dr.Jit sub-rays of a set of pulses (origins in the tracing frame).
 
         Parameters
@@ -163,6 +190,15 @@ class TraceScene:
             Beam angles of the pulses, radians.
         spin : ndarray, shape (n,)
             Rotation of the sub-ray layout about the beam axis, per pulse, radians.
+        smear_rad : float
+            Zenith angle swept by the beam during one integration time, rad.
+            Sub-ray ``k >= 1`` of a pulse is traced at the instant
+            ``tau_k = frac(time_shift + k·0.618...)`` of the integration and
+            its zenith is shifted by ``(tau_k - 1/2)·smear_rad``; the central
+            sub-ray stays on the nominal beam (it defines the truth range).
+        time_shift : ndarray, shape (n,), optional
+            Per-pulse random offset in [0, 1) of those instants (required
+            when ``smear_rad > 0``).
 
         Returns
         -------
@@ -180,6 +216,9 @@ class TraceScene:
         k = index - pulse * count
         th = dr.gather(mi.Float, mi.Float(np.asarray(theta, np.float32)), pulse)
         ps = dr.gather(mi.Float, mi.Float(np.asarray(psi, np.float32)), pulse)
+        if smear_rad > 0:
+            instant = dr.gather(mi.Float, mi.Float(np.asarray(time_shift, np.float32)), pulse) + mi.Float(k) * _GOLDEN
+            ps += dr.select(k == 0, 0.0, (instant - dr.floor(instant) - 0.5) * smear_rad)
         sp = dr.gather(mi.Float, mi.Float(np.asarray(spin, np.float32)), pulse)
         u0 = dr.gather(mi.Float, mi.Float(beam.u.astype(np.float32)), k)
         v0 = dr.gather(mi.Float, mi.Float(beam.v.astype(np.float32)), k)
@@ -198,7 +237,8 @@ class TraceScene:
         return mi.Ray3f(rotation @ origin, rotation @ direction), weight
 
     def trace(self, model: ScannerModel, beam: BeamSamples, pose: ScannerPose,
-              theta: np.ndarray, psi: np.ndarray, spin: np.ndarray) -> SubrayHits:
+              theta: np.ndarray, psi: np.ndarray, spin: np.ndarray, smear_rad: float = 0.0,
+              time_shift: np.ndarray | None = None) -> SubrayHits:
         """Trace the sub-rays of a set of pulses and sum their phasors.
 
         Parameters are those of :meth:`subrays`.
@@ -210,21 +250,16 @@ class TraceScene:
         import drjit as dr
         import mitsuba as mi
 
-        ray, weight = self.subrays(model, beam, pose, theta, psi, spin)
+        ray, weight = self.subrays(model, beam, pose, theta, psi, spin, smear_rad, time_shift)
         dr.eval(ray, weight)
-        # Evaluate the intersection once: every later kernel reads these two
-        # arrays (touching any other field of `hit_info` would trace again).
-        hit_info = self.mi_scene.ray_intersect_preliminary(ray, False)
-        t, prim = hit_info.t, hit_info.prim_index
-        dr.eval(t, prim)
+        t, prim = self._first_hits(ray)
         hit = t <= model.max_range_m  # t is +inf on a miss
-        obj = dr.select(hit, dr.gather(mi.Int32, self._face_object, prim, hit), -1)
-        normal = dr.gather(mi.Vector3f, self._face_normal, prim, hit)
-        cos_incidence = dr.abs(dr.dot(normal, ray.d))
-        rho = dr.gather(mi.Float, self._reflectance, obj, hit)
         distance = dr.select(hit, t, 1.0)
-        power = dr.select(hit, subray_power(model, weight, rho, cos_incidence, distance), 0.0)
-        dr.eval(obj, power)
+        obj, power = self._surface_returns(model, ray, weight, prim, hit, distance)
+        returns = [(power, distance)]
+        if model.leaf_transmission and self._transmittance is not None:
+            returns.append(self._transmitted_returns(model, ray, weight, t, obj, hit))
+        dr.eval(obj, power, *(value for pair in returns[1:] for value in pair))
 
         count = beam.count
         returned = hit & (power > 0)
@@ -239,12 +274,12 @@ class TraceScene:
         first_prim = dr.gather(mi.UInt32, prim, pulse_start + mi.UInt32(dr.select(has, first, 0)), has)
         central_t = dr.gather(mi.Float, t, pulse_start)
         axis = dr.gather(mi.Vector3f, ray.d, pulse_start)
-        sums = [dr.block_sum(mi.Float64(power), count, mode="symbolic")]
-        power64, distance64 = mi.Float64(power), mi.Float64(distance)
+        returns64 = [(mi.Float64(p), mi.Float64(d)) for p, d in returns]
+        sums = [dr.block_sum(sum(p for p, _ in returns64), count, mode="symbolic")]
         for freq in model.mod_freqs_hz:
-            phase = distance64 * (4.0 * math.pi * freq / SPEED_OF_LIGHT_M_S)
-            sums += [dr.block_sum(power64 * dr.cos(phase), count, mode="symbolic"),
-                     dr.block_sum(power64 * dr.sin(phase), count, mode="symbolic")]
+            phases = [(p, d * (4.0 * math.pi * freq / SPEED_OF_LIGHT_M_S)) for p, d in returns64]
+            sums += [dr.block_sum(sum(p * dr.cos(phase) for p, phase in phases), count, mode="symbolic"),
+                     dr.block_sum(sum(p * dr.sin(phase) for p, phase in phases), count, mode="symbolic")]
         dr.eval(first, low, high, first_prim, central_t, axis, *sums)
 
         shape = (len(theta), count)
@@ -263,3 +298,66 @@ class TraceScene:
             prim=np.asarray(prim).reshape(shape),
             _device_arrays=(t, obj, power, prim),
         )
+
+    def _first_hits(self, ray, active=True):
+        """Distance and triangle of the first hit of every ray, evaluated once.
+
+        Every later kernel reads these two arrays: touching any other field
+        of the intersection record would trace the rays again.
+        """
+        import drjit as dr
+
+        hit_info = self.mi_scene.ray_intersect_preliminary(ray, False, active)
+        t, prim = hit_info.t, hit_info.prim_index
+        dr.eval(t, prim)
+        return t, prim
+
+    def _surface_returns(self, model, ray, weight, prim, hit, distance):
+        """Object id and received power of sub-rays that hit triangles ``prim`` after a path of ``distance``."""
+        import drjit as dr
+        import mitsuba as mi
+
+        obj = dr.select(hit, dr.gather(mi.Int32, self._face_object, prim, hit), -1)
+        normal = dr.gather(mi.Vector3f, self._face_normal, prim, hit)
+        cos_incidence = dr.abs(dr.dot(normal, ray.d))
+        rho = self._effective_reflectance(obj, cos_incidence, hit)
+        return obj, dr.select(hit, subray_power(model, weight, rho, cos_incidence, distance), 0.0)
+
+    def _effective_reflectance(self, obj, cos_incidence, active):
+        """Lambertian reflectance of the hit objects, or their BSDF table interpolated at the incidence."""
+        import drjit as dr
+        import mitsuba as mi
+
+        if self._table is None:
+            return dr.gather(mi.Float, self._reflectance, obj, active)
+        # Clamps by select: dr.minimum / dr.maximum / dr.clip on floats emit the
+        # fminimum / fmaximum intrinsics that LLVM 15 cannot compile on x86.
+        cos_incidence = dr.select(cos_incidence < 1.0, cos_incidence, 1.0)
+        position = dr.acos(cos_incidence) * ((TABLE_ANGLES - 1) / (0.5 * math.pi))
+        node = mi.UInt32(position)
+        node = dr.select(node < TABLE_ANGLES - 2, node, TABLE_ANGLES - 2)
+        frac = position - mi.Float(node)
+        index = mi.UInt32(dr.select(active, obj, 0)) * TABLE_ANGLES + node
+        low = dr.gather(mi.Float, self._table, index, active)
+        return low + frac * (dr.gather(mi.Float, self._table, index + 1, active) - low)
+
+    def _transmitted_returns(self, model, ray, weight, t, obj, hit):
+        """Power and path length of the sub-ray shares that cross a transmitting surface and come back.
+
+        The share ``tau`` of the sub-ray continues undeviated from the hit
+        point, is reflected by the next surface, and crosses the first one
+        again on its way back (``tau²`` in all). One crossing is modelled.
+        """
+        import drjit as dr
+        import mitsuba as mi
+
+        tau = dr.gather(mi.Float, self._transmittance, obj, hit)
+        through = hit & (tau > 0)
+        start = dr.select(through, t + TRANSMISSION_OFFSET_M, 0.0)
+        behind = mi.Ray3f(ray.o + ray.d * start, ray.d)
+        t2, prim2 = self._first_hits(behind, through)
+        path = start + t2
+        hit2 = through & (path <= model.max_range_m)
+        distance = dr.select(hit2, path, 1.0)
+        _, power = self._surface_returns(model, behind, weight * tau * tau, prim2, hit2, distance)
+        return power, distance

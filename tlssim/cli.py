@@ -16,7 +16,12 @@ from tlssim.clitools import run_main
 COMMAND_MODULES = (
     "tlssim.commands.scan",
     "tlssim.commands.scenes",
+    "tlssim.commands.presets",
     "tlssim.commands.perf",
+    "tlssim.commands.truth",
+    "tlssim.commands.preview",
+    "tlssim.commands.formats",
+    "tlssim.commands.calibrate",
 )
 
 

@@ -1,10 +1,24 @@
 """Detector chain: from the summed return of a pulse to range and intensity.
 
 This is the pluggable stage between the physics (phasor sums) and the digital
-output. :func:`log_amplifier_dn` is the logarithmic amplifier of the FARO
-LS880 class (thesis ch.6 eq. 1.2): ``I = I_ref + k·ln(P / P_ref)``, clipped to
-``[0, intensity_max_dn]`` and quantised to integers, where ``P_ref`` is the
-power returned by the model's reference target.
+output, and it runs per pulse in numpy on the whole (psi, theta) grid:
+
+1. **Signal.** The amplifier sees the amplitude of the summed phasor at the
+   lowest modulation frequency (``intensity_signal = "phasor"``: a mixed
+   footprint keeps the log of its *total* amplitude) or the summed optical
+   power (``"power"``).
+2. **Amplitude noise and dropouts.** Gaussian noise on that signal
+   (:func:`tlssim.noise.amplitude_noise_std`); a pulse whose noisy signal
+   lies below the detection threshold (``min_signal_dn`` on the amplifier's
+   scale) has no return, so dark, far and grazing targets lose points first.
+3. **Log amplifier** (thesis ch.6 eq. 1.2): ``I = I_ref + k·ln(P / P_ref)``
+   clipped to ``[0, intensity_max_dn]`` and rounded, where ``P_ref`` is the
+   power of the model's reference target seen through the near-range
+   attenuator.
+4. **Range noise** (:func:`tlssim.noise.range_noise_std`, from the
+   noise-free phasor amplitude), the range limits, and the optional on-board
+   range filter: the mean of ``range_filter_length`` consecutive returns
+   along the zenith axis (the instrument's "filtered" precision).
 """
 
 from __future__ import annotations
@@ -13,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tlssim.noise import amplitude_noise_std, range_noise_std
 from tlssim.radiometry import reference_power
 from tlssim.scanner import ScannerModel
 
@@ -28,10 +43,13 @@ class PulseReturns:
     amplitude : ndarray
         Magnitude of the summed phasor at the lowest frequency (received
         power, in the units of :func:`tlssim.radiometry.reference_power`).
+    power : ndarray
+        Summed received power of the sub-rays (same units).
     """
 
     distance_m: np.ndarray
     amplitude: np.ndarray
+    power: np.ndarray
 
 
 def log_amplifier_dn(model: ScannerModel, power: np.ndarray) -> np.ndarray:
@@ -43,28 +61,70 @@ def log_amplifier_dn(model: ScannerModel, power: np.ndarray) -> np.ndarray:
     return np.where(power > 0, dn, np.nan).astype(np.float32)
 
 
+def detection_threshold(model: ScannerModel) -> float:
+    """Smallest detectable signal: the power the amplifier maps to ``min_signal_dn``."""
+    return reference_power(model) * float(np.exp((model.min_signal_dn - model.intensity_ref_dn) / model.log_gain_dn))
+
+
 def detect(model: ScannerModel, returns: PulseReturns, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Turn summed returns into measured range and intensity.
 
     Parameters
     ----------
     model : ScannerModel
-        Scanner model (range limits, amplifier).
+        Scanner model (amplifier, noise, threshold, range limits, filter).
     returns : PulseReturns
-        Summed returns of the pulses.
+        Summed returns of the pulses on the (psi, theta) grid (rows = psi).
     rng : numpy.random.Generator
-        Random stream for detector noise (unused by this noise-free chain).
+        Random stream of the detector noise; two standard-normal draws per
+        pulse (amplitude, then range), so the same stream gives the same bytes.
 
     Returns
     -------
     range_m : ndarray, float64
-        Measured distance, NaN where there is no return (no power, or a
-        distance outside ``[min_range_m, max_range_m]``).
+        Measured distance, NaN where there is no return (signal below the
+        threshold, or a distance outside ``[min_range_m, max_range_m]``).
     intensity_dn : ndarray, float32
         Intensity, NaN where there is no return.
     """
-    distance = returns.distance_m
-    valid = (returns.amplitude > 0) & (distance >= model.min_range_m) & (distance <= model.max_range_m)
-    range_m = np.where(valid, distance, np.nan)
-    intensity = np.where(valid, log_amplifier_dn(model, returns.amplitude), np.nan).astype(np.float32)
+    signal = returns.amplitude if model.intensity_signal == "phasor" else returns.power
+    shape = np.shape(signal)
+    noisy = signal + amplitude_noise_std(model, signal) * rng.standard_normal(shape, dtype=np.float32)
+    with np.errstate(invalid="ignore"):
+        range_m = returns.distance_m + range_noise_std(model, returns.amplitude) * rng.standard_normal(
+            shape, dtype=np.float32)
+        valid = (signal > 0) & (noisy >= detection_threshold(model))
+        valid &= (range_m >= model.min_range_m) & (range_m <= model.max_range_m)
+    range_m = average_along_psi(np.where(valid, range_m, np.nan), model.range_filter_length)
+    intensity = np.where(valid, log_amplifier_dn(model, np.where(valid, noisy, 0.0)), np.nan).astype(np.float32)
     return range_m, intensity
+
+
+def average_along_psi(range_m: np.ndarray, length: int) -> np.ndarray:
+    """Centred moving average of returned ranges along the zenith axis (rows).
+
+    Each returned sample becomes the mean of the returned samples among the
+    ``length`` consecutive rows centred on it (fewer at the window's ends);
+    samples without a return stay NaN and do not count.
+
+    Parameters
+    ----------
+    range_m : ndarray, shape (rows, cols)
+        Ranges, NaN where there is no return.
+    length : int
+        Filter length, samples (1 returns the input).
+    """
+    if length == 1:
+        return range_m
+    valid = np.isfinite(range_m)
+    rows = range_m.shape[0]
+    sums = np.zeros((rows + 1,) + range_m.shape[1:])
+    counts = np.zeros((rows + 1,) + range_m.shape[1:])
+    np.cumsum(np.where(valid, range_m, 0.0), axis=0, out=sums[1:])
+    np.cumsum(valid, axis=0, out=counts[1:])
+    index = np.arange(rows)
+    lo = np.maximum(index - (length - 1) // 2, 0)
+    hi = np.minimum(index + length // 2 + 1, rows)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = (sums[hi] - sums[lo]) / (counts[hi] - counts[lo])
+    return np.where(valid, mean, np.nan)

@@ -45,12 +45,15 @@ def raw_first_hit_rate(scene: scenes.Scene, setup: ScanSetup) -> float:
     theta_axis, psi_axis = window.angles()
     rows = len(psi_axis)
     cols_per_chunk = max(1, CHUNK_SUBRAYS // (rows * beam.count))
-    spin = np.random.default_rng(0).uniform(0, 2 * np.pi, rows * len(theta_axis))
+    rng = np.random.default_rng(0)
+    spin = rng.uniform(0, 2 * np.pi, rows * len(theta_axis))
+    instants = rng.uniform(0, 1, rows * len(theta_axis))
+    smear_rad = model.smear_fraction * np.radians(window.step_deg[1])
     elapsed, count = 0.0, 0
     for c0 in range(0, len(theta_axis), cols_per_chunk):
         theta = np.repeat(theta_axis[c0:c0 + cols_per_chunk], rows)
         psi = np.tile(psi_axis, len(theta) // rows)
-        ray, _ = traced.subrays(model, beam, pose, theta, psi, spin[:len(theta)])
+        ray, _ = traced.subrays(model, beam, pose, theta, psi, spin[:len(theta)], smear_rad, instants[:len(theta)])
         dr.eval(ray)
         start = time.perf_counter()
         hit = traced.mi_scene.ray_intersect_preliminary(ray, False)

@@ -7,6 +7,10 @@ bounded; each chunk's sub-rays form one Dr.Jit wavefront
 distance (:mod:`tlssim.ranging`), and the sub-ray returns give the truth
 (dominant object, mixed fraction, incidence). The detector chain then turns
 the summed returns into range and intensity (:mod:`tlssim.detector`).
+
+Random streams: ``SeedSequence(seed).spawn(2)`` gives the beam stream (the
+rotation of each pulse's sub-ray layout, then the instants of the scan
+smear) and the detector stream (amplitude and range noise).
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from tqdm.auto import tqdm
 from scenes.scene import Scene
 from tlssim.backend import SubrayHits, TraceScene, select_backend
 from tlssim.beam import sample_beam
+from tlssim.bsdf import reflectance_table
 from tlssim.detector import PulseReturns, detect
 from tlssim.errors import ScanError
 from tlssim.pattern import ScannerPose, ScanWindow, grid_directions, rotation_from_yaw_pitch_roll
@@ -42,7 +47,8 @@ class ScanSetup:
     window: ScanWindow
 
 
-def setup_from_section(section: dict, preset: str | None = None, **overrides) -> ScanSetup:
+def setup_from_section(section: dict, preset: str | None = None, model: ScannerModel | None = None,
+                       **overrides) -> ScanSetup:
     """Build a :class:`ScanSetup` from a scene file's ``scanner`` section.
 
     Parameters
@@ -54,6 +60,9 @@ def setup_from_section(section: dict, preset: str | None = None, **overrides) ->
         override (e.g. ``step_deg``, ``divergence_deg``).
     preset : str, optional
         Preset to use instead of the section's (default ``faro-ls880``).
+    model : ScannerModel, optional
+        Model to use instead of any preset (the section's model fields and
+        ``overrides`` still apply on top of it).
     **overrides
         Scanner-model fields overriding both the preset and the section.
 
@@ -63,9 +72,11 @@ def setup_from_section(section: dict, preset: str | None = None, **overrides) ->
         On unknown keys or invalid values (the message says which).
     """
     section = dict(section or {})
-    name = preset or section.get("preset", "faro-ls880")
-    model_fields = {k: v for k, v in section.items() if k not in _SECTION_KEYS}
-    model = get_preset(name, **{**model_fields, **overrides})
+    changes = {**{k: v for k, v in section.items() if k not in _SECTION_KEYS}, **overrides}
+    if model is None:
+        model = get_preset(preset or section.get("preset", "faro-ls880"), **changes)
+    elif changes:
+        model = model.replace(**changes)
     orientation = section.get("orientation") or {}
     if not isinstance(orientation, dict) or set(orientation) - {"yaw_deg", "pitch_deg", "roll_deg"}:
         raise ScanError(f"scanner orientation must be a mapping of yaw_deg, pitch_deg, roll_deg; got {orientation!r}")
@@ -108,19 +119,20 @@ def simulate(scene: Scene, setup: ScanSetup, seed: int = 0, backend: str = "auto
     model, pose, window = setup.model, setup.pose, setup.window
     window.check_within(model)
     used_backend = select_backend(backend)
-    vertices, faces, face_object = scene.merged_mesh()
-    reflectance = np.array([o.material.reflectance for o in scene.objects])
-    traced = TraceScene(vertices, faces, face_object, reflectance, pose.position)
+    traced = trace_scene(scene, model, pose)
     beam = sample_beam(model.n_subrays, model.beam_profile)
 
     theta_axis, psi_axis = window.angles()
     rows, cols = len(psi_axis), len(theta_axis)
     beam_rng, detector_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
     spin = beam_rng.uniform(0.0, 2.0 * math.pi, size=(cols, rows))
+    smear_rad = model.smear_fraction * math.radians(window.step_deg[1])
+    instants = beam_rng.uniform(0.0, 1.0, size=(cols, rows)) if smear_rad > 0 else None
 
     # Column-major (theta, psi) accumulators, transposed to (psi, theta) at the end.
     distance = np.full((cols, rows), np.nan)
     amplitude = np.zeros((cols, rows))
+    power = np.zeros((cols, rows))
     truth = {key: np.full((cols, rows) + shape, fill, dtype) for key, shape, fill, dtype in _TRUTH_LAYOUT}
 
     cols_per_chunk = max(1, chunk_subrays // (rows * beam.count))
@@ -130,10 +142,12 @@ def simulate(scene: Scene, setup: ScanSetup, seed: int = 0, backend: str = "auto
             c1 = min(cols, c0 + cols_per_chunk)
             theta = np.repeat(theta_axis[c0:c1], rows)
             psi = np.tile(psi_axis, c1 - c0)
-            hits = traced.trace(model, beam, pose, theta, psi, spin[c0:c1].ravel())
+            hits = traced.trace(model, beam, pose, theta, psi, spin[c0:c1].ravel(), smear_rad,
+                                None if instants is None else instants[c0:c1].ravel())
             dist, amp = _pulse_returns(hits, model)
             distance[c0:c1] = dist.reshape(c1 - c0, rows)
             amplitude[c0:c1] = amp.reshape(c1 - c0, rows)
+            power[c0:c1] = hits.total_power.reshape(c1 - c0, rows)
             for key, value in pulse_truth(hits, traced.face_normals).items():
                 truth[key][c0:c1] = value.reshape((c1 - c0, rows) + value.shape[1:])
             bar.update(len(theta))
@@ -141,7 +155,7 @@ def simulate(scene: Scene, setup: ScanSetup, seed: int = 0, backend: str = "auto
     def grid(a):
         return np.ascontiguousarray(np.swapaxes(a, 0, 1))
 
-    returns = PulseReturns(distance_m=grid(distance), amplitude=grid(amplitude))
+    returns = PulseReturns(distance_m=grid(distance), amplitude=grid(amplitude), power=grid(power))
     range_m, intensity = detect(model, returns, detector_rng)
     theta_grid, psi_grid = np.meshgrid(theta_axis, psi_axis)
     return Scan(
@@ -157,6 +171,18 @@ def simulate(scene: Scene, setup: ScanSetup, seed: int = 0, backend: str = "auto
               "frame": "world"},
         **{key: grid(value) for key, value in truth.items()},
     )
+
+
+def trace_scene(scene: Scene, model: ScannerModel, pose: ScannerPose) -> TraceScene:
+    """Upload ``scene`` to the ray-tracing backend with the materials the model needs."""
+    vertices, faces, face_object = scene.merged_mesh()
+    reflectance = np.array([o.material.reflectance for o in scene.objects])
+    table = None
+    if model.bsdf_plugin is not None:
+        uses_bsdf = np.array([o.type in model.bsdf_object_types for o in scene.objects])
+        table = reflectance_table(model.bsdf_plugin, reflectance, uses_bsdf)
+    transmittance = np.array([o.material.transmittance for o in scene.objects]) if model.leaf_transmission else None
+    return TraceScene(vertices, faces, face_object, reflectance, pose.position, transmittance, table)
 
 
 _TRUTH_LAYOUT = (

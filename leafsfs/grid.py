@@ -1,0 +1,163 @@
+"""The pixel grid and its metric: the map ``sc`` from pixel indices to continuous coordinates.
+
+PROP-SFS works in continuous coordinates ``x = sc(i, j)`` where slopes are
+metric (thesis ch.5 eq 2.1, generalised here to any affine map ``x = A (i, j)
++ b``; see :mod:`leafsfs.frame` for scans). This module also holds the
+sampling helpers that read the height image at sub-pixel positions and fit
+local least-squares planes to it (the thesis' LSR, radius 5 px).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class PixelGrid:
+    """Affine map ``x = matrix @ (row, col) + offset`` from pixel indices to continuous coordinates.
+
+    Parameters
+    ----------
+    matrix : array_like, (2, 2)
+        Columns are the continuous-coordinate steps of one row and one
+        column (for a plain square grid of spacing ``s``: ``s * I``).
+    offset : array_like, (2,)
+        Continuous coordinates of pixel (0, 0).
+    """
+
+    matrix: np.ndarray = field(default_factory=lambda: np.eye(2))
+    offset: np.ndarray = field(default_factory=lambda: np.zeros(2))
+
+    def __post_init__(self):
+        object.__setattr__(self, "matrix", np.asarray(self.matrix, dtype=float).reshape(2, 2))
+        object.__setattr__(self, "offset", np.asarray(self.offset, dtype=float).reshape(2))
+
+    @property
+    def flips(self) -> bool:
+        """Whether the map reverses orientation (negative determinant)."""
+        return bool(np.linalg.det(self.matrix) < 0)
+
+    @property
+    def pixel_size(self) -> float:
+        """Geometric mean size of a pixel in continuous units."""
+        return float(np.sqrt(abs(np.linalg.det(self.matrix))))
+
+    def to_continuous(self, pixels: np.ndarray) -> np.ndarray:
+        """Continuous coordinates of pixel positions ``(n, 2)``."""
+        return pixels @ self.matrix.T + self.offset
+
+    def to_pixels(self, points: np.ndarray) -> np.ndarray:
+        """Pixel positions of continuous points ``(n, 2)``."""
+        return np.linalg.solve(self.matrix, (points - self.offset).T).T
+
+    def directions(self, pixel_vectors: np.ndarray) -> np.ndarray:
+        """Unit continuous directions of pixel-space vectors ``(n, 2)``."""
+        vectors = pixel_vectors @ self.matrix.T
+        return vectors / np.linalg.norm(vectors, axis=1, keepdims=True)
+
+
+def bilinear(image: np.ndarray, valid: np.ndarray, points_px: np.ndarray) -> np.ndarray:
+    """Bilinear samples of ``image`` at sub-pixel positions, using only ``valid`` pixels (weights renormalised).
+
+    Returns NaN where none of the four neighbours is valid.
+    """
+    rows, cols = image.shape
+    base = np.floor(points_px).astype(int)
+    frac = points_px - base
+    total = np.zeros(len(points_px))
+    weight = np.zeros(len(points_px))
+    for di in (0, 1):
+        for dj in (0, 1):
+            i, j = base[:, 0] + di, base[:, 1] + dj
+            inside = (i >= 0) & (i < rows) & (j >= 0) & (j < cols)
+            ic, jc = np.clip(i, 0, rows - 1), np.clip(j, 0, cols - 1)
+            ok = inside & valid[ic, jc]
+            w = np.where(di, frac[:, 0], 1 - frac[:, 0]) * np.where(dj, frac[:, 1], 1 - frac[:, 1])
+            w = np.where(ok, w, 0.0)
+            total += w * np.where(ok, image[ic, jc], 0.0)
+            weight += w
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(weight > 1e-12, total / weight, np.nan)
+
+
+@dataclass
+class LocalPlanes:
+    """Least-squares planes ``h = c0 + grad . (x - x_centre)`` fitted around pixels.
+
+    Attributes
+    ----------
+    height : ndarray, (n,)
+        Plane height at the centre pixel.
+    gradient : ndarray, (n, 2)
+        Height gradient in continuous coordinates.
+    covariance : ndarray, (n, 2, 2)
+        Covariance of the gradient from the regression residuals.
+    rms : ndarray, (n,)
+        Residual standard deviation.
+    count : ndarray, (n,)
+        Number of pixels used; fits with too few are NaN.
+    """
+
+    height: np.ndarray
+    gradient: np.ndarray
+    covariance: np.ndarray
+    rms: np.ndarray
+    count: np.ndarray
+
+
+def local_planes(image: np.ndarray, valid: np.ndarray, grid: PixelGrid, centres: np.ndarray,
+                 radius_px: float, order: int = 1) -> LocalPlanes:
+    """Fit a plane to the valid pixels within ``radius_px`` of each centre pixel (the thesis' local LSR).
+
+    With ``order=2`` a quadratic surface is fitted instead and its tangent
+    plane at the centre is returned: its gradient is not biased by the
+    curvature of the surface across the neighbourhood.
+
+    Parameters
+    ----------
+    image : ndarray, 2-D
+        Height image (e.g. the range image in the local frame).
+    valid : ndarray of bool, 2-D
+        Pixels that may be used.
+    grid : PixelGrid
+        Pixel-to-continuous map (gradients are per continuous unit).
+    centres : ndarray of int, (n, 2)
+        Centre pixels (row, col).
+    radius_px : float
+        Neighbourhood radius, pixels.
+    order : {1, 2}
+        Degree of the fitted polynomial surface.
+    """
+    r = int(np.floor(radius_px))
+    di, dj = np.mgrid[-r:r + 1, -r:r + 1]
+    keep = di**2 + dj**2 <= radius_px**2 + 1e-9
+    offsets = np.stack([di[keep], dj[keep]], axis=1)
+    rows, cols = image.shape
+    i = centres[:, None, 0] + offsets[None, :, 0]
+    j = centres[:, None, 1] + offsets[None, :, 1]
+    inside = (i >= 0) & (i < rows) & (j >= 0) & (j < cols)
+    ic, jc = np.clip(i, 0, rows - 1), np.clip(j, 0, cols - 1)
+    w = (inside & valid[ic, jc]).astype(float)
+    h = np.where(w > 0, image[ic, jc], 0.0)
+    dx = offsets @ grid.matrix.T  # continuous offsets, (k, 2)
+    columns = [np.ones(len(offsets)), dx[:, 0], dx[:, 1]]
+    if order == 2:
+        columns += [dx[:, 0] ** 2, dx[:, 0] * dx[:, 1], dx[:, 1] ** 2]
+    design = np.stack(columns, axis=1)  # (k, 3 or 6)
+    normal = np.einsum("nk,ka,kb->nab", w, design, design)
+    rhs = np.einsum("nk,ka,nk->na", w, design, h)
+    count = w.sum(axis=1)
+    terms = design.shape[1]
+    ok = (count >= terms + 1) & (np.abs(np.linalg.det(normal)) > 1e-300)
+    normal[~ok] = np.eye(terms)
+    coef = np.linalg.solve(normal, rhs[..., None])[..., 0]
+    resid = h - coef @ design.T
+    dof = np.maximum(count - terms, 1)
+    rms = np.sqrt(np.sum(w * resid**2, axis=1) / dof)
+    inverse = np.linalg.inv(normal)
+    covariance = rms[:, None, None] ** 2 * inverse[:, 1:3, 1:3]
+    nan = np.where(ok, 1.0, np.nan)
+    return LocalPlanes(coef[:, 0] * nan, coef[:, 1:3] * nan[:, None], covariance * nan[:, None, None], rms * nan,
+                       count)

@@ -1,0 +1,50 @@
+"""Quantisation of the alpha image into nested iso-alpha domains (thesis ch.5 eqs 2.2-2.4, ch.7 eqs 1.1-1.3).
+
+Thresholds ``alpha_0 < ... < alpha_n = pi/2`` split the object's pixels into
+domains ``s_0 = {alpha <= alpha_0}`` (the seeds, digest A17) and
+``s_i = {alpha_(i-1) < alpha <= alpha_i}``. The thresholds are empirical
+quantiles of the (smoothed, masked) alpha values so that the seed domain
+covers the fraction ``eps_seed`` of the pixels and every further domain
+``eps_alpha``; the last (shell) domain takes the remainder (digest §3.2).
+
+The *shell rule* of chapter 7 ties ``eps_alpha`` to the size of the object:
+``eps_alpha = mu * a_shell / a_tot``, with ``a_shell`` the number of pixels of
+a one-pixel-wide shell of the object (its contour; ``4 (Theta - 1)`` for a
+``Theta x Theta`` square) and ``a_tot`` its pixel count, so that every domain
+is about ``mu`` pixels wide; ``eps_seed = nu * eps_alpha``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from leafsfs.contour import contour_pixels
+
+#: Chapter-7 parameter sets: shell number mu and seed factor nu.
+SHELL_SETS = {"T1": (2, 2), "T2": (3, 2), "T3": (4, 2), "T3*": (4, 1)}
+
+
+def shell_fractions(mask: np.ndarray, shell_set: str) -> tuple[float, float]:
+    """``(eps_alpha, eps_seed)`` of the shell rule for an object mask and a parameter set (T1, T2, T3, T3*)."""
+    mu, nu = SHELL_SETS[shell_set]
+    a_tot = int(mask.sum())
+    a_shell = int(contour_pixels(mask).sum())
+    eps_alpha = min(1.0, mu * a_shell / max(a_tot, 1))
+    return eps_alpha, min(1.0, nu * eps_alpha)
+
+
+def quantile_thresholds(values: np.ndarray, eps_alpha: float, eps_seed: float) -> np.ndarray:
+    """Thresholds ``alpha_0 .. alpha_n`` (rad, strictly increasing, last = pi/2) from area fractions.
+
+    ``alpha_0 = Q(eps_seed)``, ``alpha_i = Q(eps_seed + i eps_alpha)`` while the
+    fraction is below 1 (digest §3.2). Equal quantiles (flat alpha) collapse.
+    """
+    fractions = np.arange(eps_seed, 1.0 - 1e-9, eps_alpha)
+    inner = np.quantile(values, fractions) if len(fractions) else np.zeros(0)
+    return np.unique(np.append(np.minimum(inner, np.pi / 2), np.pi / 2))
+
+
+def assign_levels(alpha: np.ndarray, mask: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
+    """Domain index of every pixel: 0 for ``alpha <= alpha_0``, ``i`` for ``alpha_(i-1) < alpha <= alpha_i``; -1 off the mask."""
+    levels = np.searchsorted(thresholds, np.where(mask, alpha, 0.0), side="left")
+    return np.where(mask, np.minimum(levels, len(thresholds) - 1), -1)

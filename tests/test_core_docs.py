@@ -1,0 +1,16 @@
+"""The README's scanner-model table is the one the code prints (sources are checked in test_physics_detector)."""
+
+import re
+from pathlib import Path
+
+from tlssim.scanner import get_preset, parameter_table
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def test_readme_table_matches_the_code():
+    text = README.read_text()
+    match = re.search(r"<!-- scanner-model-table:start -->\n(.*?)\n<!-- scanner-model-table:end -->", text, re.S)
+    assert match, "README lacks the scanner-model table markers"
+    assert match.group(1).strip() == parameter_table(get_preset("faro-ls880")).strip(), \
+        "README scanner-model table is stale: paste the output of `tlssim presets faro-ls880`"

@@ -1,0 +1,158 @@
+"""PROP-SFS on scans: local frame, simulated single and clustered leaves, outputs, CLI and errors."""
+
+import json
+import sys
+
+import numpy as np
+import pytest
+
+import scenes
+import tlssim
+from leafsfs import SfsError, SfsParams, reconstruct
+from leafsfs.cli import main
+from leafsfs.frame import local_frame
+from leafsfs.grid import local_planes
+from leafsfs.leaves import segment_leaves
+from leafsfs.preprocess import resolve_calibration, scan_alpha
+from leafsfs.synthetic import LambertCalibration
+from tlssim.pattern import beam_frame
+
+
+def _simulate(name):
+    scene = scenes.build(name)
+    return scene, tlssim.simulate(scene, tlssim.setup_from_section(scene.scanner), seed=0, progress=False)
+
+
+@pytest.fixture(scope="module")
+def leaf_scan():
+    scene, scan = _simulate("leaf-1.5m")
+    return scene, scan, resolve_calibration("model", scan)  # tlssim's simulated panel + goniometer calibration
+
+
+@pytest.fixture(scope="module")
+def leaf_result(leaf_scan):
+    _, scan, calibration = leaf_scan
+    return reconstruct(scan, variant="buffer", calibration=calibration)
+
+
+def test_local_frame_makes_the_eikonal_relation_exact():
+    # A plane seen off-axis: in the frame, |grad h| = tan(local incidence) to within the chart's distortion.
+    step = np.radians(0.018)
+    theta, psi = np.meshgrid(np.radians(30) + step * np.arange(-60, 60), np.radians(80) + step * np.arange(-50, 50))
+    axis = beam_frame(theta, psi)[0]
+    normal = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    range_m = (normal @ (1.2 * axis[50, 60])) / (axis @ normal)
+    incidence = np.arccos(np.abs(axis @ normal))
+    frame = local_frame(theta, psi, range_m, np.ones(theta.shape, bool))
+    heights = frame.height(range_m[frame.box])
+    centres = np.argwhere(np.ones(heights.shape, bool))[::53]
+    slope = np.linalg.norm(local_planes(heights, np.isfinite(heights), frame.grid, centres, 2).gradient, axis=1)
+    assert np.allclose(slope, np.tan(incidence[frame.box][centres[:, 0], centres[:, 1]]), rtol=0.004)
+    assert np.allclose(frame.range(heights), range_m[frame.box])
+
+
+def test_measured_outliers_move_to_the_true_surface(leaf_scan, leaf_result):
+    scene, scan, _ = leaf_scan
+    leaf = scan.object_names.index("leaf")
+    on_leaf = (scan.truth_id == leaf) & (np.abs(scan.truth_range - 1.5) < 0.1) & leaf_result.corrected
+    measured = np.abs(scan.range - scan.truth_range)
+    corrected = np.abs(leaf_result.range - scan.truth_range)
+    outliers = on_leaf & (measured > 0.005)
+    assert outliers.sum() > 300
+    assert np.mean(corrected[outliers] < measured[outliers]) > 0.95
+    assert np.median(corrected[outliers]) < 0.05 * np.median(measured[outliers])
+    # Inliers: with intensity noise the thesis' propagation drifts by a few mm (the fused variant does not).
+    assert np.quantile(corrected[on_leaf], 0.9) < 0.012  # m
+    points = leaf_result.points()  # the corrected point cloud, world frame
+    assert len(points) == leaf_result.corrected.sum()
+    assert np.allclose(np.linalg.norm(points - scan.pose.position, axis=1), leaf_result.range[leaf_result.corrected])
+    # flags: exactly the corrected pixels that moved farther than the threshold
+    moved = np.abs(scan.range - leaf_result.range) > leaf_result.params.outlier_threshold_m
+    assert np.array_equal(leaf_result.outlier, leaf_result.corrected & moved)
+
+
+def test_leaf_traits_and_redundancy(leaf_scan, leaf_result):
+    scene, _, _ = leaf_scan
+    truth = scene.objects[0].truth
+    (traits,) = leaf_result.traits()
+    assert traits["area_m2"] == pytest.approx(truth["area_m2"], rel=0.35)
+    # the scan cannot tell the tip from the petiole: compare the midrib azimuth modulo 180 deg
+    assert abs((traits["azimuth_deg"] - truth["azimuth_deg"] + 90) % 180 - 90) < 15
+    assert abs(traits["elevation_deg"] - truth["elevation_deg"]) < 10
+    normal = np.array(truth["normal"]) * np.sign(truth["normal"][2] or 1)
+    assert np.degrees(np.arccos(np.clip(np.dot(normal, traits["normal"]), -1, 1))) < 15
+    rppp = leaf_result.rppp()
+    assert rppp["rppp_0"] < 0.05 and rppp["rppp_1"] > 0.6
+    assert traits["n_outliers"] == int(leaf_result.outlier.sum())
+
+
+def test_leaf_cluster_segmentation_separates_the_leaves():
+    _, scan = _simulate("leaf-cluster")
+    alpha, _ = scan_alpha(scan.intensity, scan.range, LambertCalibration(scan.scanner_model, 0.48))
+    labels = segment_leaves(scan.range, scan.theta, scan.psi, alpha)
+    purity, regions = [], set()
+    for index, name in enumerate(scan.object_names):
+        pixels = scan.truth_id == index
+        if "leaf" not in name or pixels.sum() < 1000:
+            continue
+        values, counts = np.unique(labels[pixels], return_counts=True)
+        best = values[np.argmax(counts)]
+        assert best > 0 and counts.max() > 0.95 * pixels.sum()  # one region holds the leaf
+        purity.append(np.mean(scan.truth_id[labels == best] == index))
+        regions.add(best)
+    assert len(regions) == len(purity) == 8  # a region per leaf
+    # little else in them: mixed edge points, and the twig next to the smallest leaf
+    assert min(purity) > 0.6 and np.median(purity) > 0.8
+
+
+def test_corrected_scan_round_trip_and_cli(leaf_scan, tmp_path, monkeypatch):
+    _, scan, calibration = leaf_scan
+    path = scan.save(tmp_path / "leaf.npz")
+    monkeypatch.setattr(sys.modules["leafsfs.reconstruct"], "resolve_calibration", lambda spec, scan=None: calibration)
+    outdir = tmp_path / "out"
+    assert main(["reconstruct", str(path), "--variant", "buffer", "-o", str(outdir)]) == 0
+    corrected = tlssim.Scan.load(outdir / "corrected.npz")
+    with np.load(path) as before, np.load(outdir / "corrected.npz") as after:
+        assert set(before.files) | {"outlier", "candidates", "leaf", "range_spread"} == set(after.files)
+    assert corrected.layers["outlier"].dtype == bool and corrected.layers["candidates"].max() >= 1
+    changed = corrected.range != scan.range
+    assert changed.any() and np.all(corrected.layers["leaf"][changed] > 0)
+    report = json.loads((outdir / "traits.json").read_text())
+    assert {"area_m2", "elevation_deg", "azimuth_deg", "n_points", "n_outliers"} <= set(report["leaves"][0])
+    assert (outdir / "mesh.ply").stat().st_size > 1000 and (outdir / "preview.png").stat().st_size > 1000
+
+
+def test_reconstruct_errors(leaf_scan, tmp_path, capsys):
+    _, scan, calibration = leaf_scan
+    with pytest.raises(SfsError, match="must match the scan grid"):
+        reconstruct(scan, mask=np.ones((3, 3), bool), calibration=calibration)
+    with pytest.raises(SfsError, match="needs an intensity calibration"):
+        reconstruct(scan)
+    empty = tlssim.Scan(np.full((4, 4), np.nan), np.full((4, 4), np.nan, np.float32), np.zeros((4, 4)),
+                        np.zeros((4, 4)), np.full((4, 4, 3), np.nan))
+    with pytest.raises(SfsError, match="no valid pixels"):
+        reconstruct(empty, calibration=calibration)
+    with pytest.raises(SfsError, match="alpha_max_deg must be a number"):
+        SfsParams(alpha_max_deg=95)
+    with pytest.raises(SfsError, match="unknown PROP-SFS variant"):
+        reconstruct(scan, variant="best", calibration=calibration)
+    assert main(["reconstruct", str(tmp_path / "missing.npz"), "-o", str(tmp_path)]) == 2
+    assert "no such scan file" in capsys.readouterr().err
+    (tmp_path / "scan.xyz").write_text("1 2 3")
+    assert main(["reconstruct", str(tmp_path / "scan.xyz"), "-o", str(tmp_path)]) == 2
+    assert "unknown scan format" in capsys.readouterr().err
+
+
+def test_fused_variant_beats_the_measurement_and_survives_a_wrong_reflectance(leaf_scan):
+    _, scan, calibration = leaf_scan
+    on_leaf = (scan.truth_id == 0) & (np.abs(scan.truth_range - 1.5) < 0.1)
+    fused = reconstruct(scan, variant="fused", calibration=calibration)
+    error = np.abs(fused.range - scan.truth_range)[on_leaf & fused.corrected]
+    noise = np.abs(scan.range - scan.truth_range)[on_leaf & fused.corrected & (scan.mixed_fraction < 0.01)]
+    assert np.median(error) < np.median(noise)  # the fusion also averages the range noise down
+    # The calibration assumes reflectance 0.58 instead of 0.48: alpha is overestimated by ~20 deg.
+    p90 = {}
+    for variant in ("buffer", "fused"):
+        result = reconstruct(scan, variant=variant, calibration=LambertCalibration(scan.scanner_model, 0.58))
+        p90[variant] = np.quantile(np.abs(result.range - scan.truth_range)[on_leaf & result.corrected], 0.9)
+    assert p90["fused"] < 0.6 * p90["buffer"] and p90["fused"] < 0.01

@@ -1,0 +1,128 @@
+"""Scan file formats: round trips of E57, PTX and LAS/LAZ, and clear errors on broken files."""
+
+import json
+
+import numpy as np
+import pytest
+
+import scenes
+from scenes.scene import Scene
+from tlssim.cli import main
+from tlssim.errors import ScanError
+from tlssim.formats import export_scan, import_scan
+from tlssim.scan import Scan
+from tlssim.simulate import setup_from_section, simulate
+
+#: Precision each format keeps: coordinates (m), intensity (DN), angles (rad).
+PRECISION = {"e57": (2e-6, 0.0, 2e-7), "ptx": (1e-6, 2e-3, 1e-5), "las": (1e-5, 0.0, 0.0), "laz": (1e-5, 0.0, 0.0)}
+
+
+@pytest.fixture(scope="module")
+def scan(llvm):
+    """The knife-edge plate (no wall) seen from a turned, shifted scanner; the window crosses azimuth 180 deg."""
+    scene = scenes.build("knife-edge")
+    scene = Scene(objects=scene.objects[:1], name="plate")
+    position = np.array([0.3, -0.2, 0.1])
+    scene.objects[0].vertices = scene.objects[0].vertices + position
+    section = {"position": position.tolist(), "orientation": {"yaw_deg": 180.0, "pitch_deg": 1.0, "roll_deg": -1.0},
+               "window": {"theta_deg": [178.0, 183.0], "psi_deg": [87.0, 93.0], "step_deg": 0.05}}
+    result = simulate(scene, setup_from_section(section), seed=5, progress=False, backend="llvm")
+    assert 0 < result.valid.sum() < result.valid.size
+    return result
+
+
+@pytest.mark.parametrize("ext", sorted(PRECISION))
+def test_round_trip(scan, tmp_path, ext):
+    coords, dn, angle = PRECISION[ext]
+    back = import_scan(export_scan(scan, tmp_path / f"scan.{ext}"))
+    assert back.shape == scan.shape
+    assert np.array_equal(back.valid, scan.valid)
+    valid = scan.valid
+    assert np.max(np.abs(back.range[valid] - scan.range[valid])) <= 2 * coords
+    assert np.max(np.abs(back.xyz[valid] - scan.xyz[valid])) <= 2 * coords
+    assert np.max(np.abs(back.intensity[valid] - scan.intensity[valid])) <= dn
+    wrapped = np.angle(np.exp(1j * (back.theta - scan.theta)))  # azimuths agree modulo 2 pi
+    assert np.max(np.abs(wrapped)) <= angle + 1e-12
+    assert np.max(np.abs(back.psi - scan.psi)) <= angle + 1e-12
+    assert np.allclose(back.pose.position, scan.pose.position, atol=1e-12)
+    assert np.allclose(back.pose.rotation, scan.pose.rotation, atol=1e-12)
+    if ext in ("las", "laz"):  # truth of the returned points comes along
+        for key in ("truth_id", "truth_range", "mixed_fraction", "incidence", "truth_normal"):
+            assert np.array_equal(getattr(back, key)[valid], getattr(scan, key)[valid], equal_nan=True)
+        assert back.object_names == scan.object_names and back.scanner_model == scan.scanner_model
+    else:
+        assert not back.has_truth  # real-scan formats: ready for reconstruction, no truth
+
+
+def test_laz_is_compressed(scan, tmp_path):
+    las, laz = export_scan(scan, tmp_path / "a.las"), export_scan(scan, tmp_path / "a.laz")
+    assert laz.stat().st_size < 0.6 * las.stat().st_size
+
+
+def test_unknown_format(scan, tmp_path):
+    with pytest.raises(ScanError, match=r"unknown scan format '\.xyz'"):
+        export_scan(scan, tmp_path / "a.xyz")
+    with pytest.raises(ScanError, match="no such scan file"):
+        import_scan(tmp_path / "missing.e57")
+
+
+def _broken(tmp_path, scan, ext, damage):
+    path = export_scan(scan, tmp_path / f"good.{ext}")
+    bad = tmp_path / f"bad.{ext}"
+    bad.write_bytes(damage(path.read_bytes()))
+    return bad
+
+
+@pytest.mark.parametrize("ext,damage,message", [
+    ("ptx", lambda b: b[: len(b) // 2], "truncated PTX file"),
+    ("ptx", lambda b: b"12\n" + b, "PTX header line"),
+    ("ptx", lambda b: b.replace(b"\n", b"\nx ", 1), "PTX header must start"),
+    ("ptx", lambda b: b[:5], "truncated PTX header"),
+    ("ptx", lambda b: b"\xff\xfe" + b, "not a PTX file"),
+    ("e57", lambda b: b[: len(b) // 2], "E57"),
+    ("e57", lambda b: b"not an e57 file at all", "not a readable E57 file"),
+    ("las", lambda b: b[:200], "LAS/LAZ"),
+    ("laz", lambda b: b[: len(b) // 2], "LAS/LAZ"),
+])
+def test_broken_files_get_clear_errors(scan, tmp_path, ext, damage, message):
+    bad = _broken(tmp_path, scan, ext, damage)
+    with pytest.raises(ScanError, match=message) as error:
+        import_scan(bad)
+    assert str(bad) in str(error.value)
+
+
+def test_ptx_malformed_point_line(scan, tmp_path):
+    bad = _broken(tmp_path, scan, "ptx", lambda b: b.replace(b"0.000000 0.000000 0.000000 0.000000", b"0 0 zero 0", 1))
+    with pytest.raises(ScanError, match="malformed PTX point line"):
+        import_scan(bad)
+
+
+def test_plain_las_point_cloud_is_not_a_scan(tmp_path):
+    import laspy
+
+    points = laspy.LasData(laspy.LasHeader(point_format=6, version="1.4"))
+    points.x, points.y, points.z = np.zeros(3), np.ones(3), np.arange(3.0)
+    points.write(str(tmp_path / "cloud.las"))
+    with pytest.raises(ScanError, match="without tlssim grid metadata"):
+        import_scan(tmp_path / "cloud.las")
+
+
+def test_unstructured_e57_is_refused(tmp_path):
+    import pye57
+
+    with pye57.E57(str(tmp_path / "cloud.e57"), mode="w") as e57:
+        e57.write_scan_raw({"cartesianX": np.zeros(4), "cartesianY": np.ones(4), "cartesianZ": np.arange(4.0)})
+    with pytest.raises(ScanError, match="not structured"):
+        import_scan(tmp_path / "cloud.e57")
+
+
+def test_export_and_import_commands(scan, tmp_path, capsys):
+    scan.save(tmp_path / "scan.npz")
+    assert main(["export", str(tmp_path / "scan.npz"), str(tmp_path / "scan.e57")]) == 0
+    assert main(["import", str(tmp_path / "scan.e57"), "-o", str(tmp_path / "back.npz")]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert json.loads(lines[-1])["truth"] is False
+    back = Scan.load(tmp_path / "back.npz")
+    assert np.array_equal(back.valid, scan.valid)
+    assert main(["import", str(tmp_path / "scan.npz"), "-o", str(tmp_path / "x.npz")]) == 2
+    assert "unknown scan format" in capsys.readouterr().err

@@ -1,0 +1,39 @@
+"""``tlssim export`` and ``tlssim import``: convert scans between NPZ and E57, PTX, LAS/LAZ."""
+
+from __future__ import annotations
+
+import json
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("export", help="write a scan as E57, PTX, LAS or LAZ",
+                       description="Convert an NPZ scan to the format of OUTPUT's extension (.e57, .ptx, .las, .laz).")
+    p.add_argument("scan", help="scan file (.npz)")
+    p.add_argument("output", help="output file (.e57, .ptx, .las or .laz)")
+    p.set_defaults(func=run_export)
+    p = sub.add_parser("import", help="read an E57, PTX, LAS or LAZ scan into NPZ",
+                       description="Convert a structured scan file (.e57, .ptx, or .las/.laz written by tlssim) "
+                                   "to an NPZ scan; E57 and PTX give scans without truth.")
+    p.add_argument("input", help="scan file (.e57, .ptx, .las or .laz)")
+    p.add_argument("-o", "--output", required=True, help="output scan file (.npz)")
+    p.set_defaults(func=run_import)
+
+
+def run_export(args) -> int:
+    from tlssim.formats import export_scan
+    from tlssim.scan import Scan
+
+    scan = Scan.load(args.scan)
+    path = export_scan(scan, args.output)
+    print(json.dumps({"output": str(path), "shape": list(scan.shape), "returns": int(scan.valid.sum())}))
+    return 0
+
+
+def run_import(args) -> int:
+    from tlssim.formats import import_scan
+
+    scan = import_scan(args.input)
+    path = scan.save(args.output)
+    print(json.dumps({"output": str(path), "shape": list(scan.shape), "returns": int(scan.valid.sum()),
+                      "truth": scan.has_truth}))
+    return 0

@@ -1,0 +1,58 @@
+"""Scan file formats: E57, PTX and LAS/LAZ, chosen by file extension.
+
+- **E57** (ASTM E2807, via ``pye57``): one structured scan with row and
+  column indices, intensity and the scanner pose; points in the scanner
+  frame as single-precision floats. Pulses without a return are kept as
+  directions (``cartesianInvalidState = 1``), so the whole grid survives.
+- **PTX** (Leica ASCII): the grid column by column with the scanner pose in
+  the header; points in the scanner frame (1 µm), intensity normalised to
+  [0, 1]; pulses without a return are written as ``0 0 0 0``.
+- **LAS/LAZ** (ASPRS LAS 1.4, point format 6, via ``laspy``): the returned
+  points in the world frame (10 µm), intensity in DN, the grid position and
+  angles and every truth array as extra dimensions, and the scan's metadata
+  (grid shape and axes, pose, scanner model, object names) as JSON in a
+  ``tlslab`` VLR.
+
+:func:`import_scan` of an E57 or PTX file gives a :class:`~tlssim.scan.Scan`
+without truth, ready for reconstruction; a LAS/LAZ file written by
+:func:`export_scan` comes back with the truth of its returned points.
+Unreadable, truncated or malformed files raise :class:`~tlssim.errors.ScanError`
+naming the file and the problem.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from tlssim.errors import ScanError
+from tlssim.formats import e57, las, ptx
+from tlssim.scan import Scan
+
+#: Writer and reader of every supported extension.
+FORMATS = {".e57": (e57.write, e57.read), ".ptx": (ptx.write, ptx.read),
+           ".las": (las.write, las.read), ".laz": (las.write, las.read)}
+
+
+def _codec(path: Path):
+    suffix = path.suffix.lower()
+    if suffix not in FORMATS:
+        raise ScanError(f"{path}: unknown scan format {suffix!r}; supported: {', '.join(sorted(FORMATS))}")
+    return FORMATS[suffix]
+
+
+def export_scan(scan: Scan, path) -> Path:
+    """Write ``scan`` in the format of ``path``'s extension (``.e57``, ``.ptx``, ``.las``, ``.laz``)."""
+    path = Path(path)
+    writer, _ = _codec(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    writer(scan, path)
+    return path
+
+
+def import_scan(path) -> Scan:
+    """Read a scan file (``.e57``, ``.ptx``, ``.las``, ``.laz``; the first scan of multi-scan files)."""
+    path = Path(path)
+    _, reader = _codec(path)
+    if not path.is_file():
+        raise ScanError(f"{path}: no such scan file")
+    return reader(path)

@@ -1,0 +1,112 @@
+"""E57 export and import of structured scans (via ``pye57``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from tlssim.errors import ScanError
+from tlssim.formats.grid import angles_of, complete_angles, local_points, scan_from_local
+from tlssim.pattern import ScannerPose
+from tlssim.scan import Scan
+
+#: Row and column indices are stored as 16-bit unsigned integers by pye57.
+MAX_INDEX = 65535
+
+
+def write(scan: Scan, path: Path) -> None:
+    """Write the whole grid as one structured E57 scan (scanner frame, with the pose)."""
+    import pye57
+
+    rows, cols = scan.shape
+    if max(rows, cols) - 1 > MAX_INDEX:
+        raise ScanError(f"{path}: a {rows} x {cols} grid exceeds the E57 writer's {MAX_INDEX + 1} rows or columns")
+    local = local_points(scan).reshape(-1, 3)
+    row, col = np.indices(scan.shape)
+    data = {
+        "cartesianX": local[:, 0], "cartesianY": local[:, 1], "cartesianZ": local[:, 2],
+        "intensity": np.nan_to_num(scan.intensity, nan=0.0).ravel().astype(np.float32),
+        "rowIndex": row.ravel().astype(np.uint16), "columnIndex": col.ravel().astype(np.uint16),
+        # 0: valid point; 1: the cartesian vector is only a direction (no return)
+        "cartesianInvalidState": np.where(scan.valid.ravel(), 0, 1).astype(np.int8),
+    }
+    x, y, z, w = Rotation.from_matrix(scan.pose.rotation).as_quat()
+    with pye57.E57(str(path), mode="w") as e57:
+        e57.write_scan_raw(data, name=str(scan.meta.get("scene") or "tlssim scan"),
+                           rotation=np.array([w, x, y, z]), translation=scan.pose.position)
+
+
+def read(path: Path, intensity_max_dn: float = 2047.0) -> Scan:
+    """Read the first scan of an E57 file as a truth-less :class:`Scan`.
+
+    The scan must be structured (``rowIndex`` and ``columnIndex``); cartesian
+    or spherical coordinates are accepted. Intensities normalised to [0, 1]
+    (``intensityLimits`` maximum <= 1) are scaled to ``0..intensity_max_dn``.
+    """
+    import pye57
+
+    try:
+        e57 = pye57.E57(str(path))
+    except Exception as exc:  # libE57 raises its own exception types
+        raise ScanError(f"{path}: not a readable E57 file ({exc})") from None
+    try:
+        if e57.scan_count < 1:
+            raise ScanError(f"{path}: the E57 file holds no scan")
+        header = e57.get_header(0)
+        data = e57.read_scan_raw(0, ignore_unsupported_fields=True)
+        rotation, translation = header.rotation, header.translation
+        limit = _intensity_limit(header)
+    except ScanError:
+        raise
+    except Exception as exc:
+        raise ScanError(f"{path}: malformed or truncated E57 scan ({exc})") from None
+    finally:
+        e57.close()
+    if "rowIndex" not in data or "columnIndex" not in data:
+        raise ScanError(f"{path}: the E57 scan is not structured (no rowIndex / columnIndex); tlssim needs a grid")
+    local, invalid = _coordinates(path, data)
+    row, col = data["rowIndex"].astype(np.int64), data["columnIndex"].astype(np.int64)
+    row, col = row - row.min(), col - col.min()
+    shape = (int(row.max()) + 1, int(col.max()) + 1)
+    grid = np.full(shape + (3,), np.nan)
+    grid[row, col] = local
+    valid = np.zeros(shape, dtype=bool)
+    valid[row, col] = invalid == 0
+    intensity = np.full(shape, np.nan)
+    if "intensity" in data:
+        scale = intensity_max_dn if limit is not None and limit <= 1.0 else 1.0
+        intensity[row, col] = data["intensity"] * scale
+    has_direction = np.zeros(shape, dtype=bool)
+    has_direction[row, col] = invalid < 2
+    theta, psi = angles_of(np.where(has_direction[..., None], grid, np.nan))
+    theta, psi = complete_angles(theta, psi)
+    try:
+        pose = ScannerPose(translation, Rotation.from_quat(np.roll(rotation, -1)).as_matrix())
+    except (ScanError, ValueError) as exc:
+        raise ScanError(f"{path}: invalid scanner pose ({exc})") from None
+    return scan_from_local(grid, valid, intensity, pose, theta, psi, {"source": str(path), "format": "e57"})
+
+
+def _coordinates(path: Path, data: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Scanner-frame points and their invalid state (0 valid, 1 direction only, 2 nothing)."""
+    if all(k in data for k in ("cartesianX", "cartesianY", "cartesianZ")):
+        local = np.stack([data["cartesianX"], data["cartesianY"], data["cartesianZ"]], axis=1)
+        invalid = data.get("cartesianInvalidState", np.zeros(len(local), np.int8))
+    elif all(k in data for k in ("sphericalRange", "sphericalAzimuth", "sphericalElevation")):
+        r, azimuth, elevation = data["sphericalRange"], data["sphericalAzimuth"], data["sphericalElevation"]
+        invalid = data.get("sphericalInvalidState", np.zeros(len(r), np.int8))
+        r = np.where(invalid == 0, r, 1.0)  # a direction-only point keeps its angles
+        local = np.stack([r * np.cos(elevation) * np.cos(azimuth), r * np.cos(elevation) * np.sin(azimuth),
+                          r * np.sin(elevation)], axis=1)
+    else:
+        raise ScanError(f"{path}: the E57 scan has neither cartesian nor spherical coordinates")
+    return local.astype(np.float64), np.asarray(invalid).astype(np.int64)
+
+
+def _intensity_limit(header) -> float | None:
+    """Upper intensity limit of a scan header, if it states one."""
+    if "intensityLimits" not in header.scan_fields:
+        return None
+    return float(header["intensityLimits"]["intensityMaximum"].value())

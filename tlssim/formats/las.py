@@ -1,0 +1,99 @@
+"""LAS/LAZ export and import of the returned points with their grid position and truth (via ``laspy``)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from tlssim.errors import ScanError
+from tlssim.pattern import ScannerPose
+from tlssim.scan import TRUTH_KEYS, Scan
+
+#: Coordinate resolution of the written files, m.
+SCALE_M = 1e-5
+#: VLR that carries the scan's metadata as JSON.
+VLR_USER_ID, VLR_RECORD_ID = "tlslab", 1
+#: Extra dimensions: grid position and angles, then the truth arrays (normals split per axis).
+_GRID_DIMS = (("row", np.int32), ("col", np.int32), ("theta", np.float64), ("psi", np.float64))
+_TRUTH_DIMS = (("truth_range", np.float64), ("truth_id", np.int32), ("mixed_fraction", np.float32),
+               ("incidence", np.float32), ("truth_normal_x", np.float32), ("truth_normal_y", np.float32),
+               ("truth_normal_z", np.float32))
+
+
+def write(scan: Scan, path: Path) -> None:
+    """Write the returned points (world frame) as LAS, or LAZ for a ``.laz`` path."""
+    import laspy
+
+    valid = scan.valid
+    row, col = np.nonzero(valid)
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.offsets = scan.pose.position
+    header.scales = np.full(3, SCALE_M)
+    dims = _GRID_DIMS + (_TRUTH_DIMS if scan.has_truth else ())
+    header.add_extra_dims([laspy.ExtraBytesParams(name=name, type=dtype) for name, dtype in dims])
+    rows, cols = scan.shape
+    meta = {"shape": [rows, cols], "theta_columns": np.nanmedian(scan.theta, axis=0).tolist(),
+            "psi_rows": np.nanmedian(scan.psi, axis=1).tolist(), "scanner_position": scan.pose.position.tolist(),
+            "scanner_rotation": scan.pose.rotation.tolist(), "scanner_model": scan.scanner_model,
+            "meta": scan.meta, "object_names": scan.object_names}
+    header.vlrs.append(laspy.VLR(user_id=VLR_USER_ID, record_id=VLR_RECORD_ID, description="tlssim scan",
+                                 record_data=json.dumps(meta).encode()))
+    points = laspy.LasData(header)
+    points.x, points.y, points.z = scan.xyz[valid].T
+    points.intensity = np.round(scan.intensity[valid]).astype(np.uint16)
+    values = {"row": row, "col": col, "theta": scan.theta[valid], "psi": scan.psi[valid]}
+    if scan.has_truth:
+        values.update({key: getattr(scan, key)[valid] for key in TRUTH_KEYS if key != "truth_normal"})
+        values.update({f"truth_normal_{a}": scan.truth_normal[valid][:, i] for i, a in enumerate("xyz")})
+    for name, dtype in dims:
+        points[name] = values[name].astype(dtype)
+    points.write(str(path))
+
+
+def read(path: Path) -> Scan:
+    """Read a LAS/LAZ file written by :func:`write` back into a :class:`Scan`.
+
+    No-return cells get NaN range and intensity, the grid's axes from the
+    metadata, and no truth (the file holds returned points only).
+    """
+    import laspy
+
+    try:
+        points = laspy.read(str(path))
+    except Exception as exc:  # laspy raises LaspyException, ValueError, OSError...
+        raise ScanError(f"{path}: not a readable LAS/LAZ file ({exc})") from None
+    records = [v for v in points.header.vlrs if v.user_id == VLR_USER_ID and v.record_id == VLR_RECORD_ID]
+    names = set(points.point_format.extra_dimension_names)
+    if not records or not {n for n, _ in _GRID_DIMS} <= names:
+        raise ScanError(f"{path}: LAS/LAZ without tlssim grid metadata (only files written by tlssim can be "
+                        "imported as scans; point clouds have no scan grid)")
+    try:
+        meta = json.loads(records[0].record_data)
+        rows, cols = meta["shape"]
+        pose = ScannerPose(meta["scanner_position"], meta["scanner_rotation"])
+        theta = np.broadcast_to(np.asarray(meta["theta_columns"], float)[None, :], (rows, cols)).copy()
+        psi = np.broadcast_to(np.asarray(meta["psi_rows"], float)[:, None], (rows, cols)).copy()
+    except (KeyError, TypeError, ValueError, json.JSONDecodeError) as exc:
+        raise ScanError(f"{path}: malformed tlssim metadata in the LAS/LAZ file ({exc!r})") from None
+    row, col = np.asarray(points["row"], np.int64), np.asarray(points["col"], np.int64)
+    if len(row) and (row.min() < 0 or col.min() < 0 or row.max() >= rows or col.max() >= cols):
+        raise ScanError(f"{path}: point grid positions lie outside the {rows} x {cols} grid")
+    theta[row, col], psi[row, col] = points["theta"], points["psi"]
+    xyz = np.full((rows, cols, 3), np.nan)
+    xyz[row, col] = np.stack([points.x, points.y, points.z], axis=1)
+    intensity = np.full((rows, cols), np.nan, np.float32)
+    intensity[row, col] = points.intensity
+    truth = {}
+    if {n for n, _ in _TRUTH_DIMS} <= names:
+        for key, fill, dtype in (("truth_range", np.nan, np.float64), ("truth_id", -1, np.int32),
+                                 ("mixed_fraction", np.nan, np.float32), ("incidence", np.nan, np.float32)):
+            truth[key] = np.full((rows, cols), fill, dtype)
+            truth[key][row, col] = points[key]
+        truth["truth_normal"] = np.full((rows, cols, 3), np.nan, np.float32)
+        truth["truth_normal"][row, col] = np.stack([points[f"truth_normal_{a}"] for a in "xyz"], axis=1)
+    range_m = np.linalg.norm(xyz - pose.position, axis=-1)
+    return Scan(range=range_m, intensity=intensity, theta=theta, psi=psi, xyz=xyz, pose=pose,
+                scanner_model=meta.get("scanner_model") or {}, object_names=meta.get("object_names"),
+                meta={**(meta.get("meta") or {}), "source": str(path), "format": "las"}, **truth)
