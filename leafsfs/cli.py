@@ -1,4 +1,4 @@
-"""The ``leafsfs`` command line: ``leafsfs reconstruct SCAN -o OUTDIR``, ``leafsfs perf``, ``leafsfs compare``."""
+"""The ``leafsfs`` command line: ``leafsfs reconstruct SCAN -o OUTDIR``, ``perf``, ``compare``, ``accuracy``."""
 
 from __future__ import annotations
 
@@ -36,6 +36,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--repeat", type=int, default=3, help="repetitions per case, medians reported (default 3)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_perf)
+    p = sub.add_parser("accuracy", help="ROP, area and orientation errors on simulated leaves",
+                       description="Simulate single pear leaves (9 cm, wall 1 m behind) at each distance and "
+                                   "incidence, plus the built-in leaf-cluster, reconstruct them with each variant "
+                                   "and print the medians per distance x incidence: ROP before and after (the "
+                                   "issue's outlier definition), area, elevation and azimuth errors, purity.")
+    p.add_argument("--distances", default="0.8,1.5,3,5", help="leaf distances, m (default 0.8,1.5,3,5)")
+    p.add_argument("--incidences", default="0,20,40,60,80", help="incidence angles, deg (default 0,20,40,60,80)")
+    p.add_argument("--seeds", type=int, default=3, help="leaf shapes (and simulation seeds) per case (default 3)")
+    p.add_argument("--variants", default="buffer,fused", help=f"comma-separated, of {', '.join(VARIANTS)}")
+    p.add_argument("--no-cluster", action="store_true", help="leave out the leaf-cluster scene")
+    p.add_argument("--json", action="store_true", help="print the rows (one per case, variant and leaf) as JSON")
+    p.set_defaults(func=_accuracy)
     p = sub.add_parser("compare", help="buffer against fused on analytic surfaces and a simulated leaf",
                        description="The accuracy of the buffer and fused variants under alpha noise and bias "
                                    "(analytic surfaces) and under a biased calibration (simulated leaf).")
@@ -111,6 +123,27 @@ def _perf(args) -> int:
         raise SfsError("--sizes must be >= 10 and --repeat >= 1")
     report = run_perf(sizes, args.repeat)
     print(json.dumps(report, indent=1) if args.json else print_report(report))
+    return 0
+
+
+def _accuracy(args) -> int:
+    from leafsfs.accuracy import print_summary, run_accuracy, summarize
+    from leafsfs.errors import SfsError
+    from leafsfs.outputs import json_ready
+    from leafsfs.params import VARIANTS
+
+    try:
+        distances = [float(v) for v in args.distances.split(",")]
+        incidences = [float(v) for v in args.incidences.split(",")]
+    except ValueError:
+        raise SfsError("--distances and --incidences must be comma-separated numbers") from None
+    variants = args.variants.split(",")
+    if any(v not in VARIANTS for v in variants) or args.seeds < 1:
+        raise SfsError(f"--variants must name variants of {', '.join(VARIANTS)} and --seeds be >= 1")
+    if any(not 0.6 <= d <= 76 for d in distances) or any(not 0 <= a < 90 for a in incidences):
+        raise SfsError("distances must lie in [0.6, 76] m and incidences in [0, 90[ deg")
+    rows = run_accuracy(distances, incidences, range(args.seeds), variants, cluster=not args.no_cluster)
+    print(json.dumps(json_ready(rows), indent=1) if args.json else print_summary(summarize(rows)))
     return 0
 
 

@@ -193,6 +193,10 @@ def reconstruct_heights(alpha: np.ndarray, height: np.ndarray, mask: np.ndarray 
     smoothed = smooth_alpha(np.clip(alpha, 0, np.pi / 2), mask & ~unreliable, params.n_smooth)
     smoothed[unreliable] = np.pi / 2
     thresholds = domain_thresholds(smoothed, mask, params, mask & ~unreliable)
+    if unreliable.any() and (mask & ~unreliable).any():
+        # The unreliable pixels form the outermost domain of their own, even where the quantiles leave one domain.
+        top = float(np.max(smoothed[mask & ~unreliable]))
+        thresholds = np.unique(np.append(thresholds[thresholds < top], [top, np.pi / 2]))
     levels = assign_levels(smoothed, mask, thresholds)
     parts = split_parts(np.where(mask, smoothed, np.pi), levels, params.min_seed_px, params.orphans)
     shape = alpha.shape
@@ -289,18 +293,25 @@ def _run_part(part, smoothed, levels, height, valid, unreliable, grid: PixelGrid
     curves = [(k, seed_level, float("nan"), seed_curve.points_px)]
     anchors = [state]
     previous = seed_region
+    # A first domain without reliable pixels propagates with the alpha of the seed's reliable rim.
+    rim = seed_region & ~ndimage.binary_erosion(seed_region) & ~unreliable
     alpha = None
+    if rim.any():
+        alpha = _domain_alpha(smoothed[rim], params)
+        spread = float(np.std(np.tan(np.minimum(smoothed[rim], math.radians(params.alpha_max_deg)))))
     for level, region in chain[1:]:
-        # The domain's alpha from its reliable pixels (else the new pixels', else the previous domain's).
-        new = region & ~previous & ~unreliable
+        # The domain's alpha from its reliable pixels (else the new reliable ones', else the previous domain's,
+        # else any new pixel's).
+        known = region & ~previous & np.isfinite(smoothed)
+        new = known & ~unreliable
         in_domain = new & (levels == level)
-        if new.any() or alpha is None:
-            pool = in_domain if in_domain.any() else (new if new.any() else region & ~previous)
+        pool = in_domain if in_domain.any() else (new if new.any() else known)
+        if (new.any() or alpha is None) and pool.any():
             alpha = _domain_alpha(smoothed[pool], params)
             spread = float(np.std(np.tan(np.minimum(smoothed[pool], math.radians(params.alpha_max_deg)))))
         outer = extract_curve(region, grid, params.tangents)
         previous = region
-        if outer is None:
+        if outer is None or alpha is None:
             continue
         curves.append((k, level, alpha, outer.points_px))
         state, pixel, value = propagate_annulus(state, outer, alpha, ws, spread)

@@ -85,7 +85,7 @@ class LocalFrame:
 
 
 def local_frame(theta: np.ndarray, psi: np.ndarray, range_m: np.ndarray, mask: np.ndarray,
-                pose: ScannerPose | None = None, margin: int = 8) -> LocalFrame:
+                pose: ScannerPose | None = None, extent: np.ndarray | None = None, margin: int = 8) -> LocalFrame:
     """The metric frame of the object ``mask`` of a scan grid.
 
     Parameters
@@ -98,6 +98,8 @@ def local_frame(theta: np.ndarray, psi: np.ndarray, range_m: np.ndarray, mask: n
         The object's pixels.
     pose : ScannerPose, optional
         Scanner pose for :meth:`LocalFrame.world_points`.
+    extent : ndarray of bool, 2-D, optional
+        Further pixels the box must hold (e.g. the object's mixed edge pulses).
     margin : int
         Pixels kept around the object's bounding box.
 
@@ -107,9 +109,9 @@ def local_frame(theta: np.ndarray, psi: np.ndarray, range_m: np.ndarray, mask: n
         If the object has fewer than three pixels with a range.
     """
     valid = mask & np.isfinite(range_m) & (range_m > 0)
-    rows, cols = np.nonzero(valid)
-    if len(rows) < 3:
-        raise SfsError(f"the object has {len(rows)} pixels with a valid range; at least 3 are needed")
+    if valid.sum() < 3:
+        raise SfsError(f"the object has {int(valid.sum())} pixels with a valid range; at least 3 are needed")
+    rows, cols = np.nonzero(valid if extent is None else valid | extent)
     shape = mask.shape
     box = (slice(max(rows.min() - margin, 0), min(rows.max() + margin + 1, shape[0])),
            slice(max(cols.min() - margin, 0), min(cols.max() + margin + 1, shape[1])))

@@ -9,9 +9,11 @@ local least-squares planes to it (the thesis' LSR, radius 5 px).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import ndimage
 
 
 @dataclass(frozen=True)
@@ -161,3 +163,51 @@ def local_planes(image: np.ndarray, valid: np.ndarray, grid: PixelGrid, centres:
     nan = np.where(ok, 1.0, np.nan)
     return LocalPlanes(coef[:, 0] * nan, coef[:, 1:3] * nan[:, None], covariance * nan[:, None, None], rms * nan,
                        count)
+
+
+def gaussian_planes(height: np.ndarray, known: np.ndarray, sigma_px: float
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gaussian-weighted least-squares planes of the known heights around every pixel.
+
+    Unlike a normalised Gaussian mean, a local plane reproduces a sloping
+    surface up to the region's border (a mean flattens a steep leaf seen
+    edge-on wherever its window reaches past the border), and extrapolates
+    it over the pixels just outside.
+
+    Parameters
+    ----------
+    height : ndarray, 2-D
+        Heights (any value where not known).
+    known : ndarray of bool, 2-D
+        Pixels whose heights are used.
+    sigma_px : float
+        Standard deviation of the Gaussian weight, pixels.
+
+    Returns
+    -------
+    height, slope, fitted : ndarray
+        Plane height at every pixel; its gradient per pixel step ``(rows,
+        cols, 2)`` (along rows, along columns); whether a plane could be
+        fitted there (enough known pixels around, not all on a line).
+    """
+    radius = max(1, int(math.ceil(3 * sigma_px)))
+    offsets = np.arange(-radius, radius + 1, dtype=float)
+    gauss = np.exp(-0.5 * (offsets / sigma_px) ** 2)
+    kernels = [gauss, offsets * gauss, offsets**2 * gauss]
+
+    def moment(image, a, b):  # sum over the window of w * image * du^a * dv^b
+        return ndimage.correlate1d(ndimage.correlate1d(image, kernels[a], axis=0, mode="constant"),
+                                   kernels[b], axis=1, mode="constant")
+
+    w = known.astype(float)
+    h = np.where(known, height, 0.0)
+    m = {ab: moment(w, *ab) for ab in ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))}
+    normal = np.stack([np.stack([m[0, 0], m[1, 0], m[0, 1]], -1), np.stack([m[1, 0], m[2, 0], m[1, 1]], -1),
+                       np.stack([m[0, 1], m[1, 1], m[0, 2]], -1)], -2)
+    rhs = np.stack([moment(h, 0, 0), moment(h, 1, 0), moment(h, 0, 1)], -1)
+    full = gauss.sum() ** 2  # the weight of a whole window
+    det = np.linalg.det(normal)
+    fitted = (m[0, 0] > 0.1 * full) & (det > 1e-3 * full**3 * sigma_px**4)
+    normal[~fitted] = np.eye(3)
+    coef = np.linalg.solve(normal, rhs[..., None])[..., 0]
+    return coef[..., 0], coef[..., 1:], fitted

@@ -10,27 +10,30 @@ intensity and the geometry disagree: an object edge, or the mixed
 steepest slope is used.
 
 Pixels joined by plausible steps (4-neighbour links) form connected
-regions. Mixed points, whose ranges lie between the surfaces, end up alone or
-in small groups; pixels of groups smaller than ``min_pixels`` join, among
-the regions within ``band_px`` pixels, the one nearest to the scanner (a
-mixed footprint straddles an edge of the foreground object, whose distance
-it is meant to have; ``band_px`` is about a footprint diameter). Regions touching
-the scan window's border (the background behind the leaves) are dropped by
-default.
+regions; those of at least ``min_pixels`` are *surfaces*. Mixed points,
+whose ranges lie between two surfaces, end up alone or in small groups;
+:func:`leafsfs.edges.attribute_mixed` finds the two surfaces each one
+straddles and gives it to the one that returned most of its power. A leaf
+region is a surface with the mixed pulses it dominates. Surfaces touching
+the scan window's border (the background behind the leaves) are not leaves
+by default.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 
+from leafsfs.edges import MixedPulses, attribute_mixed, band_pixels
 from leafsfs.errors import SfsError
 from tlssim.pattern import beam_frame
 
-_SHIFTS = ((1, 0), (-1, 0), (0, 1), (0, -1))
+#: Range noise assumed when a scan has too few consecutive returns to measure it, m.
+NOISE_FLOOR_M = 0.001
 
 
 def _shift(image: np.ndarray, di: int, dj: int, fill):
@@ -46,7 +49,8 @@ def link_components(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alp
                     max_slope_deg: float = 80.0, alpha_margin_deg: float = 25.0, noise_m: float = 0.002) -> np.ndarray:
     """Connected components of the valid pixels joined by plausible range steps (labels 1.., 0 = no return).
 
-    Parameters are those of :func:`segment_leaves`.
+    ``noise_m`` is the range step allowed on top of the slope's (m); the other
+    parameters are those of :func:`segment_scan`.
     """
     if not 0 < max_slope_deg < 90:
         raise SfsError(f"max_slope_deg must lie in ]0, 90[ degrees, got {max_slope_deg!r}")
@@ -72,23 +76,57 @@ def link_components(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alp
     return np.where(valid.ravel(), component + 1, 0).reshape(r.shape)
 
 
-def edge_pixels(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha: np.ndarray | None = None, *,
-                min_pixels: int = 100, **limits) -> np.ndarray:
-    """Valid pixels outside every linked region of at least ``min_pixels``: mixed points and small fragments.
+@dataclass
+class Segmentation:
+    """Leaf regions of a scan and the surfaces and mixed pulses they were built from.
 
-    Their range is not that of a smooth surface and their intensity, corrected
-    with that range, is not that of one either; PROP-SFS uses neither (they
-    join the outermost iso-alpha domain and get distances by propagation).
+    Attributes
+    ----------
+    leaves : ndarray of int, 2-D
+        Leaf region per pulse, 1..K (0: none): a leaf's pure pulses and the
+        mixed pulses it returned most of the power of.
+    leaf_surfaces : ndarray of int, (K,)
+        Surface label of each leaf region (``leaf_surfaces[k - 1]`` for region ``k``).
+    mixed : MixedPulses
+        The surfaces (large linked components) and the attribution of the mixed pulses.
     """
-    component = link_components(range_m, theta, psi, alpha, **limits)
-    sizes = np.bincount(component.ravel())
-    return (component > 0) & (sizes[component] < min_pixels)
+
+    leaves: np.ndarray
+    leaf_surfaces: np.ndarray
+    mixed: MixedPulses
+
+    def region_surface(self, label: int) -> int:
+        """Surface label of leaf region ``label``."""
+        return int(self.leaf_surfaces[label - 1])
 
 
-def segment_leaves(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha: np.ndarray | None = None, *,
-                   min_pixels: int = 100, max_slope_deg: float = 80.0, alpha_margin_deg: float = 25.0,
-                   noise_m: float = 0.002, drop_border: bool = True, band_px: int = 6) -> np.ndarray:
-    """Label the leaf regions of a scan.
+def angular_step(theta: np.ndarray, psi: np.ndarray) -> float:
+    """Median angle between neighbouring beams of a scan grid, rad."""
+    axis = beam_frame(theta, psi)[0]
+    steps = [np.arccos(np.clip(np.sum(axis[1:] * axis[:-1], axis=-1), -1, 1)).ravel(),
+             np.arccos(np.clip(np.sum(axis[:, 1:] * axis[:, :-1], axis=-1), -1, 1)).ravel()]
+    return float(np.median(np.concatenate(steps)))
+
+
+def range_noise(range_m: np.ndarray) -> float:
+    """Robust standard deviation of the pulse-to-pulse range noise of a scan grid, m.
+
+    From second differences along rows and columns (``r[k-1] - 2 r[k] +
+    r[k+1]``, variance ``6 sigma^2`` on a locally planar surface, free of its
+    slope): ``sigma = 1.4826 median|d2| / sqrt(6)``; edges are few enough
+    for the median to ignore them. NaN without three consecutive returns.
+    """
+    second = [np.diff(range_m, 2, axis=0).ravel(), np.diff(range_m, 2, axis=1).ravel()]
+    second = np.concatenate(second)
+    second = second[np.isfinite(second)]
+    return float(1.4826 * np.median(np.abs(second)) / math.sqrt(6)) if len(second) else math.nan
+
+
+def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha: np.ndarray | None = None, *,
+                 min_pixels: int = 100, max_slope_deg: float = 80.0, alpha_margin_deg: float = 25.0,
+                 noise_m: float | None = None, drop_border: bool = True, band_m: float = 0.01,
+                 min_width_m: float = 0.004, intensity: np.ndarray | None = None) -> Segmentation:
+    """Surfaces, mixed pulses and leaf regions of a scan.
 
     Parameters
     ----------
@@ -98,58 +136,101 @@ def segment_leaves(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alph
         Intensity-derived incidence, rad; sets the steepest plausible slope
         per pixel to ``alpha + alpha_margin_deg`` (capped at ``max_slope_deg``).
     min_pixels : int
-        Smallest linked region kept as a region of its own.
+        Smallest linked region kept as a surface of its own.
     max_slope_deg : float
         Steepest plausible slope without (or beyond) alpha, degrees.
     alpha_margin_deg : float
         Tolerance on the intensity-derived incidence, degrees.
-    noise_m : float
-        Range noise allowance per step, m (assumption: a few sigma of the
-        FARO-class range noise at 1-5 m).
+    noise_m : float, optional
+        Standard deviation of the range noise, m (default: estimated,
+        :func:`range_noise`). Links allow 3 sigma of the difference of two
+        pulses on top of the slope; a pulse within 3 sigma of a surface
+        belongs to it.
     drop_border : bool
-        Drop regions touching the window's border (the background).
-    band_px : int
-        Largest distance, pixels, at which a mixed point joins a region.
-
-    Returns
-    -------
-    ndarray of int, 2-D
-        Region label per pixel, 1..K, 0 for none.
+        Surfaces touching the window's border (the background) are not leaves.
+    band_m : float
+        How far from a surface its mixed pulses may lie, m (assumption: three
+        1/e^2 footprint radii of a FARO-class beam up to ~7 m, across which
+        the footprint's share of a surface falls from 99.9 % to 0.1 %).
+    min_width_m : float
+        Narrower surfaces are not leaves, m: twigs, petioles and wires, whose
+        pulses are nearly all mixed and which have no sand-pile surface to
+        propagate (assumption: 4 mm, a footprint diameter of a FARO-class
+        beam at 2 m; a 9 cm pear leaf seen at 80 deg is still 6 mm wide at 5 m).
+    intensity : ndarray, 2-D, optional
+        Intensities, DN, for the geometric shares of the mixed pulses
+        (:meth:`leafsfs.edges.MixedPulses.share_of`).
     """
     valid = np.isfinite(range_m)
     if not valid.any():
         raise SfsError("the scan has no valid pixels (no returns) to segment")
+    sigma = range_noise(range_m) if noise_m is None else noise_m
+    sigma = sigma if np.isfinite(sigma) and sigma > 0 else NOISE_FLOOR_M
     component = link_components(range_m, theta, psi, alpha, max_slope_deg=max_slope_deg,
-                                alpha_margin_deg=alpha_margin_deg, noise_m=noise_m)
+                                alpha_margin_deg=alpha_margin_deg, noise_m=3 * math.sqrt(2) * sigma)
     sizes = np.bincount(component.ravel())
     large = sizes >= min_pixels
     large[0] = False
-    labels = _attach(np.where(large[component], component, 0), np.where(valid, range_m, np.nan), valid, band_px)
-    sizes = np.bincount(labels.ravel())
-    keep = np.zeros(len(sizes), dtype=bool)
-    keep[np.unique(labels[labels > 0])] = True
-    if drop_border:
-        keep[np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))] = False
-    keep[0] = False
     lookup = np.zeros(len(sizes), dtype=int)
-    lookup[keep] = np.arange(1, keep.sum() + 1)
-    return lookup[labels]
+    lookup[large] = np.arange(1, large.sum() + 1)
+    step = angular_step(theta, psi)
+    surfaces = split_thin_parts(lookup[component], range_m, step, min_width_m, min_pixels)
+    band = band_pixels(band_m, range_m, surfaces, step)
+    mixed = attribute_mixed(range_m, surfaces, band, intensity, tolerance_m=3 * sigma)
+    leaf = surface_widths(surfaces, range_m, step) >= min_width_m
+    leaf[0] = False
+    if drop_border:
+        leaf[np.unique(np.concatenate([surfaces[0], surfaces[-1], surfaces[:, 0], surfaces[:, -1]]))] = False
+    leaf_surfaces = np.nonzero(leaf)[0]
+    relabel = np.zeros(len(leaf), dtype=int)
+    relabel[leaf_surfaces] = np.arange(1, len(leaf_surfaces) + 1)
+    return Segmentation(relabel[mixed.owner], leaf_surfaces, mixed)
 
 
-def _attach(labels: np.ndarray, r: np.ndarray, valid: np.ndarray, band_px: int) -> np.ndarray:
-    """Give each unlabelled valid pixel the label of the nearest-to-the-scanner region within ``band_px``.
+def split_thin_parts(surfaces: np.ndarray, range_m: np.ndarray, step_rad: float, min_width_m: float,
+                     min_pixels: int) -> np.ndarray:
+    """Surfaces with their thin appendages (a twig a leaf's petiole links it to) split off as surfaces of their own.
 
-    "Nearest to the scanner" compares the ranges of each region's pixel
-    closest to the unlabelled one.
+    The parts of a surface that an opening by a disc of diameter
+    ``min_width_m`` removes, where they hold at least ``min_pixels`` pulses
+    (smaller ones are the corners and tips of the surface itself).
     """
-    todo = valid & (labels == 0)
-    best = np.full(labels.shape, np.inf)
-    out = labels.copy()
-    for k in np.unique(labels[labels > 0]):
-        distance, (ii, jj) = ndimage.distance_transform_edt(labels != k, return_indices=True)
-        near = todo & (distance <= band_px)
-        candidate = np.where(near, r[ii, jj], np.inf)
-        better = near & (candidate < best)
-        best[better] = candidate[better]
-        out[better] = k
+    out = surfaces.copy()
+    count = int(surfaces.max())
+    for k, box in enumerate(ndimage.find_objects(surfaces), start=1):
+        if box is None:
+            continue
+        inside = surfaces[box] == k
+        radius = int(round(min_width_m / 2 / (step_rad * float(np.median(range_m[box][inside])))))
+        if radius < 1:
+            continue
+        disc = np.hypot(*np.mgrid[-radius:radius + 1, -radius:radius + 1]) <= radius
+        parts, _ = ndimage.label(inside & ~ndimage.binary_opening(inside, disc))
+        sizes = np.bincount(parts.ravel())
+        sizes[0] = 0
+        for part in np.nonzero(sizes >= min_pixels)[0]:
+            count += 1
+            out[box][parts == part] = count
     return out
+
+
+def surface_widths(surfaces: np.ndarray, range_m: np.ndarray, step_rad: float) -> np.ndarray:
+    """Width of every surface: the diameter of the largest disc inside its pulses, m (index = label; 0 for 0).
+
+    The pixel distance transform's maximum, times the pixel spacing at the
+    surface's median range.
+    """
+    labels = np.arange(1, int(surfaces.max()) + 1)
+    widths = np.zeros(len(labels) + 1)
+    for k, box in zip(labels, ndimage.find_objects(surfaces)):
+        if box is not None:
+            inside = surfaces[box] == k
+            depth = ndimage.distance_transform_edt(np.pad(inside, 1)).max()
+            widths[k] = 2 * depth * step_rad * float(np.median(range_m[box][inside]))
+    return widths
+
+
+def segment_leaves(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha: np.ndarray | None = None,
+                   **options) -> np.ndarray:
+    """Label the leaf regions of a scan (1..K, 0 for none): :attr:`Segmentation.leaves` of :func:`segment_scan`."""
+    return segment_scan(range_m, theta, psi, alpha, **options).leaves

@@ -31,7 +31,7 @@ def write_outputs(result: SfsResult, outdir) -> dict[str, Path]:
     paths = {"corrected": result.corrected_scan().save(outdir / "corrected.npz")}
     paths["mesh"] = outdir / "mesh.ply"
     result.mesh().export(paths["mesh"])
-    report = {"variant": result.variant, "leaves": _json_ready(result.traits()),
+    report = {"variant": result.variant, "leaves": json_ready(result.traits()),
               "skipped": [{"leaf": label, "reason": reason} for label, reason in result.skipped],
               "rppp": result.rppp(), "n_corrected": int(result.corrected.sum()),
               "n_outliers": int(result.outlier.sum()), "params": result.params.to_dict()}
@@ -41,12 +41,12 @@ def write_outputs(result: SfsResult, outdir) -> dict[str, Path]:
     return paths
 
 
-def _json_ready(value):
+def json_ready(value):
     """NaN and infinities become null (JSON has no such numbers), recursively."""
     if isinstance(value, dict):
-        return {k: _json_ready(v) for k, v in value.items()}
+        return {k: json_ready(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_json_ready(v) for v in value]
+        return [json_ready(v) for v in value]
     return None if isinstance(value, float) and not math.isfinite(value) else value
 
 

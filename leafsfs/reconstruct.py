@@ -19,7 +19,7 @@ import trimesh
 from leafsfs.engine import HeightResult, reconstruct_heights
 from leafsfs.errors import SfsError
 from leafsfs.frame import LocalFrame, local_frame
-from leafsfs.leaves import edge_pixels, segment_leaves
+from leafsfs.leaves import range_noise, segment_scan
 from leafsfs.params import VARIANTS, SfsParams
 from leafsfs.preprocess import resolve_calibration, scan_alpha
 from leafsfs.traits import leaf_traits
@@ -27,6 +27,11 @@ from tlssim.scan import Scan, grid_to_xyz
 
 #: Smallest leaf region reconstructed, pixels (smaller regions are skipped and listed).
 MIN_LEAF_PIXELS = 30
+#: Smallest automatic outlier threshold, m (the issue's tau floor, tls-physics §7.10).
+OUTLIER_FLOOR_M = 0.002
+#: Log-amplifier gain assumed when the scan does not record its scanner model, DN per e-fold (the FARO LS880
+#: value derived from the Sensors 2011 Table 2 offsets, tls-physics §A.2).
+LOG_GAIN_DN = 263.0
 
 
 @dataclass
@@ -70,19 +75,23 @@ class SfsResult:
     labels : ndarray of int
         Leaf region per pixel (0: not reconstructed).
     range : ndarray
-        Corrected range per pixel, m: the median of the candidates (or the
-        rim extrapolation) on leaf pixels, the measured range elsewhere.
+        Corrected range per pixel, m: on leaf pixels judged outliers the
+        median of the candidates (or the rim extrapolation), on background
+        pulses the background's distance, the measured range elsewhere.
     corrected : ndarray of bool
-        Pixels whose range was re-estimated.
+        Pixels whose range was re-estimated (leaf pixels and background pulses).
     candidates : ndarray of int
         Number of PROP-SFS candidate distances per pixel (rppp counts).
     spread : ndarray
         Range of the candidate distances per pixel, m (NaN without candidates).
     outlier : ndarray of bool
-        Measured points farther than ``params.outlier_threshold_m`` from
-        their corrected distance.
+        Measured points judged outliers, whose distance was replaced: mixed
+        pulses, and the leaf points ``params.inliers`` replaces.
     alpha : ndarray
         Intensity-derived incidence, rad (smoothed on leaves).
+    background : ndarray of bool
+        Mixed pulses that a surface other than a leaf (the background)
+        dominates; they took that surface's distance.
     leaves : list of LeafResult
     skipped : list of (label, reason)
         Leaf regions that could not be reconstructed.
@@ -98,17 +107,19 @@ class SfsResult:
     spread: np.ndarray
     outlier: np.ndarray
     alpha: np.ndarray
+    background: np.ndarray
     leaves: list = field(default_factory=list)
     skipped: list = field(default_factory=list)
 
     def corrected_scan(self) -> Scan:
         """A copy of the scan with corrected ranges and points, plus the layers ``outlier``, ``candidates``,
-        ``leaf`` (region labels) and ``range_spread`` (m)."""
+        ``leaf`` (region labels), ``background`` and ``range_spread`` (m)."""
         scan = copy.copy(self.scan)
         scan.range = self.range.copy()
         scan.xyz = grid_to_xyz(scan.range, scan.theta, scan.psi, scan.pose)
         scan.layers = {**self.scan.layers, "outlier": self.outlier.copy(), "candidates": self.candidates.astype(np.int32),
-                       "leaf": self.labels.astype(np.int32), "range_spread": self.spread.astype(np.float32)}
+                       "leaf": self.labels.astype(np.int32), "background": self.background.copy(),
+                       "range_spread": self.spread.astype(np.float32)}
         scan.meta = {**self.scan.meta, "leafsfs": {"variant": self.variant, "params": self.params.to_dict()}}
         return scan
 
@@ -142,6 +153,16 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
                 calibration=None) -> SfsResult:
     """Re-estimate the distances of the leaves of a scan from its intensity (PROP-SFS).
 
+    Steps: intensity to incidence (the calibration); surfaces and mixed
+    pulses (:func:`leafsfs.leaves.segment_scan`): every mixed pulse goes to
+    the surface that returned most of its power, and those dominated by a
+    surface that is not a leaf (the wall behind) take that surface's
+    distance (with a given ``mask``, they are left alone); per leaf the
+    engine on its local frame; the leaf's mixed pulses, and the inliers as
+    ``params.inliers`` says, take the corrected distance (they are the
+    outliers); traits of that surface with every pulse weighted by the
+    leaf's share of its footprint.
+
     Parameters
     ----------
     scan : tlssim.Scan
@@ -149,7 +170,7 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
     mask : ndarray of bool or int, optional
         The leaf to reconstruct (boolean image of the scan's shape) or a
         label image of several leaves (0 = none). Default: leaf regions from
-        :func:`leafsfs.leaves.segment_leaves`.
+        :func:`leafsfs.leaves.segment_scan`.
     variant : {"simple", "sps", "buffer", "fused"}
         PROP-SFS variant.
     params : SfsParams, optional
@@ -172,19 +193,35 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
     valid = scan.valid & np.isfinite(scan.intensity)
     if not valid.any():
         raise SfsError("the scan has no valid pixels (no returns with range and intensity)")
-    labels = None
-    if mask is not None:
-        labels = _labels_from_mask(mask, scan.shape)
+    labels = None if mask is None else _labels_from_mask(mask, scan.shape)
     calibration = resolve_calibration(calibration, scan)
     alpha, reliable = scan_alpha(scan.intensity, scan.range, calibration)
+    segmentation = segment_scan(scan.range, scan.theta, scan.psi, alpha, intensity=scan.intensity)
+    gain = float(scan.scanner_model.get("log_gain_dn", LOG_GAIN_DN))
+    mixed = segmentation.mixed
+    unreliable = valid & mixed.straddling
+    out_range = scan.range.copy()
+    background = np.zeros(scan.shape, dtype=bool)
     if labels is None:
-        labels = segment_leaves(scan.range, scan.theta, scan.psi, alpha)
+        labels = segmentation.leaves
+        surface_of = {k: segmentation.region_surface(k) for k in np.unique(labels[labels > 0])}
+        shares = {k: mixed.share_of(s, gain) for k, s in surface_of.items()}
+        # Mixed pulses dominated by a surface that is not a leaf (the wall behind) take its distance.
+        background = unreliable & (mixed.owner > 0) & ~np.isin(mixed.owner, segmentation.leaf_surfaces)
+        out_range[background] = mixed.owner_range()[background]
+    else:
+        # A given region counts its pixels whole, except the mixed pulses of its main surface, which count (inside
+        # the region or just outside it) for their share of that surface.
+        shares = {}
+        for k in np.unique(labels[labels > 0]):
+            main = _main_surface(mixed.surfaces, labels == k)
+            paired = (mixed.surfaces == 0) & (mixed.pair == main).any(axis=-1)
+            shares[k] = np.where(paired, mixed.share_of(main, gain), (labels == k).astype(float))
     labels = np.where(valid, labels, 0)
-    mixed = edge_pixels(scan.range, scan.theta, scan.psi, alpha)
     if not labels.any():
         raise SfsError("no leaf pixel with a valid return: the mask (or the leaf segmentation) selects none")
-    out_range = scan.range.copy()
-    corrected = np.zeros(scan.shape, dtype=bool)
+    inliers = params.inliers if params.inliers != "auto" else ("replace" if variant == "fused" else "keep")
+    corrected = background.copy()
     candidates = np.zeros(scan.shape, dtype=int)
     spread = np.full(scan.shape, np.nan)
     smoothed = alpha.copy()
@@ -194,11 +231,12 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
         if region.sum() < MIN_LEAF_PIXELS:
             skipped.append((int(label), f"{int(region.sum())} pixels (< {MIN_LEAF_PIXELS})"))
             continue
-        frame = local_frame(scan.theta, scan.psi, scan.range, region, scan.pose)
+        frame = local_frame(scan.theta, scan.psi, scan.range, region, scan.pose, shares[label] > 0)
         box = frame.box
+        measured = frame.height(scan.range[box])
         try:
-            heights = reconstruct_heights(alpha[box], frame.height(scan.range[box]), region[box], frame.grid,
-                                          variant, params, unreliable=mixed[box])
+            heights = reconstruct_heights(alpha[box], measured, region[box], frame.grid, variant, params,
+                                          unreliable=unreliable[box])
         except SfsError as exc:
             skipped.append((int(label), str(exc)))
             continue
@@ -206,25 +244,49 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
             skipped.append((int(label), "no seed curve could be initialised (seed regions too small or unmeasured)"))
             continue
         done = region[box] & np.isfinite(heights.height)
+        threshold = params.outlier_threshold_m or outlier_threshold(scan.range[box], region[box] & ~unreliable[box])
+        with np.errstate(invalid="ignore"):
+            disagree = np.abs(measured - heights.height) > threshold
+        moved = unreliable[box] | (disagree if inliers == "test" else inliers == "replace")
         sub = out_range[box]
-        sub[done] = frame.range(heights.height[done])
+        sub[done & moved] = frame.range(heights.height[done & moved])
         corrected[box] |= done
         candidates[box] = np.where(region[box], heights.count, candidates[box])
         r_hi = frame.range(heights.height + 0.5 * heights.spread)
         r_lo = frame.range(heights.height - 0.5 * heights.spread)
         spread[box] = np.where(region[box], r_hi - r_lo, spread[box])
         smoothed[box] = np.where(region[box], heights.alpha, smoothed[box])
-        leaves.append(LeafResult(int(label), frame, heights, {}))
-    with np.errstate(invalid="ignore"):
-        outlier = corrected & (np.abs(scan.range - out_range) > params.outlier_threshold_m)
+        leaves.append(LeafResult(int(label), frame, heights, {"outlier_threshold_m": float(threshold)}))
+    outlier = corrected & (out_range != scan.range)
     result = SfsResult(scan, variant, params, labels, out_range, corrected, candidates, spread, outlier, smoothed,
-                       leaves, skipped)
+                       background, leaves, skipped)
     for leaf in leaves:
         region = labels == leaf.label
-        leaf.traits = {**leaf_traits(leaf.frame, leaf.heights.height, region[leaf.frame.box], params.trait_smoothing_m),
+        box = leaf.frame.box
+        # The traits of the output: corrected distances of the leaf's outliers, measured ones of its inliers.
+        height = leaf.frame.height(np.where(region & corrected, out_range, np.nan)[box])
+        leaf.traits = {**leaf_traits(leaf.frame, height, shares[leaf.label][box], params.trait_smoothing_m),
                        "n_points": int(region.sum()), "n_outliers": int((outlier & region).sum()),
-                       "unreliable_alpha_fraction": float(np.mean(~reliable[region]))}
+                       "unreliable_alpha_fraction": float(np.mean(~reliable[region])), **leaf.traits}
     return result
+
+
+def outlier_threshold(range_m: np.ndarray, pure: np.ndarray) -> float:
+    """``max(3 sigma, 2 mm)``, sigma the range noise of a leaf's pure pulses (:func:`leafsfs.leaves.range_noise`), m.
+
+    The issue's outlier rule (tls-physics §7.10) with the truth replaced by
+    the reconstruction: a measured point farther than this from its
+    corrected distance is an outlier.
+    """
+    sigma = range_noise(np.where(pure, range_m, np.nan))
+    return max(3.0 * sigma, OUTLIER_FLOOR_M) if np.isfinite(sigma) else OUTLIER_FLOOR_M
+
+
+def _main_surface(surfaces: np.ndarray, region: np.ndarray) -> int:
+    """The surface label holding most of a region's pure pulses (0 if none)."""
+    inside = surfaces[region]
+    inside = inside[inside > 0]
+    return int(np.bincount(inside).argmax()) if len(inside) else 0
 
 
 def _labels_from_mask(mask, shape) -> np.ndarray:

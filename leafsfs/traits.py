@@ -4,10 +4,15 @@ Thesis ch.7 §1.5 sums the areas of the PROP-SFS mesh triangles and takes the
 leaf orientation from their area-weighted mean normal, assuming a symmetric
 leaf whose lateral axis is horizontal. With sub-millimetre pixels, range
 noise of a millimetre makes such a mesh rough and its area several times too
-large, so here the corrected heights are first smoothed (a masked Gaussian
-of ``smoothing_m``, about the scale on which a leaf's shape varies), turned
-into world points on the pixel grid, and the area is the sum of the grid's
-area elements ``|dP/di x dP/dj|``.
+large (and the cliffs where propagation lines cross inflate it further), so
+here every pixel gets the Gaussian-weighted least-squares plane of the
+surface around it (``smoothing_m``, the scale on which a leaf's shape
+varies; a plane, unlike a mean, keeps the slope of a steep leaf up to its
+border), and the area is the sum of the world area elements ``|dP/di x
+dP/dj|`` of those planes, each weighted by the leaf's share of the pixel's
+footprint: mixed edge pulses count for the part of the footprint on the
+leaf, also those the background dominates, so the outline is neither
+dilated by the footprint nor eroded (:mod:`leafsfs.edges`).
 
 The project's truth (docs/contracts.md) is the midrib: elevation above the
 horizontal in [-90, 90] deg and azimuth from +x counter-clockwise. The
@@ -27,9 +32,13 @@ import numpy as np
 from scipy import ndimage
 
 from leafsfs.frame import LocalFrame
+from leafsfs.grid import gaussian_planes
+
+#: Smallest smoothing, pixels: fewer would let the range noise roughen the surface (and inflate the area).
+MIN_SMOOTHING_PX = 2.0
 
 
-def leaf_traits(frame: LocalFrame, height: np.ndarray, region: np.ndarray, smoothing_m: float) -> dict:
+def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoothing_m: float) -> dict:
     """Traits of one leaf.
 
     Parameters
@@ -38,10 +47,13 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, region: np.ndarray, smoot
         The leaf's frame.
     height : ndarray, 2-D
         Corrected heights on the frame's pixel box (NaN = none).
-    region : ndarray of bool, 2-D
-        The leaf's pixels in the box.
+    weight : ndarray, 2-D
+        The leaf's share of every pixel's footprint in the box (1 inside, a
+        fraction on mixed edge pulses, 0 off the leaf); a boolean region
+        counts its pixels whole.
     smoothing_m : float
-        Standard deviation of the Gaussian smoothing of the heights, m.
+        Standard deviation of the Gaussian weights of the local planes, m
+        (at least :data:`MIN_SMOOTHING_PX` pixels).
 
     Returns
     -------
@@ -50,34 +62,43 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, region: np.ndarray, smoot
         ``elevation_deg`` and ``azimuth_deg`` of the midrib estimate,
         ``length_m`` (extent along it); NaN orientation without a surface.
     """
-    known = region & np.isfinite(height)
+    weight = np.asarray(weight, dtype=float)
+    known = (weight > 0) & np.isfinite(height)
     empty = {"area_m2": 0.0, "normal": [math.nan] * 3, "normal_zenith_deg": math.nan, "elevation_deg": math.nan,
              "azimuth_deg": math.nan, "length_m": 0.0}
     if known.sum() < 4:
         return empty
-    sigma = smoothing_m / frame.grid.pixel_size
-    weight = ndimage.gaussian_filter(known.astype(float), sigma)
-    smooth = ndimage.gaussian_filter(np.where(known, height, 0.0), sigma) / np.maximum(weight, 1e-12)
-    rows, cols = np.indices(height.shape)
-    pixels = np.stack([rows, cols], axis=-1).reshape(-1, 2).astype(float)
-    points = frame.world_points(pixels, smooth.ravel()).reshape(*height.shape, 3)
-    d_row, d_col = np.gradient(points, axis=(0, 1))
-    element = np.cross(d_row, d_col)[known]
-    area = np.linalg.norm(element, axis=1)
+    smooth, slope, fitted = gaussian_planes(height, known, max(smoothing_m / frame.grid.pixel_size, MIN_SMOOTHING_PX))
+    # Where no plane could be fitted (isolated pixels), the pixel's own height and the nearest fit's slope.
+    nearest = tuple(ndimage.distance_transform_edt(~fitted, return_distances=False, return_indices=True))
+    smooth = np.where(fitted, smooth, np.where(known, height, smooth[nearest]))
+    slope = slope[nearest]
+    # World area element |dP/di x dP/dj| of P = u(i, j) r(h): beam directions u, range r = d0 exp(h / d0).
+    r = frame.range(smooth)[..., None]
+    u = frame.directions
+    du_row, du_col = np.gradient(u, axis=(0, 1))
+    d_row = du_row * r + u * (r / frame.reference_range) * slope[..., :1]
+    d_col = du_col * r + u * (r / frame.reference_range) * slope[..., 1:]
+    element = np.cross(d_row, d_col)
+    points = u * r @ frame.pose.rotation.T + frame.pose.position
+    element = element @ frame.pose.rotation.T
+    area = float(np.sum(weight * np.linalg.norm(element, axis=-1)))
+    element = element[known] * weight[known][:, None]
     facing = np.sign(np.sum(element * (frame.pose.position - points[known]), axis=1))
     total = np.sum(facing[:, None] * element, axis=0)
-    if not area.sum() > 0 or not np.linalg.norm(total) > 0:
+    if not area > 0 or not np.linalg.norm(total) > 0:
         return empty
     normal = total / np.linalg.norm(total)
     normal = -normal if normal[2] < 0 else normal
-    weights = area / area.sum()
+    weights = np.linalg.norm(element, axis=1)
+    weights /= weights.sum()
     centre = weights @ points[known]
     offsets = points[known] - centre
     axis = np.linalg.eigh(offsets.T @ (weights[:, None] * offsets))[1][:, -1]
     axis = -axis if axis[2] < 0 else axis
     along = offsets @ axis
     return {
-        "area_m2": float(area.sum()),
+        "area_m2": area,
         "normal": [float(v) for v in normal],
         "normal_zenith_deg": math.degrees(math.acos(min(1.0, normal[2]))),
         "elevation_deg": math.degrees(math.asin(min(1.0, axis[2]))),

@@ -90,6 +90,17 @@ def test_mixed_range_is_intermediate_and_monotone(scans):
     assert np.allclose(d.ravel()[mixed], mean[mixed], atol=1e-3)
 
 
+def test_second_object_and_its_share(scans):
+    scan, _ = scans[19]
+    second, share = scan.layers["truth_second_id"], scan.layers["second_fraction"]
+    mixed = scan.mixed_fraction > 0
+    assert mixed.sum() > 50
+    # two objects only: the runner-up is the other one and carries all the minority power
+    assert np.all(second[mixed] == 1 - scan.truth_id[mixed])
+    assert np.allclose(share[mixed], scan.mixed_fraction[mixed], atol=1e-6)
+    assert np.all(second[~mixed] == -1) and np.all(share[~mixed] == 0)
+
+
 def test_mixed_intensity_between_the_pure_surfaces(scans):
     scan, _ = scans[19]
     share = np.where(scan.truth_id == 0, 1 - scan.mixed_fraction, scan.mixed_fraction)

@@ -43,7 +43,8 @@ def test_npz_round_trip(knife, tmp_path):
     with np.load(path, allow_pickle=False) as data:
         keys = set(data.files)
     assert set(GRID_KEYS + TRUTH_KEYS) | {"object_names", "scanner_position", "scanner_rotation",
-                                          "scanner_model", "meta", "outlier"} == keys
+                                          "scanner_model", "meta", "outlier", "truth_second_id",
+                                          "second_fraction"} == keys
     back = Scan.load(path)
     for key in GRID_KEYS + TRUTH_KEYS:
         assert np.array_equal(getattr(back, key), getattr(knife, key), equal_nan=True)

@@ -57,33 +57,47 @@ def test_measured_outliers_move_to_the_true_surface(leaf_scan, leaf_result):
     on_leaf = (scan.truth_id == leaf) & (np.abs(scan.truth_range - 1.5) < 0.1) & leaf_result.corrected
     measured = np.abs(scan.range - scan.truth_range)
     corrected = np.abs(leaf_result.range - scan.truth_range)
-    outliers = on_leaf & (measured > 0.005)
+    # The phase-shift outliers: mixed pulses (the buffer variant keeps the measured distance of pure pulses,
+    # whose range-noise tails are left alone; see leafsfs.accuracy for the numbers behind that choice).
+    outliers = on_leaf & (measured > 0.005) & (scan.mixed_fraction > 0.01)
     assert outliers.sum() > 300
     assert np.mean(corrected[outliers] < measured[outliers]) > 0.95
     assert np.median(corrected[outliers]) < 0.05 * np.median(measured[outliers])
-    # Inliers: with intensity noise the thesis' propagation drifts by a few mm (the fused variant does not).
-    assert np.quantile(corrected[on_leaf], 0.9) < 0.012  # m
+    assert np.quantile(corrected[on_leaf], 0.9) < 0.005  # m (the inliers keep their measured distance)
     points = leaf_result.points()  # the corrected point cloud, world frame
     assert len(points) == leaf_result.corrected.sum()
     assert np.allclose(np.linalg.norm(points - scan.pose.position, axis=1), leaf_result.range[leaf_result.corrected])
-    # flags: exactly the corrected pixels that moved farther than the threshold
-    moved = np.abs(scan.range - leaf_result.range) > leaf_result.params.outlier_threshold_m
-    assert np.array_equal(leaf_result.outlier, leaf_result.corrected & moved)
+    # flags: exactly the corrected pixels whose distance was replaced; inliers keep their measured distance
+    assert np.array_equal(leaf_result.outlier, leaf_result.corrected & (leaf_result.range != scan.range))
+    threshold = leaf_result.leaves[0].traits["outlier_threshold_m"]
+    kept = leaf_result.corrected & ~leaf_result.outlier
+    assert kept.sum() > 0.5 * on_leaf.sum() and 0.002 <= threshold < 0.01
 
 
 def test_leaf_traits_and_redundancy(leaf_scan, leaf_result):
     scene, _, _ = leaf_scan
     truth = scene.objects[0].truth
     (traits,) = leaf_result.traits()
-    assert traits["area_m2"] == pytest.approx(truth["area_m2"], rel=0.35)
+    # Measured: -1 % area, 0.3 deg elevation and azimuth, 1.4 deg normal (before the mixed-pulse attribution
+    # and the share-weighted, local-plane traits: +28 %, 5.6, 7.6 and 11 deg).
+    assert traits["area_m2"] == pytest.approx(truth["area_m2"], rel=0.05)
     # the scan cannot tell the tip from the petiole: compare the midrib azimuth modulo 180 deg
-    assert abs((traits["azimuth_deg"] - truth["azimuth_deg"] + 90) % 180 - 90) < 15
-    assert abs(traits["elevation_deg"] - truth["elevation_deg"]) < 10
+    assert abs((traits["azimuth_deg"] - truth["azimuth_deg"] + 90) % 180 - 90) < 3
+    assert abs(traits["elevation_deg"] - truth["elevation_deg"]) < 3
     normal = np.array(truth["normal"]) * np.sign(truth["normal"][2] or 1)
-    assert np.degrees(np.arccos(np.clip(np.dot(normal, traits["normal"]), -1, 1))) < 15
+    assert np.degrees(np.arccos(np.clip(np.dot(normal, traits["normal"]), -1, 1))) < 5
     rppp = leaf_result.rppp()
     assert rppp["rppp_0"] < 0.05 and rppp["rppp_1"] > 0.6
-    assert traits["n_outliers"] == int(leaf_result.outlier.sum())
+    assert traits["n_outliers"] == int((leaf_result.outlier & (leaf_result.labels == traits["leaf"])).sum())
+
+
+def test_a_given_mask_counts_the_mixed_pulses_of_its_leaf(leaf_scan, leaf_result):
+    # The automatic region given back as a mask: the same leaf, the same area (its mixed pulses outside the mask,
+    # which the wall dominates, still count for the leaf's share of their footprints).
+    _, scan, calibration = leaf_scan
+    given = reconstruct(scan, mask=leaf_result.labels > 0, calibration=calibration)
+    assert given.traits()[0]["area_m2"] == pytest.approx(leaf_result.traits()[0]["area_m2"], rel=1e-6)
+    assert not given.background.any() and leaf_result.background.sum() > 1000
 
 
 def test_leaf_cluster_segmentation_separates_the_leaves():
@@ -101,8 +115,13 @@ def test_leaf_cluster_segmentation_separates_the_leaves():
         purity.append(np.mean(scan.truth_id[labels == best] == index))
         regions.add(best)
     assert len(regions) == len(purity) == 8  # a region per leaf
-    # little else in them: mixed edge points, and the twig next to the smallest leaf
-    assert min(purity) > 0.6 and np.median(purity) > 0.8
+    # Little else in them: the mixed pulses go to the surface that returned most of their power; only the twig
+    # where it touches the smallest leaf (same distance, linked) stays in that leaf's region.
+    assert min(purity) > 0.75 and np.median(purity) > 0.99
+    # The twig is not a leaf: no region is mostly wood.
+    wood = scan.object_names.index("shoot/wood")
+    for label in np.unique(labels[labels > 0]):
+        assert np.mean(scan.truth_id[labels == label] == wood) < 0.25
 
 
 def test_corrected_scan_round_trip_and_cli(leaf_scan, tmp_path, monkeypatch):
@@ -113,10 +132,13 @@ def test_corrected_scan_round_trip_and_cli(leaf_scan, tmp_path, monkeypatch):
     assert main(["reconstruct", str(path), "--variant", "buffer", "-o", str(outdir)]) == 0
     corrected = tlssim.Scan.load(outdir / "corrected.npz")
     with np.load(path) as before, np.load(outdir / "corrected.npz") as after:
-        assert set(before.files) | {"outlier", "candidates", "leaf", "range_spread"} == set(after.files)
+        assert set(before.files) | {"outlier", "candidates", "leaf", "background", "range_spread"} == set(after.files)
     assert corrected.layers["outlier"].dtype == bool and corrected.layers["candidates"].max() >= 1
     changed = corrected.range != scan.range
-    assert changed.any() and np.all(corrected.layers["leaf"][changed] > 0)
+    leaf, background = corrected.layers["leaf"] > 0, corrected.layers["background"]
+    assert changed.any() and np.all((leaf | background)[changed]) and not (leaf & background).any()
+    # mixed pulses the wall dominates take the wall's distance (1 m behind the leaf)
+    assert np.all(np.abs(corrected.range[background] - 2.5) < 0.05)
     report = json.loads((outdir / "traits.json").read_text())
     assert {"area_m2", "elevation_deg", "azimuth_deg", "n_points", "n_outliers"} <= set(report["leaves"][0])
     assert (outdir / "mesh.ply").stat().st_size > 1000 and (outdir / "preview.png").stat().st_size > 1000
@@ -150,9 +172,32 @@ def test_fused_variant_beats_the_measurement_and_survives_a_wrong_reflectance(le
     error = np.abs(fused.range - scan.truth_range)[on_leaf & fused.corrected]
     noise = np.abs(scan.range - scan.truth_range)[on_leaf & fused.corrected & (scan.mixed_fraction < 0.01)]
     assert np.median(error) < np.median(noise)  # the fusion also averages the range noise down
-    # The calibration assumes reflectance 0.58 instead of 0.48: alpha is overestimated by ~20 deg.
+    # The calibration assumes reflectance 0.58 instead of 0.48: alpha is overestimated by ~20 deg. The
+    # reconstructed surfaces are compared (every leaf point takes them).
     p90 = {}
     for variant in ("buffer", "fused"):
-        result = reconstruct(scan, variant=variant, calibration=LambertCalibration(scan.scanner_model, 0.58))
+        result = reconstruct(scan, variant=variant, params=SfsParams(inliers="replace"),
+                             calibration=LambertCalibration(scan.scanner_model, 0.58))
         p90[variant] = np.quantile(np.abs(result.range - scan.truth_range)[on_leaf & result.corrected], 0.9)
     assert p90["fused"] < 0.6 * p90["buffer"] and p90["fused"] < 0.01
+
+
+@pytest.mark.parametrize("suffix", [".e57", ".ptx"])
+def test_reconstruct_an_e57_or_ptx_scan_without_truth(leaf_scan, leaf_result, tmp_path, suffix):
+    # A simulated scan exported as a real scanner's file (no truth, no scanner model) and a calibration file.
+    from tlssim import formats
+
+    _, scan, calibration = leaf_scan
+    path = formats.export_scan(scan, tmp_path / f"leaf{suffix}")
+    calibration.save(tmp_path / "calibration.json")
+    outdir = tmp_path / "out"
+    assert main(["reconstruct", str(path), "--calibration", str(tmp_path / "calibration.json"), "-o", str(outdir)]) == 0
+    corrected = tlssim.Scan.load(outdir / "corrected.npz")
+    assert not corrected.has_truth and corrected.shape == scan.shape
+    (leaf,) = json.loads((outdir / "traits.json").read_text())["leaves"]
+    (reference,) = leaf_result.traits()
+    assert leaf["area_m2"] == pytest.approx(reference["area_m2"], rel=0.01)
+    assert leaf["n_points"] == pytest.approx(reference["n_points"], rel=0.01)
+    # the same distances as from the NPZ file, to the files' coordinate precision
+    both = (corrected.layers["leaf"] > 0) & (leaf_result.labels > 0)
+    assert np.median(np.abs(corrected.range - leaf_result.range)[both]) < 1e-4

@@ -20,7 +20,10 @@ Files
 - ``object_names`` (string array, index = truth id), ``scanner_position``
   (3,), ``scanner_rotation`` (3 x 3, scanner to world), ``scanner_model``
   (JSON text of the model parameters), ``meta`` (JSON text);
-- any further per-pixel layer (e.g. ``outlier``) under its own name.
+- any further per-pixel layer under its own name; simulated scans carry
+  ``truth_second_id`` (int32, object with the next largest returned power,
+  -1 = none) and ``second_fraction`` (its power share), and reconstructions
+  add e.g. ``outlier``.
 """
 
 from __future__ import annotations

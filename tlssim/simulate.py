@@ -158,6 +158,7 @@ def simulate(scene: Scene, setup: ScanSetup, seed: int = 0, backend: str = "auto
     returns = PulseReturns(distance_m=grid(distance), amplitude=grid(amplitude), power=grid(power))
     range_m, intensity = detect(model, returns, detector_rng)
     theta_grid, psi_grid = np.meshgrid(theta_axis, psi_axis)
+    layers = {key: grid(truth.pop(key)) for key in _TRUTH_LAYERS}
     return Scan(
         range=range_m,
         intensity=intensity,
@@ -169,6 +170,7 @@ def simulate(scene: Scene, setup: ScanSetup, seed: int = 0, backend: str = "auto
         object_names=scene.object_names,
         meta={"scene": scene.name, "seed": int(seed), "window": window.to_dict(), "backend": used_backend,
               "frame": "world"},
+        layers=layers,
         **{key: grid(value) for key, value in truth.items()},
     )
 
@@ -191,7 +193,11 @@ _TRUTH_LAYOUT = (
     ("mixed_fraction", (), np.nan, np.float32),
     ("incidence", (), np.nan, np.float32),
     ("truth_normal", (3,), np.nan, np.float32),
+    ("truth_second_id", (), -1, np.int32),
+    ("second_fraction", (), 0.0, np.float32),
 )
+#: Truth arrays stored as extra scan layers rather than as the Scan's own truth fields.
+_TRUTH_LAYERS = ("truth_second_id", "second_fraction")
 
 
 def _pulse_returns(hits: SubrayHits, model: ScannerModel) -> tuple[np.ndarray, np.ndarray]:
@@ -218,10 +224,16 @@ def pulse_truth(hits: SubrayHits, face_normals: np.ndarray) -> dict[str, np.ndar
         with the largest returned power), ``mixed_fraction`` (power share of
         the other objects), ``incidence`` (rad) and ``truth_normal`` (facing
         the scanner), the last two taken on the sub-ray of the dominant object
-        nearest to the beam centre. NaN / -1 where nothing returned power.
+        nearest to the beam centre; ``truth_second_id`` and
+        ``second_fraction``, the object with the next largest returned power
+        and its share (so a leaf's share of any pulse it touches is known
+        exactly where at most two objects meet). NaN / -1 where nothing
+        returned power; -1 and 0 on pure pulses.
     """
     dominant = hits.object_high.copy()
     share = np.where(dominant >= 0, hits.total_power, 0.0)
+    second = np.full_like(dominant, -1)
+    second_share = np.zeros(len(dominant))
     first, first_prim = hits.first, hits.first_prim
     mixed = np.nonzero((dominant >= 0) & (hits.object_low != dominant))[0]
     if len(mixed):
@@ -234,6 +246,10 @@ def pulse_truth(hits: SubrayHits, face_normals: np.ndarray) -> dict[str, np.ndar
         best = per_candidate.argmax(axis=1)
         dominant[mixed] = obj[rows, best]
         share[mixed] = per_candidate[rows, best]
+        others = np.where(obj == dominant[mixed][:, None], -1.0, per_candidate)
+        runner_up = others.argmax(axis=1)
+        second[mixed] = obj[rows, runner_up]
+        second_share[mixed] = others[rows, runner_up]
         first = first.copy()
         first[mixed] = np.argmax((obj == dominant[mixed][:, None]) & returned, axis=1)
         first_prim = first_prim.copy()
@@ -251,4 +267,7 @@ def pulse_truth(hits: SubrayHits, face_normals: np.ndarray) -> dict[str, np.ndar
         "mixed_fraction": np.where(has, mixed_fraction, np.nan),
         "incidence": np.where(has, np.arccos(np.clip(np.abs(facing), 0.0, 1.0)), np.nan),
         "truth_normal": np.where(has[:, None], normal, np.nan),
+        "truth_second_id": second.astype(np.int32),
+        "second_fraction": np.divide(second_share, hits.total_power, out=np.zeros(len(second)),
+                                     where=hits.total_power > 0),
     }

@@ -1,0 +1,400 @@
+"""Benchmark metrics, defined once: point-to-surface distances, ROP, losses, leaf-trait errors.
+
+Definitions (tls-physics digest §3 and §7.10; prior-art digest §2.3):
+
+- A returned point is an **outlier** when its distance to the true surface of
+  the object it is attributed to (the scan's ``truth_id``: the object that
+  returned most of the pulse's power) exceeds τ. Two thresholds are
+  reported: τ = max(3·σ_range, 2 mm) (:func:`auto_tau`), with σ_range the
+  range noise measured on the leaf's pure returns (:func:`robust_sigma`), and
+  τ = 1 cm, the "true" outliers that visibly distort a leaf.
+- **ROP** (ratio of outliers to points) of a leaf = outliers / points, over
+  the returned points with at least 10 % of their footprint power from the
+  leaf (:func:`leaf_power_share`; the share is configurable).
+- After a variant: ROP after = outliers / points among the points the
+  variant kept (moved points are judged at their new place); **ROP
+  reduction** = 1 − ROP after / ROP before; **good points lost** = share of
+  the non-outliers the variant dropped; **outliers restored** = share of the
+  outliers that the variant kept and moved to within τ of the truth.
+- Leaf traits: relative area error, and elevation / azimuth errors of the
+  midrib compared as undirected axes (:func:`axis_angle_errors`).
+
+All functions take and return plain numpy data; lengths in metres.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import ndimage
+from scipy.spatial import cKDTree
+from trimesh.triangles import closest_point
+
+#: Floor of the automatic outlier threshold, m (tls-physics digest §7.10).
+TAU_FLOOR_M = 0.002
+#: Threshold of the "true" outliers, m (digest §7.10, after the thesis' subtle/true split).
+TAU_TRUE_M = 0.01
+#: Smallest footprint power share from a leaf for a point to count on that leaf (digest §7.10).
+MIN_POWER_SHARE = 0.1
+#: Consistency factor of the median absolute deviation for a normal distribution.
+MAD_TO_SIGMA = 1.4826
+
+#: Work sizes of :func:`surface_distance` (memory bounds).
+_CHUNK_PAIRS = 2_000_000
+#: Triangles per leaf of the hierarchy of :class:`SurfaceDistance`, and points per chunk of a query.
+_LEAF_SIZE = 8
+_CHUNK_POINTS = 32768
+
+
+class SurfaceDistance:
+    """Exact distance from points to one triangle mesh (the mesh is prepared once, queried often).
+
+    The mesh gets a bounding-volume hierarchy: recursive median splits of
+    the triangle centroids down to :data:`_LEAF_SIZE` triangles, with an
+    oriented bounding box per node (oriented boxes stay tight around flat
+    or gently curved patches, so points far from a leaf, such as mixed
+    points behind it, prune as well as points on it). A point starts from
+    the exact distance ``u`` to the triangle of its nearest centroid and
+    descends the hierarchy level by level, keeping only the nodes whose box
+    lies within ``u``; in the leaves it keeps only triangles whose bound
+    ``sqrt(h² + max(0, l − R)²)`` (``h``: distance to the triangle's plane,
+    ``l``: in-plane distance to its centroid, ``R``: its radius) is within
+    ``u``, and tests those exactly with :func:`trimesh.triangles.closest_point`.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+        Mesh vertices, m.
+    faces : ndarray, shape (F, 3)
+        Triangles.
+    """
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
+        self.triangles = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
+        self.centroids = self.triangles.mean(axis=1)
+        self.radius = np.linalg.norm(self.triangles - self.centroids[:, None], axis=2).max(axis=1)
+        self.cross = np.cross(self.triangles[:, 1] - self.triangles[:, 0], self.triangles[:, 2] - self.triangles[:, 0])
+        length = np.linalg.norm(self.cross, axis=1, keepdims=True)
+        self.unit_normal = np.divide(self.cross, length, out=np.zeros_like(self.cross), where=length > 0)
+        self.centroid_tree = cKDTree(self.centroids)
+        self.order, self.start, self.count, self.children, level = _hierarchy(self.centroids)
+        self.axes, self.offset, self.half = _oriented_boxes(self.triangles[self.order], self.start, self.count, level)
+
+    def __call__(self, points: np.ndarray, signed: bool = False) -> np.ndarray:
+        """Distance of ``points`` (n, 3) to the mesh, m; signed by the side of the closest triangle if asked."""
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        _, face = self.centroid_tree.query(points)
+        face = np.asarray(face, dtype=np.int64).reshape(-1)
+        best = np.linalg.norm(closest_point(self.triangles[face], points) - points, axis=1)
+        for lo in range(0, len(points), _CHUNK_POINTS):
+            p = np.arange(lo, min(lo + _CHUNK_POINTS, len(points)))
+            node = np.zeros(len(p), dtype=np.int64)
+            while len(p):
+                local = np.einsum("ij,ikj->ik", points[p], self.axes[node]) - self.offset[node]
+                near = (np.maximum(np.abs(local) - self.half[node], 0.0) ** 2).sum(axis=1) <= _slack(best[p]) ** 2
+                p, node = p[near], node[near]
+                leaf = self.children[node, 0] < 0
+                positions, owner = _ranges(self.start[node[leaf]], self.start[node[leaf]] + self.count[node[leaf]])
+                self._test(points, p[leaf][owner], self.order[positions], best, face)
+                p = np.repeat(p[~leaf], 2)
+                node = self.children[node[~leaf]].ravel()
+        if not signed:
+            return best
+        side = np.einsum("ij,ij->i", points - closest_point(self.triangles[face], points), self.cross[face])
+        return np.where(side < 0, -best, best)
+
+    def _test(self, points, p, f, best, face) -> None:
+        """Test triangles ``f`` for points ``p`` (pairs); update ``best`` and ``face`` in place."""
+        offset = points[p] - self.centroids[f]
+        h = np.einsum("ij,ij->i", offset, self.unit_normal[f])
+        lateral = np.sqrt(np.maximum(np.einsum("ij,ij->i", offset, offset) - h * h, 0.0))
+        keep = h * h + np.maximum(lateral - self.radius[f], 0.0) ** 2 <= _slack(best[p]) ** 2
+        p, f = p[keep], f[keep]
+        if len(p) == 0:
+            return
+        d = np.linalg.norm(closest_point(self.triangles[f], points[p]) - points[p], axis=1)
+        first = np.lexsort((d, p))
+        first = first[np.r_[True, p[first][1:] != p[first][:-1]]]
+        better = d[first] < best[p[first]]
+        best[p[first][better]] = d[first][better]
+        face[p[first][better]] = f[first][better]
+
+
+def _ranges(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Concatenated positions ``lo[i] .. hi[i] - 1`` and the index ``i`` of each."""
+    counts = hi - lo
+    owner = np.repeat(np.arange(len(lo)), counts)
+    return np.repeat(lo, counts) + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts), owner
+
+
+def _reduce(ufunc, values: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """``ufunc`` reduced over consecutive runs of ``counts`` rows of ``values`` (every count >= 1)."""
+    return ufunc.reduceat(values, np.cumsum(counts) - counts, axis=0)
+
+
+def _hierarchy(centroids: np.ndarray):
+    """Median-split hierarchy of triangles, built level by level (one sort per level).
+
+    Returns
+    -------
+    order : ndarray of int, (F,)
+        Triangle ids; every node covers a contiguous range of it.
+    start, count : ndarray of int, (N,)
+        Range of each node in ``order`` (node 0 is the root).
+    children : ndarray of int, (N, 2)
+        Child nodes (-1 for leaves).
+    level : ndarray of int, (N,)
+        Depth of each node (nodes of one level cover disjoint ranges).
+    """
+    n = len(centroids)
+    order = np.arange(n)
+    start, count, level = [np.array([0])], [np.array([n])], [np.array([0])]
+    children = [np.full((1, 2), -1)]
+    total = 1
+    active = np.array([0]) if n > _LEAF_SIZE else np.zeros(0, dtype=int)
+    depth = 0
+    while len(active):
+        s, c = np.concatenate(start)[active], np.concatenate(count)[active]
+        positions, owner = _ranges(s, s + c)
+        points = centroids[order[positions]]
+        axis = np.argmax(_reduce(np.maximum, points, c) - _reduce(np.minimum, points, c), axis=1)
+        order[positions] = order[positions[np.lexsort((points[np.arange(len(owner)), axis[owner]], owner))]]
+        half = c // 2
+        ids = total + np.arange(2 * len(active))
+        all_children = np.concatenate(children)
+        all_children[active] = ids.reshape(-1, 2)
+        child_start = np.stack([s, s + half], axis=1).ravel()
+        child_count = np.stack([half, c - half], axis=1).ravel()
+        children = [all_children, np.full((len(ids), 2), -1)]
+        start.append(child_start)
+        count.append(child_count)
+        depth += 1
+        level.append(np.full(len(ids), depth))
+        total += len(ids)
+        active = ids[child_count > _LEAF_SIZE]
+    return order, np.concatenate(start), np.concatenate(count), np.concatenate(children), np.concatenate(level)
+
+
+def _oriented_boxes(triangles: np.ndarray, start: np.ndarray, count: np.ndarray, level: np.ndarray):
+    """Oriented bounding box of every node from the vertices of its triangles (in hierarchy order).
+
+    The axes are the principal axes of the node's vertices (from prefix sums
+    of coordinates and their products); the extents are exact.
+
+    Returns
+    -------
+    axes : ndarray, (N, 3, 3)
+        Box axes as rows.
+    offset : ndarray, (N, 3)
+        Box centre along each axis.
+    half : ndarray, (N, 3)
+        Half extents.
+    """
+    corners = triangles.reshape(-1, 3)
+    first = np.concatenate([np.zeros((1, 3)), np.cumsum(corners, axis=0)])
+    second = np.concatenate([np.zeros((1, 3, 3)), np.cumsum(corners[:, :, None] * corners[:, None, :], axis=0)])
+    lo, hi = 3 * start, 3 * (start + count)
+    size = (hi - lo)[:, None]
+    mean = (first[hi] - first[lo]) / size
+    covariance = (second[hi] - second[lo]) / size[:, :, None] - mean[:, :, None] * mean[:, None, :]
+    axes = np.swapaxes(np.linalg.eigh(covariance)[1], 1, 2)
+    low, high = np.zeros((len(start), 3)), np.zeros((len(start), 3))
+    for depth in range(level.max() + 1):  # nodes of one level hold disjoint vertices
+        nodes = np.nonzero(level == depth)[0]
+        positions, owner = _ranges(lo[nodes], hi[nodes])
+        along = np.einsum("ij,ikj->ik", corners[positions], axes[nodes[owner]])
+        low[nodes] = _reduce(np.minimum, along, hi[nodes] - lo[nodes])
+        high[nodes] = _reduce(np.maximum, along, hi[nodes] - lo[nodes])
+    return axes, (low + high) / 2, (high - low) / 2
+
+
+def _slack(bound):
+    """An upper bound widened by rounding error, so that ties are always tested exactly."""
+    return bound * (1 + 1e-9) + 1e-12
+
+
+def surface_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
+                     signed: bool = False) -> np.ndarray:
+    """Exact distance from points to a triangle mesh, m (see :class:`SurfaceDistance`).
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, 3)
+        Query points, m.
+    vertices : ndarray, shape (V, 3)
+        Mesh vertices, m.
+    faces : ndarray, shape (F, 3)
+        Triangles.
+    signed : bool
+        Return the distance signed by the side of the closest triangle
+        (positive on the side its normal points to).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+    """
+    return SurfaceDistance(vertices, faces)(points, signed)
+
+
+def robust_sigma(values: np.ndarray) -> float:
+    """Standard deviation estimated as 1.4826 × the median absolute deviation (NaN when empty)."""
+    values = np.asarray(values, dtype=np.float64)
+    values = values[np.isfinite(values)]
+    if len(values) == 0:
+        return math.nan
+    return float(MAD_TO_SIGMA * np.median(np.abs(values - np.median(values))))
+
+
+def auto_tau(sigma_range_m: float) -> float:
+    """Outlier threshold τ = max(3·σ_range, 2 mm), m (2 mm when σ is unknown)."""
+    return TAU_FLOOR_M if not np.isfinite(sigma_range_m) else max(3.0 * sigma_range_m, TAU_FLOOR_M)
+
+
+def leaf_power_share(truth_id: np.ndarray, mixed_fraction: np.ndarray, object_id: int,
+                     reach_px: int) -> np.ndarray:
+    """Share of each pulse's returned power that came from one object.
+
+    The scan records the dominant object of each pulse (``truth_id``) and
+    the power share of all others (``mixed_fraction``). On pulses dominated
+    by the object the share is ``1 − mixed_fraction``; on pulses dominated by
+    another object but within ``reach_px`` pixels of the object's own pulses
+    (the footprint can reach it) the minority power is attributed to the
+    object, which is exact where two objects meet and an upper bound where a
+    third one shares the footprint.
+
+    Parameters
+    ----------
+    truth_id : ndarray of int, (rows, cols)
+        Dominant object of each pulse (-1: none).
+    mixed_fraction : ndarray, (rows, cols)
+        Power share not from the dominant object.
+    object_id : int
+        The object.
+    reach_px : int
+        How far (pixels) the footprint of a pulse reaches.
+
+    Returns
+    -------
+    ndarray, (rows, cols)
+        Power share in [0, 1].
+    """
+    own = truth_id == object_id
+    mixed = np.nan_to_num(np.asarray(mixed_fraction, dtype=np.float64), nan=0.0)
+    size = 2 * max(int(reach_px), 0) + 1
+    near = ndimage.maximum_filter(own, size=size) & ~own & (truth_id >= 0)
+    return np.where(own, 1.0 - mixed, np.where(near, mixed, 0.0))
+
+
+def outlier_scores(outlier_before: np.ndarray, kept: np.ndarray, outlier_after: np.ndarray) -> dict:
+    """ROP before and after a variant, and what the variant did to good points and outliers.
+
+    Parameters
+    ----------
+    outlier_before : ndarray of bool, (n,)
+        Measured points that are outliers.
+    kept : ndarray of bool, (n,)
+        Points the variant kept (possibly moved).
+    outlier_after : ndarray of bool, (n,)
+        Kept points that are outliers at their output position (ignored where not kept).
+
+    Returns
+    -------
+    dict
+        ``n_points``, ``n_outliers``, ``rop_before``, ``rop_after``,
+        ``rop_reduction``, ``good_points_lost``, ``outliers_removed``,
+        ``outliers_restored``, ``good_points_damaged`` (NaN where a
+        denominator is zero, except ``rop_after``, which is 0 when the
+        variant kept no point: no outlier remains, and ``good_points_lost``
+        shows the cost).
+    """
+    before = np.asarray(outlier_before, dtype=bool)
+    kept = np.asarray(kept, dtype=bool)
+    after = np.asarray(outlier_after, dtype=bool) & kept
+    n, n_out = len(before), int(before.sum())
+    n_good, n_kept = n - n_out, int(kept.sum())
+    rop_before = ratio(n_out, n)
+    rop_after = ratio(int(after.sum()), n_kept) if n_kept else 0.0
+    return {
+        "n_points": n,
+        "n_outliers": n_out,
+        "rop_before": rop_before,
+        "rop_after": rop_after,
+        "rop_reduction": 1.0 - rop_after / rop_before if rop_before > 0 and np.isfinite(rop_after) else math.nan,
+        "good_points_lost": ratio(int((~before & ~kept).sum()), n_good),
+        "outliers_removed": ratio(int((before & ~kept).sum()), n_out),
+        "outliers_restored": ratio(int((before & kept & ~after).sum()), n_out),
+        "good_points_damaged": ratio(int((~before & after).sum()), n_good),
+    }
+
+
+def ratio(numerator: int, denominator: int) -> float:
+    """``numerator / denominator``, NaN when the denominator is zero."""
+    return numerator / denominator if denominator else math.nan
+
+
+def height_errors(estimate: np.ndarray, truth: np.ndarray, mask: np.ndarray, tolerance: float = 0.05) -> dict:
+    """Errors of a reconstructed height image, relative to the surface's height range (thesis ch.5 eqs 3.1-3.2).
+
+    ``eps = (estimate - truth) / h_tot`` with ``h_tot = h_max - h_min`` of
+    the true surface, over the reconstructed pixels of ``mask``.
+
+    Returns
+    -------
+    dict
+        ``eps_mean`` (signed mean, eq 3.1), ``abs_eps_mean`` and
+        ``abs_eps_median`` (eq 3.2), ``within_5pct`` (share of reconstructed
+        pixels with ``|eps| < tolerance``; the thesis' "95 % of the points
+        within 5 % of the radius" criterion), ``completeness`` (share of the
+        surface's pixels reconstructed).
+    """
+    mask = np.asarray(mask, dtype=bool)
+    h_tot = float(np.ptp(truth[mask]))
+    done = mask & np.isfinite(estimate)
+    eps = (estimate[done] - truth[done]) / h_tot if h_tot > 0 else np.zeros(int(done.sum()))
+    if len(eps) == 0:
+        return {"eps_mean": math.nan, "abs_eps_mean": math.nan, "abs_eps_median": math.nan,
+                "within_5pct": math.nan, "completeness": 0.0}
+    return {"eps_mean": float(eps.mean()), "abs_eps_mean": float(np.abs(eps).mean()),
+            "abs_eps_median": float(np.median(np.abs(eps))), "within_5pct": float(np.mean(np.abs(eps) < tolerance)),
+            "completeness": float(done.sum() / mask.sum())}
+
+
+def relative_error(estimate: float, truth: float) -> float:
+    """Signed relative error ``(estimate − truth) / truth``."""
+    return (estimate - truth) / truth
+
+
+def direction_from_angles(elevation_deg: float, azimuth_deg: float) -> np.ndarray:
+    """Unit vector of a direction given by elevation above the horizontal and azimuth from +x, degrees."""
+    el, az = math.radians(elevation_deg), math.radians(azimuth_deg)
+    return np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+
+
+def axis_angle_errors(elevation_deg: float, azimuth_deg: float, true_elevation_deg: float,
+                      true_azimuth_deg: float) -> tuple[float, float]:
+    """Elevation and azimuth errors of an axis whose sense is unknown, degrees.
+
+    A direction estimated from points (e.g. a principal axis) has no sense:
+    the estimate is flipped when it points away from the truth before the
+    angles are compared. The azimuth error is wrapped into [0, 180].
+
+    Returns
+    -------
+    elevation_error_deg, azimuth_error_deg : float
+        Absolute errors.
+    """
+    estimate = direction_from_angles(elevation_deg, azimuth_deg)
+    truth = direction_from_angles(true_elevation_deg, true_azimuth_deg)
+    if np.dot(estimate, truth) < 0:
+        estimate = -estimate
+    el = math.degrees(math.asin(float(np.clip(estimate[2], -1, 1))))
+    az = math.degrees(math.atan2(estimate[1], estimate[0]))
+    az_err = abs((az - true_azimuth_deg + 180.0) % 360.0 - 180.0)
+    return abs(el - true_elevation_deg), az_err
+
+
+def rms(values: np.ndarray) -> float:
+    """Root mean square (NaN when empty)."""
+    values = np.asarray(values, dtype=np.float64)
+    return float(np.sqrt(np.mean(values ** 2))) if len(values) else math.nan

@@ -1,0 +1,161 @@
+"""A local pool of worker processes that survives the variants it runs.
+
+Each worker is a spawned process (the Dr.Jit JIT does not survive ``fork``)
+that warms the simulator up once, then runs cases sent over a pipe and
+sends back one row per variant as soon as it is scored
+(:func:`benchmarks.runner.case_rows`). Unlike a
+:class:`concurrent.futures.ProcessPoolExecutor`, a worker that dies (out of
+memory, a crash in native code) or stays silent beyond the time limit costs
+only the variant it was running: that variant gets an error row, the
+worker is replaced, and the case's remaining variants go back to the
+queue. A memory limit (``RLIMIT_DATA``) per worker turns a runaway
+allocation into a ``MemoryError`` that the variant reports, before the
+kernel's out-of-memory killer picks a process on a shared machine.
+"""
+
+from __future__ import annotations
+
+import collections
+import multiprocessing
+import multiprocessing.connection
+import resource
+import signal
+import time
+
+from benchmarks.errors import BenchError
+
+_READY = "ready"
+
+
+def _worker(connection, memory_limit_bytes: int | None) -> None:
+    """Worker process: warm up, then run ``(case, specs)`` tasks until told to stop (``None``)."""
+    if memory_limit_bytes:
+        resource.setrlimit(resource.RLIMIT_DATA, (memory_limit_bytes, memory_limit_bytes))
+    from benchmarks.runner import case_rows, simulate_case
+    from benchmarks.suite import Case
+
+    # Compile the simulator's kernels once, so that no case pays for it.
+    simulate_case(Case("warm-up", {"builtin": "knife-edge"}, {"window": {"theta_deg": [0, 0], "psi_deg": [90, 90]}}, 0))
+    connection.send(_READY)
+    while (task := connection.recv()) is not None:
+        for row in case_rows(*task):
+            connection.send(row)
+        connection.send(None)
+
+
+class _Slot:
+    """One worker process and the task it is running."""
+
+    def __init__(self, context, memory_limit_bytes: int | None):
+        self.connection, child = context.Pipe()
+        self.process = context.Process(target=_worker, args=(child, memory_limit_bytes), daemon=True)
+        self.process.start()
+        child.close()
+        self.ready = False
+        self.task = None  # (case, specs not yet answered)
+        self.since = time.monotonic()
+
+    def assign(self, task) -> None:
+        self.task = (task[0], list(task[1]))
+        self.since = time.monotonic()
+        self.connection.send(task)
+
+    def collect(self) -> tuple[list[dict], bool]:
+        """Rows received so far, and whether the worker is gone."""
+        rows = []
+        try:
+            while self.connection.poll():
+                message = self.connection.recv()
+                self.since = time.monotonic()
+                if message == _READY:
+                    self.ready = True
+                elif message is None:
+                    self.task = None
+                else:
+                    rows.append(message)
+                    self.task[1].pop(0)
+        except (EOFError, OSError):
+            return rows, True
+        return rows, not self.process.is_alive()
+
+    def stop(self) -> None:
+        if self.process.is_alive():
+            self.process.kill()
+        self.process.join()
+        self.connection.close()
+
+
+def _death(exitcode: int | None) -> str:
+    if exitcode is not None and exitcode < 0:
+        name = signal.Signals(-exitcode).name
+        return f"the worker process was killed by {name}" + (" (out of memory?)" if name == "SIGKILL" else "")
+    return f"the worker process exited with status {exitcode}"
+
+
+def run_local(todo: list[tuple[dict, list[dict]]], workers: int, memory_limit_gb: float | None = None,
+              timeout_s: float | None = None):
+    """Run ``(case, variant specs)`` tasks on local worker processes.
+
+    Parameters
+    ----------
+    todo : list of (dict, list of dict)
+        Cases (:meth:`~benchmarks.suite.Case.to_dict`) with the specs of the
+        variants to run on each.
+    workers : int
+        Worker processes.
+    memory_limit_gb : float, optional
+        Data-segment limit of each worker, GiB (``None`` or 0: none).
+    timeout_s : float, optional
+        Longest silence of a worker on a task (simulation plus one variant)
+        before it is stopped and the variant recorded as timed out.
+
+    Yields
+    ------
+    list of dict
+        Result rows, as they arrive.
+
+    Raises
+    ------
+    BenchError
+        If a worker process cannot start.
+    """
+    from benchmarks.runner import error_row
+    from benchmarks.suite import Case
+
+    context = multiprocessing.get_context("spawn")
+    limit = int(memory_limit_gb * 2 ** 30) if memory_limit_gb else None
+    queue = collections.deque(todo)
+    slots = [_Slot(context, limit) for _ in range(max(1, min(workers, len(todo))))]
+    try:
+        while queue or any(slot.task for slot in slots):
+            for slot in slots:
+                if slot.ready and slot.task is None and queue:
+                    slot.assign(queue.popleft())
+            multiprocessing.connection.wait([s.connection for s in slots] + [s.process.sentinel for s in slots],
+                                            timeout=1.0)
+            for index, slot in enumerate(slots):
+                rows, gone = slot.collect()
+                silent = timeout_s and slot.task and time.monotonic() - slot.since > timeout_s
+                if gone and not slot.ready:
+                    raise BenchError(f"a benchmark worker process could not start: {_death(slot.process.exitcode)}")
+                if gone or silent:
+                    slot.stop()
+                    if slot.task:
+                        case, pending = slot.task
+                        reason = (f"no result within {timeout_s:g} s (stopped)" if silent
+                                  else _death(slot.process.exitcode))
+                        rows.append(error_row(Case.from_dict(case), pending[0], reason))
+                        if pending[1:]:
+                            queue.appendleft((case, pending[1:]))
+                    slots[index] = _Slot(context, limit)
+                if rows:
+                    yield rows
+    finally:
+        for slot in slots:
+            if slot.process.is_alive():
+                try:
+                    slot.connection.send(None)
+                except OSError:
+                    pass
+            slot.process.join(timeout=5)
+            slot.stop()

@@ -1,0 +1,291 @@
+"""The registry of reconstruction variants: every method the benchmark compares, in one place.
+
+A :class:`Variant` is a named method with default parameters. Leaf variants
+take a scan and the mask of one leaf's points and return a
+:class:`VariantOutput`: the output point of every pixel (NaN where the
+method dropped it or did not reconstruct it) and, where the method estimates
+them, the leaf traits. Families:
+
+- ``raw``: no correction (the measured points);
+- ``filter``: the outlier-removal baselines of :mod:`leafsfs.baselines`;
+- ``prop-sfs``: the PROP-SFS variants of :func:`leafsfs.reconstruct`
+  (``simple``, ``sps``, ``buffer``, ``fused`` with the shell-rule set T3, and
+  ``buffer-T1``, ``buffer-T2``, ``buffer-T3*``), calibrated by simulating the
+  scan's scanner model;
+- ``woody``: ``step`` (:func:`woody.step`) and ``cylinders``
+  (:func:`woody.follow_cylinders`) on the points of each woody object,
+  registered once the woody package provides them with :func:`woody.score`.
+
+Raw and filtered clouds get their leaf traits from
+:func:`leafsfs.baselines.leaf_traits` (range-image mesh with an edge cap).
+New variants are added to :func:`_register_builtins` (or, from other code,
+with :func:`register_variant`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from benchmarks.errors import BenchError
+
+
+@dataclass
+class VariantOutput:
+    """What a leaf variant returns for one leaf.
+
+    Attributes
+    ----------
+    xyz : ndarray, (rows, cols, 3)
+        Output point of every pixel, world frame, m; NaN where the pixel was
+        removed or not reconstructed. Only the leaf's masked pixels are read.
+    traits : dict or None
+        Leaf traits estimated by the method: ``area_m2``, ``elevation_deg``,
+        ``azimuth_deg`` (midrib), optionally ``normal``.
+    stats : dict
+        Further method-specific numbers stored with the metrics (e.g.
+        ``rppp_1``), JSON-ready.
+    flags : ndarray of bool or None
+        The measured points the method judges to be outliers (removed or
+        corrected), for the detection precision and recall.
+    """
+
+    xyz: np.ndarray
+    traits: dict | None = None
+    stats: dict = field(default_factory=dict)
+    flags: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Variant:
+    """A named reconstruction method with its default parameters.
+
+    Attributes
+    ----------
+    name : str
+        Registry name (used on the command line and in the store).
+    family : str
+        ``raw``, ``filter``, ``prop-sfs`` or ``woody``.
+    run : callable
+        ``run(scan, mask, **params) -> VariantOutput``.
+    params : dict
+        Default parameters (JSON-ready).
+    description : str
+        One line.
+    prepare : callable, optional
+        ``prepare(scan)``, called once per scan before the timed runs (e.g.
+        to build a calibration that every leaf of the scan shares).
+    heights : callable, optional
+        ``heights(sample, **params) -> leafsfs.HeightResult`` for methods
+        that reconstruct height fields (the height-field cases of
+        :mod:`benchmarks.heightfields`).
+    target : {"leaf", "wood"}
+        What the method reconstructs: leaves (and analytic surfaces), or
+        woody objects (``run`` then gets the mask of one woody object's
+        points and returns its cylinders as ``traits["cylinders"]``).
+    """
+
+    name: str
+    family: str
+    run: Callable[..., VariantOutput]
+    params: dict
+    description: str
+    prepare: Callable | None = None
+    heights: Callable | None = None
+    target: str = "leaf"
+
+    def with_params(self, **changes) -> "Variant":
+        """A copy with some parameters changed.
+
+        Raises
+        ------
+        BenchError
+            If a parameter name is unknown (the message lists the allowed ones).
+        """
+        unknown = sorted(set(changes) - set(self.params))
+        if unknown:
+            raise BenchError(f"variant {self.name!r} has no parameter(s) {unknown}; "
+                             f"allowed: {sorted(self.params) or 'none'}")
+        return dataclasses.replace(self, params={**self.params, **changes})
+
+    def __call__(self, scan, mask) -> VariantOutput:
+        return self.run(scan, mask, **self.params)
+
+    def reconstruct_heights(self, sample):
+        """Run the method on a sampled height field (:class:`leafsfs.synthetic.SyntheticInput`)."""
+        return self.heights(sample, **self.params)
+
+
+_VARIANTS: dict[str, Variant] = {}
+_UNAVAILABLE: dict[str, str] = {}
+
+
+def register_variant(variant: Variant) -> Variant:
+    """Add ``variant`` to the registry (names are unique)."""
+    if variant.name in _VARIANTS:
+        raise BenchError(f"variant {variant.name!r} is registered twice")
+    _VARIANTS[variant.name] = variant
+    return variant
+
+
+def variant_names() -> list[str]:
+    """Names of the registered variants, in registration order."""
+    return list(_VARIANTS)
+
+
+def get_variant(name: str) -> Variant:
+    """The registered variant ``name``.
+
+    Raises
+    ------
+    BenchError
+        If no variant has that name (the message lists them, and says why
+        known methods are missing).
+    """
+    if name not in _VARIANTS:
+        missing = "".join(f"; {n} is unavailable: {why}" for n, why in _UNAVAILABLE.items())
+        raise BenchError(f"unknown variant {name!r}; registered: {', '.join(variant_names())}{missing}")
+    return _VARIANTS[name]
+
+
+def unavailable() -> dict[str, str]:
+    """Families of methods that are not registered here, with the reason."""
+    return dict(_UNAVAILABLE)
+
+
+def resolve(names: list[str] | None = None, overrides: dict[str, dict] | None = None) -> list[Variant]:
+    """The variants to run, with parameter overrides applied.
+
+    Parameters
+    ----------
+    names : list of str, optional
+        Variant names (default: every registered variant).
+    overrides : dict, optional
+        ``{variant name: {parameter: value}}``.
+    """
+    names = variant_names() if not names else list(dict.fromkeys(names))
+    overrides = overrides or {}
+    stray = sorted(set(overrides) - set(names))
+    if stray:
+        raise BenchError(f"parameter overrides given for variants that are not run: {stray}")
+    return [get_variant(n).with_params(**overrides.get(n, {})) for n in names]
+
+
+#: Edge cap (None: 1 cm or four sample spacings) and range smoothing of the range-image mesh that gives raw
+#: and filtered clouds their leaf traits, m (:func:`leafsfs.baselines.leaf_traits`).
+MESH_MAX_EDGE_M = None
+MESH_SMOOTHING_M = 0.002
+
+
+def _removal_variant(name: str, family: str, func: Callable, description: str, **params) -> Variant:
+    """A variant that keeps a subset of the measured points (``func(scan, mask, **params) -> kept``)."""
+
+    def run(scan, mask, mesh_max_edge_m, mesh_smoothing_m, **filter_params):
+        from leafsfs.baselines import leaf_traits
+
+        kept = func(scan, mask, **filter_params)
+        return VariantOutput(np.where(kept[..., None], scan.xyz, np.nan),
+                             leaf_traits(scan, kept, mesh_max_edge_m, mesh_smoothing_m), flags=mask & scan.valid & ~kept)
+
+    return Variant(name, family, run, {**params, "mesh_max_edge_m": MESH_MAX_EDGE_M,
+                                       "mesh_smoothing_m": MESH_SMOOTHING_M}, description)
+
+
+def _register_builtins() -> None:
+    from leafsfs import baselines
+
+    register_variant(_removal_variant("raw", "raw", lambda scan, mask: mask & scan.valid,
+                                      "measured points, no correction"))
+    register_variant(_removal_variant("sor", "filter", baselines.statistical_outlier_removal,
+                                      "statistical outlier removal (PCL/Open3D), k=8, 2 sd", k=8, std_ratio=2.0))
+    register_variant(_removal_variant("radius", "filter", baselines.radius_outlier_removal,
+                                      "radius outlier removal: >= 8 neighbours within 3 sample spacings",
+                                      radius_spacings=3.0, min_neighbours=8, radius_m=None))
+    register_variant(_removal_variant("shadow", "filter", baselines.shadow_filter,
+                                      "veiling/shadow angle filter on the range image (ROS/PCL), 10 deg",
+                                      min_angle_deg=10.0))
+    register_variant(_removal_variant("stray-point", "filter", baselines.stray_point_filter,
+                                      "FARO SCENE stray-point rule: 3x3 cell, 2 cm, 50 %",
+                                      window_px=3, max_range_diff_m=0.02, min_share=0.5))
+    register_variant(_removal_variant("intensity", "filter", baselines.intensity_filter,
+                                      "dark-point removal: 100 DN below the leaf's median intensity",
+                                      below_median_dn=100.0, min_dn=None))
+    _register_prop_sfs()
+    _register_woody()
+
+
+def _register_prop_sfs() -> None:
+    """PROP-SFS: the four propagation variants with the thesis' leaf parameter set T3 (shell rule), and
+    ``buffer`` (the thesis' reference variant) with the other shell-rule sets T1, T2, T3* of thesis ch.7."""
+    import leafsfs
+
+    if not hasattr(leafsfs, "reconstruct"):
+        return
+    defaults = leafsfs.SfsParams().to_dict()
+    for engine in leafsfs.VARIANTS:
+        register_variant(_prop_sfs_variant(engine, engine, defaults))
+    for shell in ("T1", "T2", "T3*"):
+        register_variant(_prop_sfs_variant(f"buffer-{shell}", "buffer", {**defaults, "shell_set": shell}))
+
+
+def _calibration(scan):
+    """The intensity calibration of a scan's scanner model (simulated once per model and process)."""
+    from leafsfs.preprocess import resolve_calibration
+
+    return resolve_calibration("model", scan)
+
+
+def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
+    def run(scan, mask, **params):
+        import leafsfs
+        from tlssim.scan import grid_to_xyz
+
+        result = leafsfs.reconstruct(scan, mask=mask, variant=engine, params=leafsfs.SfsParams(**params),
+                                     calibration=_calibration(scan))
+        xyz = grid_to_xyz(result.range, scan.theta, scan.psi, scan.pose)
+        # A leaf PROP-SFS could not reconstruct gets no traits: its area estimate is zero.
+        traits = result.leaves[0].traits if result.leaves else {"area_m2": 0.0}
+        return VariantOutput(xyz, traits, {**result.rppp(), "skipped": len(result.skipped)}, flags=result.outlier)
+
+    def heights(sample, **params):
+        import leafsfs
+
+        return leafsfs.reconstruct_heights(sample.alpha, sample.height, sample.mask, sample.grid, engine,
+                                           leafsfs.SfsParams(**params))
+
+    shell = params["shell_set"]
+    return Variant(name, "prop-sfs", run, params,
+                   f"PROP-SFS {engine} propagation, shell-rule set {shell} (leafsfs.reconstruct, model calibration)",
+                   prepare=_calibration, heights=heights)
+
+
+def _register_woody() -> None:
+    """STEP and cylinder following, with their packages' defaults (scalar parameters are overridable)."""
+    import woody
+
+    if not all(hasattr(woody, name) for name in ("step", "follow_cylinders", "score", "FollowParams")):
+        _UNAVAILABLE["woody"] = "woody.step / woody.follow_cylinders / woody.score do not exist yet"
+        return
+
+    def step(scan, mask, **params):
+        result = woody.step(scan.xyz[mask], viewpoints=scan.pose.position, **params)
+        return VariantOutput(scan.xyz, {"cylinders": result.cylinders()}, {"tuboids": len(result.tuboids)})
+
+    def cylinders(scan, mask, **params):
+        result = woody.follow_cylinders(scan.xyz[mask], **params)
+        return VariantOutput(scan.xyz, {"cylinders": result.cylinders()}, {"branches": len(result.branches)})
+
+    follow = {k: v for k, v in dataclasses.asdict(woody.FollowParams()).items()
+              if v is None or isinstance(v, (bool, int, float, str))}
+    register_variant(Variant("step", "woody", step, {"cell_m": 0.02, "radius_step_m": 0.01, "r_min_m": 0.02,
+                                                     "r_max_m": 0.30},
+                             "STEP tuboids (Ravaglia et al. 2017: point-normal Hough, open active contours)",
+                             target="wood"))
+    register_variant(Variant("cylinders", "woody", cylinders, follow,
+                             "cylinder following (Mendez et al.): branch hierarchy of cylinders", target="wood"))
+
+
+_register_builtins()

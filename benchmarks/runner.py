@@ -1,0 +1,333 @@
+"""Running a suite: cases in parallel on this machine or on a Dask cluster, results into the store.
+
+:func:`case_rows` is the unit of work: it rebuilds a case's scene,
+simulates the scan (deterministic from the case seed), runs each requested
+variant on every target leaf and scores it. It takes and returns JSON-ready
+data, so the same function runs inline, in local worker processes or on Dask
+workers (:func:`run_case`).
+
+:func:`execute` sends the cases that are not yet in the store for a run
+(to the local pool of :mod:`benchmarks.pool`, inline, or to Dask), writes
+each result row as soon as it arrives, and shows a progress bar. A stopped
+run resumes from the store: finished (case, variant) pairs are never redone.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+
+from tqdm.auto import tqdm
+
+from benchmarks import heightfields, scoring
+from benchmarks.errors import BenchError
+from benchmarks.generators import build_scene
+from benchmarks.pool import run_local
+from benchmarks.registry import Variant, get_variant
+from benchmarks.store import Store, git_commit
+from benchmarks.suite import Case, Suite
+
+_CLEAR_REFS = Path("/proc/self/clear_refs")
+
+
+def _rss_mb(field: str) -> float | None:
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith(field + ":"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
+def _reset_peak_rss() -> bool:
+    try:
+        _CLEAR_REFS.write_text("5")
+        return True
+    except OSError:
+        return False
+
+
+def measured(func, *args):
+    """Call ``func(*args)``; return its result, wall time (s) and peak memory above the start (MB).
+
+    Peak memory is the growth of the process's resident-set high-water mark
+    (Linux ``VmHWM``, reset through ``/proc/self/clear_refs`` before the
+    call); it is ``None`` where the kernel does not offer that. It counts
+    every allocation of the process (numpy, Dr.Jit), so it is meaningful
+    when one case runs per process (local pools, Dask workers with one
+    thread).
+    """
+    start_rss = _rss_mb("VmRSS") if _reset_peak_rss() else None
+    start = time.perf_counter()
+    result = func(*args)
+    elapsed = time.perf_counter() - start
+    peak = _rss_mb("VmHWM") if start_rss is not None else None
+    return result, elapsed, None if peak is None else max(peak - start_rss, 0.0)
+
+
+def variant_specs(variants: list[Variant]) -> list[dict]:
+    """JSON-ready ``{name, family, params}`` of each variant (what workers receive)."""
+    return [{"name": v.name, "family": v.family, "params": v.params} for v in variants]
+
+
+def simulate_case(case: Case):
+    """Rebuild a case's scene and simulate its scan (deterministic from the case).
+
+    The case's ``scanner`` entries override the scene's scanner section
+    (window, pose) and the scanner model's fields.
+
+    Returns
+    -------
+    scene : Scene
+    scan : tlssim.Scan
+    """
+    from tlssim.simulate import setup_from_section, simulate
+
+    scene = build_scene(case.scene)
+    return scene, simulate(scene, setup_from_section({**scene.scanner, **case.scanner}), seed=case.seed,
+                           progress=False)
+
+
+def case_rows(case: dict, variants: list[dict]):
+    """Simulate one case and score every variant on its target leaves, yielding one row per variant.
+
+    Parameters
+    ----------
+    case : dict
+        :meth:`benchmarks.suite.Case.to_dict` of the case.
+    variants : list of dict
+        :func:`variant_specs` of the variants to run (looked up in the
+        registry of the process that runs the case).
+
+    Yields
+    ------
+    dict
+        A row for :meth:`benchmarks.store.Store.add_results` as soon as the
+        variant is scored; a variant that fails on the case gets a row with
+        its ``error``.
+    """
+    case = Case.from_dict(case)
+    if heightfields.is_heightfield(case.scene):
+        yield from _heightfield_rows(case, variants)
+        return
+    try:
+        (scene, scan), simulate_s, _ = measured(simulate_case, case)
+        leaves = scoring.prepare_leaves(scene, scan, None if case.targets is None else list(case.targets))
+        wood = scoring.prepare_wood(scene, scan)
+    except Exception as exc:  # noqa: BLE001 - a broken case is recorded, not fatal to the run
+        for spec in variants:
+            yield error_row(case, spec, _message(exc))
+        return
+    for spec in variants:
+        try:
+            variant = case_variant(case, spec)
+            targets, score = (wood, scoring.score_wood) if variant.target == "wood" else (leaves, scoring.score_leaf)
+            if variant.prepare is not None and targets:
+                variant.prepare(scan)
+            scores, runtime, peaks = [], 0.0, []
+            for target in targets:
+                output, elapsed, peak = measured(variant, target.scan, target.mask)
+                runtime += elapsed
+                peaks.append(peak)
+                scores.append(score(target, output))
+            peak = None if not peaks or any(p is None for p in peaks) else max(peaks)
+            yield _row(case, spec, {"targets": scores}, runtime, peak, simulate_s, None)
+        except Exception as exc:  # noqa: BLE001 - a failing variant is recorded, the others still run
+            yield _row(case, spec, {"targets": []}, None, None, simulate_s, _message(exc))
+
+
+def case_variant(case: Case, spec: dict) -> Variant:
+    """The variant of ``spec`` with the case's own parameters for it applied (by family, then by name)."""
+    variant = get_variant(spec["name"]).with_params(**spec["params"])
+    return variant.with_params(**case.params.get(variant.family, {})).with_params(**case.params.get(variant.name, {}))
+
+
+def _heightfield_rows(case: Case, variants: list[dict]):
+    """Rows of a height-field case (:mod:`benchmarks.heightfields`): no scan, the height image is reconstructed."""
+    try:
+        sampled, sample_s, _ = measured(heightfields.sample, case.scene, case.seed)
+    except Exception as exc:  # noqa: BLE001 - a broken case is recorded, not fatal to the run
+        for spec in variants:
+            yield error_row(case, spec, _message(exc))
+        return
+    for spec in variants:
+        try:
+            variant = case_variant(case, spec)
+            result, runtime, peak = measured(variant.reconstruct_heights, sampled)
+            scores = scoring.json_ready(heightfields.score_heights(case.scene, sampled, result))
+            yield _row(case, spec, {"targets": [scores]}, runtime, peak, sample_s, None)
+        except Exception as exc:  # noqa: BLE001 - a failing variant is recorded, the others still run
+            yield _row(case, spec, {"targets": []}, None, None, sample_s, _message(exc))
+
+
+def applies(variant: Variant, case: Case) -> bool:
+    """Whether a variant runs on a case: height-field cases need a method that reconstructs height fields."""
+    return variant.heights is not None or not heightfields.is_heightfield(case.scene)
+
+
+def run_case(case: dict, variants: list[dict]) -> list[dict]:
+    """All rows of :func:`case_rows` at once (the unit of work sent to Dask)."""
+    return list(case_rows(case, variants))
+
+
+def error_row(case: Case, spec: dict, message: str) -> dict:
+    """The row of a variant that could not be run on a case."""
+    return _row(case, spec, {"targets": []}, None, None, None, message)
+
+
+def _message(exc: BaseException) -> str:
+    """``Type: message``, and where it was raised unless it is a user-facing error (ValueError)."""
+    text = f"{type(exc).__name__}: {exc}"
+    if isinstance(exc, ValueError) or exc.__traceback__ is None:
+        return text
+    frame = traceback.extract_tb(exc.__traceback__)[-1]
+    return f"{text} (at {Path(frame.filename).name}:{frame.lineno} in {frame.name})"
+
+
+def _row(case: Case, spec: dict, metrics: dict, runtime, peak, simulate_s, error) -> dict:
+    return {"case_name": case.name, "variant": spec["name"], "family": spec["family"], "params": spec["params"],
+            "case_spec": case.to_dict(), "metrics": metrics, "runtime_s": runtime, "peak_mem_mb": peak,
+            "simulate_s": simulate_s, "error": error}
+
+
+@dataclass
+class RunOutcome:
+    """What :func:`execute` did."""
+
+    run_id: str
+    resumed: bool
+    cases_run: int
+    cases_skipped: int
+    rows_added: int
+    elapsed_s: float
+
+
+def run_config(suite: Suite, variants: list[Variant]) -> tuple[dict, str]:
+    """Configuration of a run (suite digest, variants and parameters) and its digest."""
+    config = {"suite": suite.name, "suite_source": suite.source, "suite_digest": suite.digest(),
+              "cases": len(suite.cases), "variants": variant_specs(variants)}
+    return config, hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()
+
+
+#: Default data-segment limit of a local worker process, GiB, and longest silence of a worker on a task, s.
+MEMORY_LIMIT_GB = 6.0
+TIMEOUT_S = 900.0
+
+
+def execute(suite: Suite, variants: list[Variant], store: Store, workers: int | None = None,
+            scheduler: str | None = None, resume: str | bool = True, progress: bool = True,
+            notes: dict | None = None, memory_limit_gb: float | None = MEMORY_LIMIT_GB,
+            timeout_s: float | None = TIMEOUT_S) -> RunOutcome:
+    """Run every case of ``suite`` with ``variants`` and store the results.
+
+    Parameters
+    ----------
+    suite : Suite
+        The cases.
+    variants : list of Variant
+        The variants (with their parameters).
+    store : Store
+        Where results go.
+    workers : int, optional
+        Local worker processes (default: the processor count; 0 runs the
+        cases in this process, without the protections below). Ignored
+        with ``scheduler``.
+    scheduler : str, optional
+        Address of a Dask distributed scheduler (``tcp://host:port``) to
+        send the cases to instead.
+    resume : bool or str
+        ``True``: continue the latest unfinished run with the same
+        configuration and code commit, if any; ``False``: always start a
+        new run; a run id: continue that run.
+    progress : bool
+        Show a progress bar.
+    notes : dict, optional
+        Notes stored with a new run.
+    memory_limit_gb : float, optional
+        Memory (data segment) limit of each local worker, GiB; a variant
+        that exceeds it records a ``MemoryError`` (``None`` or 0: no limit).
+    timeout_s : float, optional
+        A local worker silent this long on a task is stopped and its
+        variant recorded as timed out (``None``: no limit).
+
+    Returns
+    -------
+    RunOutcome
+    """
+    if not variants:
+        raise BenchError("no variant to run")
+    config, digest = run_config(suite, variants)
+    commit = git_commit()
+    if isinstance(resume, str):
+        run_id = store.resolve(resume)
+        if store.run_info(run_id)["config_digest"] != digest:
+            raise BenchError(f"run {run_id} was started with another suite or other variants; "
+                             "resume it with the same --suite, --variants and --set, or start a new run")
+    else:
+        run_id = store.find_resumable(digest, commit) if resume else None
+    resumed = run_id is not None
+    if run_id is None:
+        run_id = store.create_run(suite.name, suite.digest(), config, digest, commit, notes)
+    done = store.done_pairs(run_id)
+    specs = dict(zip((v.name for v in variants), variant_specs(variants)))
+    expected = {case.name: [specs[v.name] for v in variants if applies(v, case)] for case in suite.cases}
+    todo = []
+    for case in suite.cases:
+        missing = [s for s in expected[case.name] if (case.name, s["name"]) not in done]
+        if missing:
+            todo.append((case.to_dict(), missing))
+    start = time.perf_counter()
+    added = 0
+    remaining = {case["name"]: len(missing) for case, missing in todo}
+    with tqdm(total=len(suite.cases), initial=len(suite.cases) - len(todo), unit="case", disable=not progress,
+              desc=f"{suite.name} ({run_id})") as bar:
+        for rows in _dispatch(todo, workers, scheduler, memory_limit_gb, timeout_s):
+            added += store.add_results(run_id, rows)
+            for row in rows:
+                remaining[row["case_name"]] -= 1
+                bar.update(remaining[row["case_name"]] == 0)
+    if len(store.done_pairs(run_id)) == sum(len(v) for v in expected.values()):
+        store.finish_run(run_id)
+    return RunOutcome(run_id, resumed, len(todo), len(suite.cases) - len(todo), added,
+                      time.perf_counter() - start)
+
+
+def _dispatch(todo: list[tuple[dict, list[dict]]], workers: int | None, scheduler: str | None,
+              memory_limit_gb: float | None, timeout_s: float | None):
+    """Yield result rows as they arrive (inline, local worker processes or Dask)."""
+    if not todo:
+        return
+    if scheduler:
+        yield from _dispatch_dask(todo, scheduler)
+    elif workers == 0:
+        for case, specs in todo:
+            for row in case_rows(case, specs):
+                yield [row]
+    else:
+        yield from run_local(todo, workers or os.cpu_count() or 1, memory_limit_gb, timeout_s)
+
+
+def _dispatch_dask(todo: list[tuple[dict, list[dict]]], address: str):
+    from distributed import Client, as_completed
+
+    try:
+        client = Client(address, timeout="30s")
+    except (OSError, TimeoutError) as exc:
+        raise BenchError(f"cannot reach the Dask scheduler at {address!r} ({exc})") from None
+    with client:
+        futures = {client.submit(run_case, case, specs, pure=False): (case, specs) for case, specs in todo}
+        try:
+            for future in as_completed(futures):
+                try:
+                    yield future.result()
+                except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker: the case's variants get error rows
+                    case, specs = futures[future]
+                    yield [error_row(Case.from_dict(case), spec, f"Dask: {_message(exc)}") for spec in specs]
+        finally:
+            client.cancel(list(futures))

@@ -1,0 +1,360 @@
+"""Scoring a variant's output on the leaves of a simulated scan against the scene truth.
+
+:func:`prepare_leaves` computes, once per case, what every variant is scored
+against: for each target leaf its points (the pulses with at least 10 % of
+their power from it), the distance of each measured point to the true
+surface of the object it is attributed to, the range noise and the outlier
+thresholds. :func:`score_leaf` then scores one variant's output on one leaf
+with the definitions of :mod:`benchmarks.metrics`. Woody objects
+(:func:`prepare_wood`, :func:`score_wood`) are scored with the woody
+package's own :func:`woody.score`. :mod:`benchmarks.summary` aggregates the
+scores over a suite.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from skimage.draw import polygon
+
+from benchmarks import metrics
+from benchmarks.errors import BenchError
+from benchmarks.registry import VariantOutput
+from tlssim.scan import GRID_KEYS, TRUTH_KEYS
+
+#: Pure returns (used for the range noise and the intensity) have less than this power share from other objects.
+PURE_MIXED_FRACTION = 1e-3
+#: Pixels kept around a leaf's points when its part of the scan is cut out for the variants.
+CROP_MARGIN_PX = 8
+
+
+@dataclass
+class Target:
+    """An object of a simulated scan that variants are scored on.
+
+    Attributes
+    ----------
+    object_id : int
+        Scene object id.
+    name, object_type : str
+        Object name and type.
+    truth : dict
+        The object's truth fields (``area_m2``, ``elevation_deg``, ... for
+        leaves; ``cylinders`` and ``volume_m3`` for woody objects).
+    scan : tlssim.Scan
+        The scan, or the part of it that the variants receive.
+    mask : ndarray of bool, shape of ``scan``
+        The object's points in ``scan``.
+    """
+
+    object_id: int
+    name: str
+    object_type: str
+    truth: dict
+    scan: object
+    mask: np.ndarray
+
+
+@dataclass
+class LeafTruth(Target):
+    """What the variants are scored against on one leaf (or analytic surface).
+
+    ``scan`` is the part of the scan around the leaf (its points plus
+    :data:`CROP_MARGIN_PX` pixels); ``mask`` selects the leaf's points: the
+    returns with at least ``min_share`` of their power from it.
+
+    Attributes
+    ----------
+    own : ndarray of bool, (n,)
+        Which of the masked points the leaf dominates (``truth_id`` is the leaf).
+    attributed : ndarray of int, (n,)
+        Object each masked point is attributed to (its ``truth_id``).
+    distance : ndarray, (n,)
+        Signed distance of each measured point to its object's true surface, m.
+    taus : dict of str to float
+        Outlier thresholds by label (``auto``: max(3 σ, 2 mm); ``1cm``), m.
+    scan_stats : dict
+        Properties of the scan on this leaf (range, incidence, noise, intensity, density, visibility).
+    surfaces : TruthSurfaces
+        Distances to the scene's true surfaces (shared by the leaves of a scan).
+    """
+
+    own: np.ndarray
+    attributed: np.ndarray
+    distance: np.ndarray
+    taus: dict
+    scan_stats: dict
+    surfaces: "TruthSurfaces"
+
+
+def crop_scan(scan, rows: slice, cols: slice):
+    """The part ``[rows, cols]`` of a scan's grid, as a scan (arrays are views, not copies)."""
+    window = (rows, cols)
+    arrays = {key: getattr(scan, key)[window] for key in GRID_KEYS + TRUTH_KEYS if getattr(scan, key) is not None}
+    return dataclasses.replace(scan, **arrays, layers={k: v[window] for k, v in scan.layers.items()})
+
+
+def _window(grid: np.ndarray, margin: int) -> tuple[slice, slice]:
+    """Bounding box of the true pixels of ``grid``, widened by ``margin`` pixels."""
+    rows, cols = np.nonzero(grid)
+    return (slice(max(rows.min() - margin, 0), rows.max() + margin + 1),
+            slice(max(cols.min() - margin, 0), cols.max() + margin + 1))
+
+
+def grid_steps(scan) -> tuple[float, float]:
+    """Angular steps ``(theta, psi)`` of a simulated scan's grid, rad."""
+    theta_deg, psi_deg = scan.meta["window"]["step_deg"]
+    return math.radians(theta_deg), math.radians(psi_deg)
+
+
+def footprint_reach_px(scan, distance_m: float) -> int:
+    """How many pixels the beam footprint reaches at ``distance_m``: twice the 1/e² radius over the spacing."""
+    model = scan.scanner_model
+    radius = model["beam_waist_radius_m"] + distance_m * math.tan(math.radians(model["divergence_deg"]))
+    return int(math.ceil(2.0 * radius / (distance_m * min(grid_steps(scan))))) + 1
+
+
+def visibility(scan, object_id: int, outline, distance_m: float) -> float:
+    """Share of a leaf's silhouette that no other object hides from the scanner.
+
+    The silhouette is the leaf's outline polygon projected on the scan grid.
+    A silhouette pulse is hidden when its central ray stops (``truth_range``)
+    on another object more than one leaf length in front of the leaf's
+    median distance. Edge pulses that mix the leaf with its background are
+    not hidden, so a leaf alone scores 1 at any distance and incidence.
+    """
+    outline = np.asarray(outline, dtype=float)
+    local = (outline - scan.pose.position) @ scan.pose.rotation
+    theta0, psi0 = float(scan.theta[0, 0]), float(scan.psi[0, 0])
+    theta = theta0 + np.mod(np.arctan2(local[:, 1], local[:, 0]) - theta0 + np.pi, 2 * np.pi) - np.pi
+    psi = np.arccos(local[:, 2] / np.linalg.norm(local, axis=1))
+    d_theta, d_psi = grid_steps(scan)
+    rows, cols = polygon((psi - psi0) / d_psi, (theta - theta0) / d_theta, scan.shape)
+    if len(rows) == 0:
+        return math.nan
+    extent = np.ptp(outline, axis=0).max()
+    hidden = (scan.truth_id[rows, cols] != object_id) & (scan.truth_range[rows, cols] < distance_m - extent)
+    return float(1.0 - hidden.mean())
+
+
+class TruthSurfaces:
+    """Distances to the true surfaces of a scene's objects; each object's mesh is prepared once."""
+
+    def __init__(self, scene):
+        self.scene = scene
+        self._prepared: dict[int, metrics.SurfaceDistance] = {}
+
+    def distance(self, points: np.ndarray, object_ids: np.ndarray) -> np.ndarray:
+        """Signed distance of each point to the true surface of its object (``object_ids``), m."""
+        out = np.full(len(points), np.nan)
+        for oid in np.unique(object_ids):
+            oid = int(oid)
+            if oid not in self._prepared:
+                obj = self.scene.objects[oid]
+                self._prepared[oid] = metrics.SurfaceDistance(obj.vertices, obj.faces)
+            sel = object_ids == oid
+            out[sel] = self._prepared[oid](points[sel], signed=True)
+        return out
+
+
+#: Object types scored when a case names no targets: leaves, and the analytic test surfaces.
+TARGET_TYPES = ("leaf", "surface")
+
+
+def target_ids(scene, targets: list[str] | None = None) -> list[int]:
+    """Object ids to score: the named ``targets``, or every object of a type in :data:`TARGET_TYPES`."""
+    names = scene.object_names
+    if targets is None:
+        return [i for i, o in enumerate(scene.objects) if o.type in TARGET_TYPES]
+    unknown = sorted(set(targets) - set(names))
+    if unknown:
+        raise BenchError(f"scene {scene.name!r} has no object(s) {unknown}; objects: {names}")
+    return [names.index(t) for t in targets]
+
+
+def prepare_leaves(scene, scan, targets: list[str] | None = None,
+                   min_share: float = metrics.MIN_POWER_SHARE) -> list[LeafTruth]:
+    """Truth of every target leaf of a simulated scan.
+
+    Parameters
+    ----------
+    scene : Scene
+        The scanned scene (rebuilt from the case description).
+    scan : tlssim.Scan
+        The simulated scan (with truth arrays).
+    targets : list of str, optional
+        Object names to score (default: every leaf and analytic surface).
+    min_share : float
+        Smallest power share from the leaf for a point to count on it.
+
+    Returns
+    -------
+    list of LeafTruth
+        One per target seen by the scan (targets without a return are skipped).
+    """
+    if not scan.has_truth:
+        raise BenchError("scoring needs a simulated scan with truth arrays")
+    leaves = []
+    valid = scan.valid
+    surfaces = TruthSurfaces(scene)
+    for oid in target_ids(scene, targets):
+        own_grid = valid & (scan.truth_id == oid)
+        if not own_grid.any():
+            continue
+        distance_m = float(np.median(scan.range[own_grid]))
+        reach = footprint_reach_px(scan, distance_m)
+        near = _window(own_grid, reach)
+        share = np.zeros(scan.shape)
+        share[near] = metrics.leaf_power_share(scan.truth_id[near], scan.mixed_fraction[near], oid, reach)
+        points = valid & (share >= min_share)
+        window = _window(points, CROP_MARGIN_PX)
+        part, mask = crop_scan(scan, *window), points[window]
+        attributed = part.truth_id[mask]
+        distance = surfaces.distance(part.xyz[mask], attributed)
+        own = attributed == oid
+        pure = own & (part.mixed_fraction[mask] < PURE_MIXED_FRACTION)
+        sigma = metrics.robust_sigma(distance[pure])
+        obj = scene.objects[oid]
+        area = obj.truth.get("area_m2")
+        stats = {
+            "range_m": distance_m,
+            "incidence_deg": float(np.degrees(np.median(scan.incidence[own_grid]))),
+            "sigma_range_m": sigma,
+            "intensity_dn": float(np.median(part.intensity[mask][pure])) if pure.any() else math.nan,
+            "n_own": int(own.sum()),
+            "points_per_cm2": int(own.sum()) / (area * 1e4) if area else math.nan,
+            "visibility": visibility(scan, oid, obj.truth["outline"], distance_m) if "outline" in obj.truth
+            else math.nan,
+        }
+        leaves.append(LeafTruth(oid, obj.name, obj.type, obj.truth, part, mask, own, attributed, distance,
+                                {"auto": metrics.auto_tau(sigma), "1cm": metrics.TAU_TRUE_M}, stats, surfaces))
+    return leaves
+
+
+#: Fewest returned points a woody object needs to be reconstructed.
+MIN_WOOD_POINTS = 10
+
+
+def prepare_wood(scene, scan) -> list[Target]:
+    """Every woody object (truth with ``cylinders``) with at least :data:`MIN_WOOD_POINTS` returns.
+
+    Its points are the pulses it dominates (the per-tree isolation from
+    ground-truth labels of the woody spec, C.1), on the whole scan.
+    """
+    valid = scan.valid
+    return [Target(oid, obj.name, obj.type, obj.truth, scan, valid & (scan.truth_id == oid))
+            for oid, obj in enumerate(scene.objects)
+            if "cylinders" in obj.truth and int((valid & (scan.truth_id == oid)).sum()) >= MIN_WOOD_POINTS]
+
+
+def score_wood(wood: Target, output: VariantOutput) -> dict:
+    """Scores of reconstructed cylinders against a woody object's truth (:func:`woody.score`).
+
+    Returns
+    -------
+    dict
+        ``diameter_err_bias_m``, ``diameter_err_mae_m``, ``diameter_err_rmse_m``,
+        ``wood_completeness``, ``wood_precision``, ``detection_rate``,
+        ``volume_rel_err`` (signed), ``volume_true_m3``, ``volume_rec_m3``, the
+        method's stats.
+    """
+    import woody
+
+    scores = woody.score(wood.truth, output.traits["cylinders"])
+    diameter = scores["diameter_error_m"]
+    return json_ready({"target": wood.name, "object_id": wood.object_id, "object_type": wood.object_type,
+                       "n_points": int(wood.mask.sum()), "diameter_err_bias_m": diameter["bias"],
+                       "diameter_err_mae_m": diameter["mae"], "diameter_err_rmse_m": diameter["rmse"],
+                       "wood_completeness": scores["completeness"], "wood_precision": scores["precision"],
+                       "detection_rate": scores["detection_rate"], "volume_rel_err": scores["volume_error"],
+                       "volume_true_m3": scores["volume_true_m3"], "volume_rec_m3": scores["volume_rec_m3"],
+                       **output.stats})
+
+
+def output_distance(leaf: LeafTruth, output: VariantOutput):
+    """A variant's output points on a leaf and their signed distance to the truth.
+
+    Returns
+    -------
+    points : ndarray, (n, 3)
+        Output point of each of the leaf's masked pixels (NaN where dropped).
+    kept : ndarray of bool, (n,)
+        Pixels the variant kept.
+    distance : ndarray, (n,)
+        Signed distance of each output point to the true surface of its
+        object, m (recomputed only for moved points).
+    """
+    points = np.asarray(output.xyz)[leaf.mask]
+    kept = np.isfinite(points).all(axis=1)
+    moved = kept & (np.abs(points - leaf.scan.xyz[leaf.mask]) > 1e-9).any(axis=1)
+    distance = leaf.distance.copy()
+    distance[moved] = leaf.surfaces.distance(points[moved], leaf.attributed[moved])
+    return points, kept, distance
+
+
+def score_leaf(leaf: LeafTruth, output: VariantOutput) -> dict:
+    """Scores of one variant's output on one leaf.
+
+    Returns
+    -------
+    dict
+        JSON-ready: the leaf's name, id and object type, its scan properties; ``tau_m``; per threshold the
+        outlier scores of :func:`benchmarks.metrics.outlier_scores` (the
+        ``auto`` threshold unsuffixed, τ = 1 cm with the suffix ``_1cm``);
+        ``surface_rmse_m`` and ``completeness`` (share of the leaf's own
+        pulses with an output point within τ); ``flag_precision`` and
+        ``flag_recall`` of the points the method flags as outliers against
+        the true outliers (τ auto); leaf-trait errors where both
+        the truth and the method give the trait; the method's own stats.
+    """
+    _, kept, distance = output_distance(leaf, output)
+    before, after = np.abs(leaf.distance), np.abs(distance)
+    scores = {"target": leaf.name, "object_id": leaf.object_id, "object_type": leaf.object_type,
+              **leaf.scan_stats, "tau_m": leaf.taus["auto"]}
+    for label, tau in leaf.taus.items():
+        suffix = "" if label == "auto" else f"_{label}"
+        for key, value in metrics.outlier_scores(before > tau, kept, after > tau).items():
+            scores[key + suffix] = value
+    if output.flags is not None:
+        flagged = np.asarray(output.flags)[leaf.mask]
+        truly = before > leaf.taus["auto"]
+        scores["flag_precision"] = metrics.ratio(int((flagged & truly).sum()), int(flagged.sum()))
+        scores["flag_recall"] = metrics.ratio(int((flagged & truly).sum()), int(truly.sum()))
+    scores["surface_rmse_m"] = metrics.rms(distance[kept])
+    own = max(int(leaf.own.sum()), 1)
+    scores["completeness"] = int((leaf.own & kept & (after <= leaf.taus["auto"])).sum()) / own
+    scores.update(trait_errors(leaf.truth, output.traits))
+    scores.update(output.stats)
+    return json_ready(scores)
+
+
+def trait_errors(truth: dict, traits: dict | None) -> dict:
+    """Area, elevation and azimuth errors where both the truth and the estimate have them."""
+    if not traits:
+        return {}
+    errors = {}
+    if truth.get("area_m2") and np.isfinite(traits.get("area_m2", math.nan)):
+        errors.update({"area_m2": traits["area_m2"], "area_true_m2": truth["area_m2"],
+                       "area_abs_err_m2": traits["area_m2"] - truth["area_m2"],
+                       "area_rel_err": metrics.relative_error(traits["area_m2"], truth["area_m2"])})
+    keys = ("elevation_deg", "azimuth_deg")
+    if all(k in truth for k in keys) and all(np.isfinite(traits.get(k, math.nan)) for k in keys):
+        el, az = metrics.axis_angle_errors(traits["elevation_deg"], traits["azimuth_deg"],
+                                           truth["elevation_deg"], truth["azimuth_deg"])
+        errors.update({"elevation_err_deg": el, "azimuth_err_deg": az})
+    return errors
+
+
+def json_ready(scores: dict) -> dict:
+    """Scores with plain Python numbers; NaN becomes None (JSON has no NaN)."""
+    clean = {}
+    for key, value in scores.items():
+        if isinstance(value, (np.generic,)):
+            value = value.item()
+        if isinstance(value, float) and not math.isfinite(value):
+            value = None
+        clean[key] = value
+    return clean

@@ -1,0 +1,183 @@
+"""Aggregating stored results: one summary row per suite × variant, and the headline table.
+
+Per-leaf scores (see :func:`benchmarks.scoring.score_leaf`) are first
+aggregated within each case, then over the cases, so that every case weighs
+the same whatever its number of leaves (a tree with 300 leaves does not
+drown 60 single-leaf cases):
+
+- ``rop_before``, ``rop_after``: mean over cases of the mean per-leaf ROP;
+  ``rop_reduction`` = 1 − rop_after / rop_before (the same with ``_1cm``);
+- ``good_points_lost``, ``outliers_restored``, ``good_points_damaged``,
+  ``completeness``, ``flag_precision``, ``flag_recall`` and ``rppp_1`` (the
+  share of pixels with exactly one PROP-SFS candidate): mean over cases of
+  the mean over leaves;
+- height-field cases (:mod:`benchmarks.heightfields`): ``abs_eps_mean``
+  (the thesis' mean |relative height error|), ``within_5pct`` and
+  ``completeness``, means over cases;
+- ``area_rel_err_median``: median over cases of the median over the fully
+  visible leaves (``visibility`` >= :data:`MIN_VISIBILITY`, like the
+  thesis' 58 fully visible field leaves: no method recovers a hidden part)
+  of |relative area error| (``area_rel_err_bias``: the same with the
+  signed error); ``elevation_err_median_deg``, ``azimuth_err_median_deg``:
+  the same with the absolute angle errors (on ``n_leaves_traits`` leaves);
+  ``surface_rmse_m``: median over cases of the median over leaves;
+- ``runtime_s``: median wall time of the variant on one case (all its
+  leaves); ``runtime_total_s``: sum over cases; ``peak_mem_mb``: largest
+  peak over cases;
+- woody objects (scored with :func:`woody.score`): ``diameter_err_median_m``,
+  median over cases of the median over woody objects of the mean absolute
+  diameter error; ``volume_rel_err``, the same with |relative volume error|.
+
+A metric that does not apply (no leaf with that truth, or a variant that
+does not estimate it) is ``None``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: The goal of the project (issue 7): a PROP-SFS variant with this ROP reduction and median |area error|.
+GOAL_ROP_REDUCTION = 0.90
+GOAL_AREA_REL_ERR = 0.05
+
+#: Leaves with at least this share of their silhouette unhidden are "fully visible".
+MIN_VISIBILITY = 0.8
+
+#: Keys of a summary row, in display order.
+SUMMARY_KEYS = ("suite", "variant", "family", "n_cases", "n_targets", "n_leaves_traits", "n_errors", "rop_before",
+                "rop_after", "rop_reduction", "rop_before_1cm", "rop_after_1cm", "rop_reduction_1cm", "good_points_lost",
+                "outliers_restored", "good_points_damaged", "completeness", "flag_precision", "flag_recall",
+                "rppp_1", "abs_eps_mean", "within_5pct", "surface_rmse_m",
+                "area_rel_err_median", "area_rel_err_bias", "elevation_err_median_deg", "azimuth_err_median_deg",
+                "diameter_err_median_m", "volume_rel_err", "runtime_s", "runtime_total_s", "peak_mem_mb")
+
+#: The headline table: (column title, summary key, format).
+HEADLINE = (("variant", "variant", "{}"), ("ROP after", "rop_after", "{:.3f}"),
+            ("ROP red.", "rop_reduction", "{:.0%}"), ("good lost", "good_points_lost", "{:.1%}"),
+            ("|area err| med", "area_rel_err_median", "{:.1%}"), ("elev err", "elevation_err_median_deg", "{:.1f}°"),
+            ("azim err", "azimuth_err_median_deg", "{:.1f}°"), ("runtime/case", "runtime_s", "{:.3f} s"),
+            ("errors", "n_errors", "{}"))
+#: The headline of suites without leaves (height fields: the thesis' relative height errors).
+HEADLINE_HEIGHTS = (("variant", "variant", "{}"), ("mean |height err|", "abs_eps_mean", "{:.2%}"),
+                    ("within 5 %", "within_5pct", "{:.1%}"), ("completeness", "completeness", "{:.1%}"),
+                    ("runtime/case", "runtime_s", "{:.3f} s"), ("errors", "n_errors", "{}"))
+
+
+def target_scores(rows: list[dict]) -> list[dict]:
+    """Every per-target score (leaf, surface, woody object) of result rows, with ``case`` and ``variant`` added."""
+    return [{"case": r["case_name"], "variant": r["variant"], **target}
+            for r in rows if not r["error"] for target in r["metrics"]["targets"]]
+
+
+def _values(leaves: list[dict], key: str, absolute: bool = False) -> np.ndarray:
+    values = np.array([leaf[key] for leaf in leaves if leaf.get(key) is not None], dtype=float)
+    return np.abs(values) if absolute else values
+
+
+def _over_cases(rows: list[dict], key: str, reduce=np.mean, absolute: bool = False, visible: bool = False):
+    """``reduce`` of a per-leaf score within each case, then over the cases (None when no case has it)."""
+    per_case = []
+    for row in rows:
+        leaves = row["metrics"]["targets"]
+        if visible:
+            leaves = [leaf for leaf in leaves if (leaf.get("visibility") or 0.0) >= MIN_VISIBILITY]
+        values = _values(leaves, key, absolute)
+        if len(values):
+            per_case.append(reduce(values))
+    return float(reduce(per_case)) if per_case else None
+
+
+def _reduction(before, after):
+    return None if before is None or after is None or before <= 0 else 1.0 - after / before
+
+
+def summarize(rows: list[dict], suite: str) -> list[dict]:
+    """One summary row per variant of a run's result rows (variants in first-seen order)."""
+    return [_summary_row([r for r in rows if r["variant"] == variant], {"suite": suite})
+            for variant in dict.fromkeys(r["variant"] for r in rows)]
+
+
+def scene_kind(case_spec: dict) -> str:
+    """The kind of scene of a stored case: its generator, built-in scene or height-field surface name."""
+    scene = case_spec["scene"]
+    return scene.get("generator") or scene.get("builtin") or f"height field: {scene['heightfield']}"
+
+
+def summarize_by_scene(rows: list[dict], suite: str) -> list[dict]:
+    """One summary row per kind of scene (:func:`scene_kind`) and variant, with a ``scene`` key."""
+    kinds = list(dict.fromkeys(scene_kind(r["case_spec"]) for r in rows))
+    return [_summary_row(mine, {"suite": suite, "scene": kind})
+            for kind in kinds for variant in dict.fromkeys(r["variant"] for r in rows)
+            if (mine := [r for r in rows if r["variant"] == variant and scene_kind(r["case_spec"]) == kind])]
+
+
+def _summary_row(mine: list[dict], labels: dict) -> dict:
+    """Aggregate the result rows of one variant (see the module docstring)."""
+    ok = [r for r in mine if not r["error"]]
+    leaves = target_scores(ok)
+    row = {**labels, "variant": mine[0]["variant"], "family": mine[0]["family"], "n_cases": len(mine),
+           "n_targets": len(leaves), "n_errors": len(mine) - len(ok)}
+    for suffix in ("", "_1cm"):
+        before, after = _over_cases(ok, "rop_before" + suffix), _over_cases(ok, "rop_after" + suffix)
+        row.update({f"rop_before{suffix}": before, f"rop_after{suffix}": after,
+                    f"rop_reduction{suffix}": _reduction(before, after)})
+    for key in ("good_points_lost", "outliers_restored", "good_points_damaged", "completeness", "flag_precision",
+                "flag_recall", "rppp_1", "abs_eps_mean", "within_5pct"):
+        row[key] = _over_cases(ok, key)
+    row["surface_rmse_m"] = _over_cases(ok, "surface_rmse_m", np.median)
+    row["n_leaves_traits"] = sum(1 for leaf in leaves if (leaf.get("visibility") or 0.0) >= MIN_VISIBILITY)
+    row["area_rel_err_median"] = _over_cases(ok, "area_rel_err", np.median, absolute=True, visible=True)
+    row["area_rel_err_bias"] = _over_cases(ok, "area_rel_err", np.median, visible=True)
+    row["elevation_err_median_deg"] = _over_cases(ok, "elevation_err_deg", np.median, visible=True)
+    row["azimuth_err_median_deg"] = _over_cases(ok, "azimuth_err_deg", np.median, visible=True)
+    row["diameter_err_median_m"] = _over_cases(ok, "diameter_err_mae_m", np.median)
+    row["volume_rel_err"] = _over_cases(ok, "volume_rel_err", np.median, absolute=True)
+    runtimes = [r["runtime_s"] for r in ok if r["runtime_s"] is not None]
+    peaks = [r["peak_mem_mb"] for r in ok if r["peak_mem_mb"] is not None]
+    row["runtime_s"] = float(np.median(runtimes)) if runtimes else None
+    row["runtime_total_s"] = float(np.sum(runtimes)) if runtimes else None
+    row["peak_mem_mb"] = float(max(peaks)) if peaks else None
+    return {key: row[key] for key in tuple(labels) + SUMMARY_KEYS[1:]}
+
+
+def goal_status(summary: list[dict], unavailable: dict[str, str] | None = None) -> str:
+    """One sentence on whether a PROP-SFS variant meets the project goal on these results."""
+    goal = (f"goal: a PROP-SFS variant with ROP reduction >= {GOAL_ROP_REDUCTION:.0%} and median |area error| "
+            f"<= {GOAL_AREA_REL_ERR:.0%}")
+    candidates = [r for r in summary if r["family"] == "prop-sfs"]
+    if candidates and all(r["rop_reduction"] is None for r in candidates):
+        return f"{goal}: not measured by this suite (no leaf scored)"
+    if not candidates:
+        why = (unavailable or {}).get("prop-sfs", "no PROP-SFS variant was run")
+        return f"{goal}: NOT MET - no PROP-SFS variant in this run ({why})"
+    met = [r["variant"] for r in candidates
+           if (r["rop_reduction"] or 0) >= GOAL_ROP_REDUCTION
+           and r["area_rel_err_median"] is not None and r["area_rel_err_median"] <= GOAL_AREA_REL_ERR]
+    if met:
+        return f"{goal}: MET by {', '.join(met)}"
+    best = max(candidates, key=lambda r: r["rop_reduction"] or -math.inf)
+    return (f"{goal}: NOT MET - best PROP-SFS variant {best['variant']}: ROP reduction "
+            f"{_fmt(best['rop_reduction'], '{:.0%}')}, median |area error| {_fmt(best['area_rel_err_median'], '{:.1%}')}")
+
+
+def _fmt(value, fmt: str) -> str:
+    return "n/a" if value is None else fmt.format(value)
+
+
+def headline_columns(summary: list[dict]) -> tuple:
+    """:data:`HEADLINE`, or :data:`HEADLINE_HEIGHTS` for results without any leaf score."""
+    leaves = any(row["rop_after"] is not None for row in summary)
+    heights = any(row["abs_eps_mean"] is not None for row in summary)
+    return HEADLINE_HEIGHTS if heights and not leaves else HEADLINE
+
+
+def headline_table(summary: list[dict]) -> str:
+    """The headline table as aligned plain text (one line per variant)."""
+    columns = headline_columns(summary)
+    cells = [[title for title, _, _ in columns]]
+    cells += [[_fmt(row[key], fmt) for _, key, fmt in columns] for row in summary]
+    widths = [max(len(line[i]) for line in cells) for i in range(len(columns))]
+    return "\n".join("  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(line, widths)))
+                     for line in cells)

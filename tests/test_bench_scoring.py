@@ -1,0 +1,67 @@
+"""Scoring against the scene truth on small simulated scans."""
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+from trimesh.triangles import closest_point
+
+from benchmarks import scoring
+from benchmarks.generators import background_wall, elliptic_leaf, scanner_window
+from benchmarks.registry import VariantOutput
+from scenes.scene import Scene
+from tlssim.simulate import setup_from_section, simulate
+
+
+@pytest.fixture(scope="module")
+def two_leaves():
+    """A leaf at 3 m half hidden by another leaf 10 cm in front of it, a wall behind both."""
+    back = elliptic_leaf("back", (3.0, 0.0, 0.0), (-1, 0, 0), (0, 1, 0), 0.08, 0.05)
+    front = elliptic_leaf("front", (2.9, 0.04 * 2.9 / 3.0, 0.0), (-1, 0, 0), (0, 1, 0), 0.08, 0.05)
+    objects = [back, front]
+    scene = Scene(objects + [background_wall(objects, 3.5, 0.3)], scanner_window(objects), "two-leaves")
+    scan = simulate(scene, setup_from_section(scene.scanner), seed=1, progress=False)
+    return scene, scan, scoring.prepare_leaves(scene, scan)
+
+
+def test_leaf_points_include_mixed_pulses_and_visibility_sees_occlusion(two_leaves):
+    scene, scan, leaves = two_leaves
+    back, front = leaves
+    assert (back.name, front.name) == ("back", "front")
+    assert front.scan_stats["visibility"] == pytest.approx(1.0)
+    assert back.scan_stats["visibility"] == pytest.approx(0.5, abs=0.1)
+    # The leaf's points: its own pulses plus wall- or leaf-dominated pulses with >= 10 % of their power from it.
+    assert front.own.sum() < front.mask.sum()
+    others = set(np.unique(front.attributed[~front.own]))
+    assert others and others <= {0, 2}
+    assert front.scan_stats["range_m"] == pytest.approx(2.9, abs=0.01)
+    sigma = front.scan_stats["sigma_range_m"]
+    assert 0.0003 < sigma < 0.003, "range noise of the simulator (mm level at 3 m)"
+    assert front.taus["auto"] == pytest.approx(max(3 * sigma, 0.002)) and front.taus["1cm"] == 0.01
+
+
+def test_raw_and_an_oracle_correction(two_leaves):
+    scene, scan, leaves = two_leaves
+    front = leaves[1]
+    raw = scoring.score_leaf(front, VariantOutput(front.scan.xyz.copy()))
+    assert raw["rop_before"] == raw["rop_after"] > 0.1
+    assert raw["good_points_lost"] == 0.0 and raw["outliers_restored"] == 0.0
+    assert raw["object_type"] == "leaf" and "area_rel_err" not in raw
+    # The oracle moves every point onto the true surface of its object (onto a triangle: any point of a
+    # triangle lies on the mesh).
+    xyz = front.scan.xyz.copy()
+    rows, cols = np.nonzero(front.mask)
+    for oid in np.unique(front.attributed):
+        triangles = scene.objects[oid].vertices[scene.objects[oid].faces]
+        sel = front.attributed == oid
+        points = xyz[rows[sel], cols[sel]]
+        _, face = cKDTree(triangles.mean(axis=1)).query(points)
+        xyz[rows[sel], cols[sel]] = closest_point(triangles[face], points)
+    oracle = scoring.score_leaf(front, VariantOutput(xyz, traits={"area_m2": front.truth["area_m2"],
+                                                                   "elevation_deg": front.truth["elevation_deg"],
+                                                                   "azimuth_deg": front.truth["azimuth_deg"]}))
+    assert oracle["rop_after"] < 0.01 and oracle["outliers_restored"] > 0.99
+    assert oracle["completeness"] > 0.99 and oracle["surface_rmse_m"] < 1e-6
+    assert oracle["area_rel_err"] == 0.0 and oracle["elevation_err_deg"] == pytest.approx(0.0, abs=1e-6)
+    # Dropping every point leaves no outlier and loses every good point.
+    dropped = scoring.score_leaf(front, VariantOutput(np.full_like(xyz, np.nan)))
+    assert dropped["rop_after"] == 0.0 and dropped["good_points_lost"] == 1.0 and dropped["completeness"] == 0.0

@@ -1,0 +1,147 @@
+"""Suites (YAML), cases and the scene generators of the benchmark."""
+
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from benchmarks.errors import BenchError
+from benchmarks.generators import build_scene, direction_angles_deg
+from benchmarks.suite import case_seed, load_suite, parse_suite, suite_names
+
+
+def write(tmp_path, data, name="suite.yaml"):
+    path = tmp_path / name
+    path.write_text(data if isinstance(data, str) else yaml.safe_dump(data))
+    return path
+
+
+def test_vary_expands_the_product_with_names_and_stable_seeds(tmp_path):
+    path = write(tmp_path, {"name": "t", "cases": [
+        {"name": "leaf-{distance_m}-{step_deg}", "scene": {"generator": "plate-leaf"},
+         "vary": {"distance_m": [1.5, 3.0], "scanner.step_deg": [0.018, 0.036]}},
+        {"name": "edge", "scene": {"builtin": "knife-edge"}, "targets": ["plate"], "seed": 7}]})
+    suite = load_suite(str(path))
+    assert [c.name for c in suite.cases] == ["leaf-1.5-0.018", "leaf-1.5-0.036", "leaf-3.0-0.018",
+                                             "leaf-3.0-0.036", "edge"]
+    first = suite.cases[1]
+    assert first.scene == {"generator": "plate-leaf", "distance_m": 1.5} and first.scanner == {"step_deg": 0.036}
+    assert first.seed == case_seed("leaf-1.5-0.036") and suite.cases[-1].seed == 7
+    assert suite.cases[-1].targets == ("plate",)
+    assert load_suite(str(path)).digest() == suite.digest()
+    assert parse_suite({"name": "other", "cases": [c.to_dict() for c in suite.cases]}).digest() != suite.digest()
+
+
+@pytest.mark.parametrize("data, message", [
+    ("name: [unclosed", "not valid YAML"),
+    ({"name": "t"}, "non-empty list"),
+    ({"name": "t", "cases": [{"name": "a", "scene": {"builtin": "knife-edge"}, "colour": 1}]}, "unknown key"),
+    ({"name": "t", "cases": [{"name": "a", "scene": {"builtin": "no-such-scene"}}]}, "unknown built-in scene"),
+    ({"name": "t", "cases": [{"name": "a", "scene": {"generator": "plate-leaf", "size": 3}}]}, "no parameter"),
+    ({"name": "t", "cases": [{"name": "a", "scene": {"generator": "plate-leaf"}, "scanner": {"zoom": 2}}]},
+     "unknown scanner override"),
+    ({"name": "t", "cases": [{"name": "a", "scene": {"builtin": "knife-edge"}}] * 2}, "repeated"),
+    ({"name": "t", "cases": [{"name": "a", "scene": {"generator": "plate-leaf"},
+                              "vary": {"distance_m": [1, 2]}}]}, "every varied key"),
+    ({"name": "t", "cases": [{"name": "a-{x}", "scene": {"generator": "plate-leaf"},
+                              "vary": {"distance_m": [1, 2]}}]}, "not varied"),
+    ({"name": "t", "cases": [{"name": "a", "scene": {"builtin": "knife-edge"}, "seed": "x"}]}, "integer"),
+])
+def test_malformed_suites_name_the_file_and_the_problem(tmp_path, data, message):
+    path = write(tmp_path, data)
+    with pytest.raises(BenchError, match=message) as info:
+        load_suite(str(path))
+    assert str(path) in str(info.value)
+
+
+def test_vary_reaches_nested_and_method_parameters():
+    suite = parse_suite({"name": "t", "cases": [{"name": "h-{n_smooth}-{radius}", "scene": {
+        "heightfield": "hemisphere"}, "params": {"prop-sfs": {"eps_alpha": 0.2}},
+        "vary": {"params.prop-sfs.n_smooth": [1, 5], "surface_params.radius": [10.0]}}]})
+    assert [c.params for c in suite.cases] == [{"prop-sfs": {"eps_alpha": 0.2, "n_smooth": 1}},
+                                               {"prop-sfs": {"eps_alpha": 0.2, "n_smooth": 5}}]
+    assert suite.cases[0].scene == {"heightfield": "hemisphere", "surface_params": {"radius": 10.0}}
+    assert suite.cases[1].name == "h-5-10.0"
+    with pytest.raises(BenchError, match="'params' must map"):
+        parse_suite({"name": "t", "cases": [{"name": "h", "scene": {"heightfield": "hemisphere"}, "params": [1]}]})
+    with pytest.raises(BenchError, match="side"):
+        parse_suite({"name": "t", "cases": [{"name": "h", "scene": {"heightfield": "hemisphere", "side": 3}}]})
+
+
+def test_unknown_suite():
+    with pytest.raises(BenchError, match="quick"):
+        load_suite("no-such-suite")
+
+
+def test_builtin_suites_hold_what_they_promise():
+    assert {"quick", "standard"} <= set(suite_names())
+    quick = load_suite("quick")
+    assert len(quick.cases) <= 12
+    standard = load_suite("standard")
+    single = [c for c in standard.cases if c.scene.get("generator") == "single-leaf"]
+    assert len(single) >= 50
+    distances = {c.scene["distance_m"] for c in single}
+    incidences = {c.scene["incidence_deg"] for c in single}
+    assert min(distances) == 0.8 and max(distances) == 5.0
+    assert min(incidences) == 0 and max(incidences) == 80
+    assert {"leaf-cluster", "leafy-tree", "orchard-row"} <= {c.scene.get("builtin") for c in standard.cases}
+    synthetic = load_suite("sfs-synthetic").cases
+    assert all("heightfield" in c.scene for c in synthetic)
+    assert {c.scene.get("alpha_noise_deg") for c in synthetic} >= {1.4, 2.8, 5.7}
+    assert {c.scene.get("alpha_bias_deg") for c in synthetic} >= {-7.0, -3.5, 3.5, 7.0}
+    assert {c.scene.get("side") for c in synthetic if c.scene["heightfield"] == "hemisphere"} >= {25, 34, 41, 47, 53, 58}
+    assert {c.params["prop-sfs"].get("seed_cutoff") for c in synthetic} >= {0.061, 0.029, 0.019}
+
+
+def test_plate_leaf_truth_matches_its_pose():
+    scene = build_scene({"generator": "plate-leaf", "distance_m": 2.0, "incidence_deg": 30.0,
+                         "length_m": 0.08, "width_m": 0.05, "roll_deg": 0.0})
+    leaf, wall = scene.objects
+    assert leaf.type == "leaf" and wall.name == "background"
+    truth = leaf.truth
+    assert truth["area_m2"] == pytest.approx(math.pi * 0.04 * 0.025, rel=5e-3)
+    assert truth["area_m2"] == pytest.approx(leaf.face_areas().sum(), rel=1e-12)
+    normal = np.array(truth["normal"])
+    to_scanner = -leaf.vertices[0] / np.linalg.norm(leaf.vertices[0])
+    assert math.degrees(math.acos(np.dot(normal, to_scanner))) == pytest.approx(30.0)
+    np.testing.assert_allclose(leaf.face_normals(), np.tile(normal, (len(leaf.faces), 1)), atol=1e-9)
+    # Tilted about the vertical with roll 0: the midrib points straight up.
+    assert truth["elevation_deg"] == pytest.approx(90.0)
+    assert direction_angles_deg([0.0, -1.0, 1.0]) == pytest.approx((45.0, 270.0))
+    # The window covers the blade with margin; the wall lies behind it.
+    window = scene.scanner["window"]
+    assert window["theta_deg"][0] < -0.9 < 0.9 < window["theta_deg"][1]
+    assert wall.vertices[:, 0].min() == pytest.approx(2.5)
+
+
+def test_single_leaf_is_a_seeded_procedural_leaf():
+    a = build_scene({"generator": "single-leaf", "distance_m": 2.0, "incidence_deg": 40.0, "seed": 3})
+    b = build_scene({"generator": "single-leaf", "distance_m": 2.0, "incidence_deg": 40.0, "seed": 3})
+    c = build_scene({"generator": "single-leaf", "distance_m": 2.0, "incidence_deg": 40.0, "seed": 4})
+    leaf = a.objects[0]
+    assert leaf.type == "leaf" and {"area_m2", "elevation_deg", "azimuth_deg", "outline"} <= set(leaf.truth)
+    assert np.array_equal(leaf.vertices, b.objects[0].vertices)
+    assert not np.array_equal(leaf.vertices, c.objects[0].vertices)
+    assert a.objects[1].name == "background" and a.objects[1].vertices[:, 0].min() == pytest.approx(2.5)
+
+
+def test_generator_errors():
+    with pytest.raises(BenchError, match="available"):
+        build_scene({"generator": "nope"})
+    with pytest.raises(BenchError, match="incidence_deg"):
+        build_scene({"generator": "plate-leaf", "incidence_deg": 95})
+    with pytest.raises(BenchError, match="builtin"):
+        build_scene({"distance_m": 3})
+
+
+def test_analytic_surface_is_a_default_target():
+    from benchmarks.scoring import target_ids
+
+    scene = build_scene({"generator": "analytic-surface", "surface": "cone", "distance_m": 2.0, "size_m": 0.06})
+    surface, wall = scene.objects
+    assert surface.type == "surface" and surface.truth["surface"] == "cone"
+    assert target_ids(scene) == [0]
+    assert np.linalg.norm(surface.vertices, axis=1).min() == pytest.approx(2.0 - 0.06 / 2 * math.tan(math.pi / 6), rel=1e-3)
+    with pytest.raises(BenchError, match="analytic-surface"):
+        build_scene({"generator": "analytic-surface", "surface": "teapot"})

@@ -1,0 +1,116 @@
+"""Mixed pulses at edges (shares, owners, background distance), local planes, range noise and share-weighted area."""
+
+import numpy as np
+import pytest
+
+from leafsfs.edges import attribute_mixed, geometric_share
+from leafsfs.frame import local_frame
+from leafsfs.grid import gaussian_planes
+from leafsfs.leaves import range_noise, split_thin_parts, surface_widths
+from leafsfs.traits import leaf_traits
+from tlssim.pattern import beam_frame
+
+
+def _edge_scene(rng, noise=0.0):
+    """A square plate 1.5 m away before a wall 2.5 m away, the plate's footprint share falling across its edge.
+
+    Returns the range image, the plate's power share of every pulse and the surface labels of the pure pulses.
+    """
+    rows, cols = np.mgrid[0:80, 0:80]
+    # signed distance (px) to the plate's border (the square 20 <= i, j < 60), positive inside
+    inside = np.minimum.reduce([rows - 19.5, 59.5 - rows, cols - 19.5, 59.5 - cols])
+    share = np.clip(0.5 + inside / 8.0, 0.0, 1.0)  # a linear edge profile 8 px wide
+    wall = 2.5 + 0.0004 * cols  # the wall is tilted
+    plate = 1.5 + 0.0002 * rows
+    range_m = share * plate + (1 - share) * wall + noise * rng.standard_normal(rows.shape)
+    surfaces = np.where(share == 1.0, 1, np.where(share == 0.0, 2, 0))
+    return range_m, share, surfaces, plate, wall
+
+
+def test_mixed_pulses_get_the_share_and_owner_of_the_two_surfaces():
+    rng = np.random.default_rng(0)
+    range_m, share, surfaces, plate, wall = _edge_scene(rng, noise=0.001)
+    mixed = attribute_mixed(range_m, surfaces, 12, tolerance_m=0.003)
+    straddling = (surfaces == 0) & (share > 0.01) & (share < 0.99)
+    estimate = mixed.share_of(1)
+    assert np.all(np.abs(estimate - share)[straddling] < 0.01)  # 1 mm noise over a 1 m gap
+    assert np.array_equal(mixed.owner[straddling] == 1, share[straddling] >= 0.5)
+    # the owner's distance, extrapolated from the surface's own pulses inside its border
+    owner_range = np.where(share >= 0.5, plate, wall)
+    assert np.all(np.abs(mixed.owner_range() - owner_range)[straddling] < 0.002)
+    assert np.all(mixed.straddling[straddling]) and not mixed.straddling[surfaces > 0].any()
+    # pure pulses keep their surface; the two shares of a mixed pulse sum to one
+    assert np.array_equal(mixed.owner[surfaces > 0], surfaces[surfaces > 0])
+    assert np.allclose((mixed.share_of(1) + mixed.share_of(2))[straddling], 1.0)
+
+
+def test_a_pulse_within_the_noise_of_a_surface_is_its_own():
+    rng = np.random.default_rng(1)
+    range_m, share, surfaces, plate, _ = _edge_scene(rng)
+    range_m[40, 40] = plate[40, 40] + 0.002  # a noisy pulse inside the plate, not linked to it
+    surfaces[40, 40] = 0
+    mixed = attribute_mixed(range_m, surfaces, 12, tolerance_m=0.003)
+    assert mixed.owner[40, 40] == 1 and not mixed.straddling[40, 40] and mixed.share_of(1)[40, 40] == 1.0
+
+
+def test_geometric_share_inverts_the_power_share():
+    # a footprint covering a fraction f of a surface a returning q times more power per unit beam than b
+    f = np.linspace(0, 1, 11)
+    for q in (0.3, 1.0, 4.0):
+        power = f * q / (f * q + 1 - f)
+        gain = 263.0
+        recovered = geometric_share(power, gain * np.log(q) + 1500.0, np.full_like(f, 1500.0), gain)
+        assert np.allclose(recovered, f)
+
+
+def test_gaussian_planes_keep_a_steep_slope_up_to_the_border():
+    rows, cols = np.mgrid[0:40, 0:60]
+    height = 4.0 * rows - 0.5 * cols  # a plane as steep as a leaf seen at 76 deg
+    known = (rows > 10) & (rows < 20) & (cols > 5) & (cols < 55)  # a narrow strip
+    fit, slope, fitted = gaussian_planes(np.where(known, height, np.nan), known, 4.0)
+    inside = known & fitted
+    assert np.allclose(fit[inside], height[inside]) and np.allclose(slope[inside], [4.0, -0.5])
+    beyond = fitted & ~known  # extrapolated just outside the strip
+    assert beyond.any() and np.allclose(fit[beyond], height[beyond])
+
+
+def test_range_noise_from_second_differences():
+    rng = np.random.default_rng(2)
+    rows, cols = np.mgrid[0:200, 0:200]
+    range_m = 2.0 + 0.003 * rows + 0.001 * cols + 0.0015 * rng.standard_normal(rows.shape)
+    range_m[:, 100:] += 1.0  # an edge does not matter
+    assert range_noise(range_m) == pytest.approx(0.0015, rel=0.05)
+
+
+def test_area_weights_count_the_partly_covered_pulses():
+    # A plane facing the scanner 1 m away: the area of N pixels is N r^2 dOmega; a pulse of share w counts w.
+    step = np.radians(0.018)
+    theta, psi = np.meshgrid(step * np.arange(-40, 40), np.pi / 2 + step * np.arange(-30, 30))
+    axis = beam_frame(theta, psi)[0]
+    range_m = 1.0 / axis[..., 0]
+    region = np.zeros(theta.shape, bool)
+    region[10:50, 10:70] = True
+    frame = local_frame(theta, psi, range_m, region)
+    weight = region.astype(float)
+    weight[9, 10:70] = 0.25  # a row of mixed pulses beyond the region, a quarter of their footprints on it
+    height = np.where(region, frame.height(range_m), np.nan)[frame.box]
+    traits = leaf_traits(frame, height, weight[frame.box], 0.002)
+    pixel = step**2  # at 1 m, on the beam axis (cos terms below 1e-6)
+    assert traits["area_m2"] == pytest.approx((40 * 60 + 0.25 * 60) * pixel, rel=1e-3)
+    assert abs(traits["normal_zenith_deg"] - 90) < 0.1  # the plate is vertical
+
+
+def test_a_twig_linked_to_a_leaf_is_split_off_and_is_not_a_leaf():
+    # A 3 cm blade and a 2 mm wide, 5 cm long twig touching it, 2 m away (pixels of 0.63 mm).
+    step = np.radians(0.018)
+    rows, cols = np.mgrid[0:120, 0:200]
+    blade = np.hypot(rows - 60, cols - 50) < 24
+    twig = (np.abs(rows - 60) < 2) & (cols >= 70) & (cols < 150)
+    surfaces = (blade | twig).astype(int)
+    range_m = np.full(rows.shape, 2.0)
+    split = split_thin_parts(surfaces, range_m, step, 0.004, 100)
+    # the twig goes (but for a few pulses where it joins), the blade keeps its pulses
+    assert np.mean(split[twig & ~blade] == split[60, 120]) > 0.95 and split[60, 120] != split[60, 50]
+    assert np.mean(split[blade] == split[60, 50]) > 0.99
+    widths = surface_widths(split, range_m, step)
+    assert widths[split[60, 50]] == pytest.approx(0.03, rel=0.1) and widths[split[60, 120]] < 0.004
