@@ -734,7 +734,12 @@ def _grow(cloud: tuple, graph: np.ndarray, params: FollowParams, precision: floa
             branch = branch.parent
         return branch
 
-    root = int(np.argmin(points[:, 2]))
+    # Root: the lowest point with three neighbours within Precision. The paper starts from the lowest
+    # point; a lone stray return below the tree (a mixed pulse, a grazing edge) would then grow nothing.
+    supported = (graph[:, min(2, graph.shape[1] - 1)] >= 0) & \
+        (np.linalg.norm(points[np.maximum(graph[:, min(2, graph.shape[1] - 1)], 0)] - points, axis=1) < precision)
+    candidates = np.flatnonzero(supported) if supported.any() else np.arange(len(points))
+    root = int(candidates[np.argmin(points[candidates, 2])])
     new_branch(root, None, 1)
     bar = tqdm(total=len(points), desc="cylinder following", disable=not progress, leave=False)
     bar.update(1)
@@ -903,10 +908,13 @@ def _balance_volume(branches: list[_Branch], points: np.ndarray, params: FollowP
             parent = child.parent
             if parent is None or child.direction is None or parent.direction is None:
                 continue
+            pair_moved = False
             for source, target in ((child, parent), (parent, child)):
-                moved |= _balance_pair(source, target, child, parent, points, params)
-            child.refit()
-            parent.refit()
+                pair_moved |= _balance_pair(source, target, child, parent, points, params)
+            if pair_moved:
+                child.refit()
+                parent.refit()
+                moved = True
         if not moved:
             return passes
     return params.max_balance_passes

@@ -366,8 +366,9 @@ def refine_tuboid(tube: Tuboid, points: np.ndarray, tree: cKDTree, radius_step_m
     centres, radii = tube.centres.copy(), tube.radii.copy()
     spacing = np.linalg.norm(np.diff(tube.centres, axis=0), axis=1)
     half = 0.5 * np.maximum(np.concatenate([[spacing[0]], spacing]), np.concatenate([spacing, [spacing[-1]]]))
-    u, v = ring_frames(tube.normals)
-    for i, (c, n, r) in enumerate(zip(tube.centres, tube.normals, tube.radii)):
+    normals = windowed_tangents(tube.centres, tube.radii)
+    u, v = ring_frames(normals)
+    for i, (c, n, r) in enumerate(zip(tube.centres, normals, tube.radii)):
         band = max(0.3 * r, 2 * radius_step_m)
         near = np.asarray(tree.query_ball_point(c, np.hypot(r + band, half[i])), dtype=np.int64)
         if len(near) < 6:
@@ -388,3 +389,26 @@ def refine_tuboid(tube: Tuboid, points: np.ndarray, tree: cKDTree, radius_step_m
     if len(centres) >= 3:
         centres[1:-1] = 0.25 * centres[:-2] + 0.5 * centres[1:-1] + 0.25 * centres[2:]
     return _to_tuboid(np.column_stack([centres, radii]), tube.mean_energy)
+
+
+def windowed_tangents(centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """Unit tangents of a centreline, each the principal axis of the centres within one radius of it.
+
+    A snake's vertices wander by up to a cell or so across the ridge; the
+    tangent of neighbouring vertices then tilts the circle planes (by tens of
+    degrees on a weakly constrained, partly visible stem), so that a circle
+    fitted in that plane sees an ellipse. The centres within one local
+    radius along the curve (at least the two neighbours) average the wander
+    out; a tube bends on a scale of its radius or more.
+    """
+    if len(centres) < 2:
+        return np.array([[0.0, 0.0, 1.0]])
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(centres, axis=0), axis=1))])
+    tangents = np.empty_like(centres)
+    for i in range(len(centres)):
+        window = np.abs(arc - arc[i]) <= radii[i]
+        window[max(i - 1, 0):i + 2] = True
+        near = centres[window] - centres[window].mean(axis=0)
+        axis = np.linalg.svd(near, full_matrices=False)[2][0]
+        tangents[i] = axis if axis @ (centres[min(i + 1, len(centres) - 1)] - centres[max(i - 1, 0)]) >= 0 else -axis
+    return tangents
