@@ -7,7 +7,9 @@ from woody import SnakeParams, WoodyError, score, step
 from woody.geometry import frustum_volume
 from woody.hough import HoughGrid, HoughSpace
 from woody.snake import Snake, data_energy
-from woody.step import Tuboid
+from scipy.spatial import cKDTree
+
+from woody.step import Tuboid, arc_support
 from woody.synthetic import add_noise, sample_cylinders, straight_cylinder
 
 CELLS = {"cell_m": 0.02, "radius_step_m": 0.01, "r_min_m": 0.08, "r_max_m": 0.25}
@@ -37,6 +39,27 @@ def test_noisy_partial_cylinder_with_estimated_normals_is_within_a_centimetre():
     assert scores["completeness"] > 0.85
     assert scores["diameter_error_m"]["mae"] < 0.01
     assert abs(scores["diameter_error_m"]["bias"]) < 0.01
+
+
+def test_forty_degrees_of_a_half_metre_stem_give_its_diameter_within_a_centimetre():
+    """The project's goal on STEP's cylinder (r = 0.5 m, L = 2 m) at the narrowest arc it covers, PCA normals."""
+    truth = straight_cylinder()
+    cloud = sample_cylinders(truth, 3e4, seed=0, arc_deg=40)
+    result = step(cloud.points, viewpoints=(10.0, 0.0, 1.0), cell_m=0.02, radius_step_m=0.01, r_min_m=0.4,
+                  r_max_m=0.6)
+    scores = score({"cylinders": truth}, result.cylinders(), min_tolerance_m=0.04)
+    assert scores["completeness"] > 0.9
+    assert scores["diameter_error_m"]["mae"] < 0.01
+
+
+def test_arc_support_is_the_visible_fraction_of_the_circumference():
+    cloud = sample_cylinders(straight_cylinder(0.2, 1.0), 2e4, seed=7, arc_deg=90)
+    tree = cKDTree(cloud.points)
+    centres = np.column_stack([np.zeros(21), np.zeros(21), np.linspace(0.0, 1.0, 21)])
+    assert arc_support(centres, np.full(21, 0.2), cloud.points, tree, 0.01) == pytest.approx(0.25, abs=0.03)
+    assert arc_support(centres, np.full(21, 0.4), cloud.points, tree, 0.01) == 0.0
+    full = sample_cylinders(straight_cylinder(0.2, 1.0), 2e4, seed=7)
+    assert arc_support(centres, np.full(21, 0.2), full.points, cKDTree(full.points), 0.01) > 0.95
 
 
 def test_max_tuboids_caps_the_output():

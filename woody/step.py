@@ -147,7 +147,8 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
          r_min_m: float = 0.02, r_max_m: float = 0.30, oriented: bool | None = None, normal_k: int = 16,
          samples_per_bin: int = 1, min_votes: int = 2, params: SnakeParams | None = None,
          max_tuboids: int | None = None, max_seeds: int | None = 5000, min_vertices: int = 3,
-         min_length_radii: float = 1.0, max_mean_energy: float = -0.3, refine: bool = True, progress: bool = False) -> StepResult:
+         min_length_radii: float = 1.0, max_mean_energy: float = -0.3, weak_energy: float = -0.4,
+         min_weak_arc_deg: float = 72.0, refine: bool = True, progress: bool = False) -> StepResult:
     """Extract tuboids from a point cloud with STEP.
 
     Parameters
@@ -185,6 +186,15 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
         Shortest accepted tuboid, in units of its mean radius.
     max_mean_energy : float
         Snakes whose mean ``E_d`` is above this are rejected as noise.
+    weak_energy, min_weak_arc_deg : float
+        A snake whose mean ``E_d`` is above ``weak_energy`` (a weak ridge)
+        is kept only if its circles have points on at least
+        ``min_weak_arc_deg`` of their circumference (median over the
+        circles, 10-deg sectors; :func:`arc_support`). Assumption of this
+        project, not in the paper: in a tree crown, the votes of several thin
+        twigs add up to weak ridges at radii far larger than any branch, and
+        such circles have almost no points on them; a real stem gives a
+        strong ridge even when only 10 deg of it are seen.
     refine : bool
         Re-fit each circle to its points (see the module docstring).
     progress : bool
@@ -207,6 +217,8 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
         raise WoodyError(f"min_vertices must be at least 2, got {min_vertices}")
     if not -1 < max_mean_energy <= 0:
         raise WoodyError(f"max_mean_energy must be in (-1, 0], got {max_mean_energy}")
+    if not 0 <= min_weak_arc_deg <= 360:
+        raise WoodyError(f"min_weak_arc_deg must be in [0, 360], got {min_weak_arc_deg}")
     if max_tuboids is not None and max_tuboids < 1:
         raise WoodyError(f"max_tuboids must be at least 1, got {max_tuboids}")
     params = params or SnakeParams()
@@ -231,12 +243,17 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
     timings["maxima_s"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
+    tree = cKDTree(points)
+
+    def supported(metric: np.ndarray, e_d: np.ndarray) -> bool:
+        return e_d.mean() <= weak_energy or \
+            arc_support(metric[:, :3], metric[:, 3], points, tree, radius_step_m) >= min_weak_arc_deg / 360.0
+
     tuboids, tried, rejected = _run_snakes(hs, energy, seeds, params, max_tuboids, max_seeds, min_vertices,
-                                           min_length_radii, max_mean_energy, progress)
+                                           min_length_radii, max_mean_energy, supported, progress)
     timings["snakes_s"] = time.perf_counter() - clock
     clock = time.perf_counter()
     if refine:
-        tree = cKDTree(points)
         for _ in range(2):  # the second pass starts from straighter slabs
             tuboids = [refine_tuboid(t, points, tree, radius_step_m) for t in tuboids]
     timings["refine_s"] = time.perf_counter() - clock
@@ -248,8 +265,8 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
 
 
 def _run_snakes(hs: HoughSpace, energy, seeds, params, max_tuboids, max_seeds, min_vertices, min_length_radii,
-                max_mean_energy, progress) -> tuple[list[Tuboid], int, int]:
-    """Grow a snake from each live seed in turn; keep the significant, non-conflicting ones."""
+                max_mean_energy, supported, progress) -> tuple[list[Tuboid], int, int]:
+    """Grow a snake from each live seed in turn; keep the significant, non-conflicting, supported ones."""
     from tqdm import tqdm
 
     grid = hs.grid
@@ -277,7 +294,8 @@ def _run_snakes(hs: HoughSpace, energy, seeds, params, max_tuboids, max_seeds, m
             e_d = hs.interpolate(energy, vertices)
             keep = _trim_conflicts(metric, spheres)
             metric, e_d = metric[keep], e_d[keep]
-            significant = _significant(metric, e_d, min_vertices, max_mean_energy, min_length_radii)
+            significant = _significant(metric, e_d, min_vertices, max_mean_energy, min_length_radii) and \
+                supported(metric, e_d)
         if not significant:
             rejected += 1
             alive[_flatten(seed_index.query_ball_point(vertices, 1.0 + 1e-9))] = False
@@ -389,6 +407,30 @@ def refine_tuboid(tube: Tuboid, points: np.ndarray, tree: cKDTree, radius_step_m
     if len(centres) >= 3:
         centres[1:-1] = 0.25 * centres[:-2] + 0.5 * centres[1:-1] + 0.25 * centres[2:]
     return _to_tuboid(np.column_stack([centres, radii]), tube.mean_energy)
+
+
+def arc_support(centres: np.ndarray, radii: np.ndarray, points: np.ndarray, tree: cKDTree,
+                radius_step_m: float) -> float:
+    """Median over a tuboid's circles of the fraction of the circumference that has points on it.
+
+    A point is on circle i when it lies within half the centre spacing of
+    the circle plane and within ``max(0.1 r, radius_step_m)`` of the
+    circle; the circumference is cut in 36 sectors of 10 deg.
+    """
+    normals = windowed_tangents(centres, radii)
+    u, v = ring_frames(normals)
+    spacing = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+    half = max(0.5 * float(np.median(spacing)) if len(spacing) else 0.0, radius_step_m)
+    covered = []
+    for i, (c, n, r) in enumerate(zip(centres, normals, radii)):
+        band = max(0.1 * r, radius_step_m)
+        near = np.asarray(tree.query_ball_point(c, np.hypot(r + band, half)), dtype=np.int64)
+        rel = points[near] - c
+        plane = np.column_stack([rel @ u[i], rel @ v[i]])
+        on = (np.abs(rel @ n) <= half) & (np.abs(np.linalg.norm(plane, axis=1) - r) <= band)
+        sectors = np.floor((np.arctan2(plane[on, 1], plane[on, 0]) + np.pi) / (2 * np.pi) * 36).astype(int) % 36
+        covered.append(len(np.unique(sectors)) / 36.0)
+    return float(np.median(covered))
 
 
 def windowed_tangents(centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
