@@ -779,8 +779,11 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))))
 
 
-def _absorb(target: _Branch, source: _Branch) -> None:
-    """Move all of ``source``'s points and children into ``target``; ``source`` is emptied."""
+def _absorb(target: _Branch, source: _Branch, refit: bool = True) -> None:
+    """Move all of ``source``'s points and children into ``target``; ``source`` is emptied.
+
+    ``refit=False`` leaves ``target``'s cylinder stale (the caller refits it once after several moves).
+    """
     target.points += source.points
     source.points = []
     for child in source.children:
@@ -789,7 +792,8 @@ def _absorb(target: _Branch, source: _Branch) -> None:
     source.children = []
     if source.parent is not None:
         source.parent.children = [c for c in source.parent.children if c is not source]
-    target.refit()
+    if refit:
+        target.refit()
 
 
 def _live(branches: list[_Branch]) -> list[_Branch]:
@@ -819,9 +823,14 @@ def _dissolve_small(branches: list[_Branch], params: FollowParams) -> list[_Bran
     A root that small (the trunk stalled at the lowest points while a child
     took over the stem) is handed to its largest child, which becomes the root.
     """
+    grown = set()
     for branch in reversed(branches):
         if branch.parent is not None and 0 < len(branch.points) < params.min_branch_points:
-            _absorb(branch.parent, branch)
+            grown.add(branch.parent.id)
+            _absorb(branch.parent, branch, refit=False)
+    for branch in branches:
+        if branch.id in grown and branch.points:
+            branch.refit()
     for root in [b for b in branches if b.parent is None and 0 < len(b.points) < params.min_branch_points]:
         if root.children:
             heir = max(root.children, key=lambda c: len(c.points))
@@ -900,8 +909,15 @@ def _balance_volume(branches: list[_Branch], points: np.ndarray, params: FollowP
     Within a pass the axes are fixed; the only points whose removal can
     shrink a cylinder are its widest point and its two extreme projections,
     so each step tries those three on both sides of every parent-child pair.
+    Passes stop when one moves nothing, or lowers the total volume by less
+    than 0.1 % (the refits after a pass turn the axes, so that later moves
+    can undo earlier ones: the loop would otherwise run to the cap).
     Returns the number of passes run.
     """
+    def total_volume() -> float:
+        return sum(np.pi * b.r_max ** 2 * (b.t1 - b.t0) for b in branches if b.direction is not None)
+
+    volume = total_volume()
     for passes in range(1, params.max_balance_passes + 1):
         moved = False
         for child in branches:
@@ -915,7 +931,8 @@ def _balance_volume(branches: list[_Branch], points: np.ndarray, params: FollowP
                 child.refit()
                 parent.refit()
                 moved = True
-        if not moved:
+        before, volume = volume, total_volume()
+        if not moved or volume > (1.0 - 1e-3) * before:
             return passes
     return params.max_balance_passes
 
