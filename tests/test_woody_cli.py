@@ -60,3 +60,18 @@ def test_bench_reports_time_memory_and_nlogn(capsys):
     assert row["method"] == "cylinders" and abs(row["points"] - 2000) < 200
     assert row["time_s"] > 0 and row["peak_mb"] >= 0
     assert row["us_per_nlogn"] == 1e6 * row["time_s"] / (row["points"] * np.log2(row["points"]))
+
+
+def test_goal_lines_judge_the_worst_case_within_the_goal_range():
+    from woody.experiments import goal_lines
+
+    rows = [{"arc_deg": arc, "normals": "pca", "circles": "refit", "diameter_mae_cm": mae}
+            for arc, mae in ((10, 9.0), (40, 0.8), (90, 0.2))]
+    (line,) = goal_lines("occlusion", rows)
+    assert ": met; worst 0.80 cm at arc_deg = 40" in line  # the 10-deg arc is outside the goal's range
+    rows[1]["diameter_mae_cm"] = 1.2
+    assert "NOT met" in goal_lines("occlusion", rows)[0]
+    trees = [{"tree": "apple-like", "sampling": "one side", "method": "cylinders (spec)", "volume_error_pct": -10.5},
+             {"tree": "apple-like", "sampling": "one side", "method": "step (pca)", "volume_error_pct": 1.0}]
+    assert goal_lines("trees", trees) == ["goal |volume error| <= 10 %, apple-like, one side, cylinders (spec): "
+                                          "NOT met (-10.5 %)"]

@@ -266,6 +266,37 @@ def format_table(rows: list[dict], columns: list[str]) -> str:
     return "\n".join(lines)
 
 
+def goal_lines(name: str, rows: list[dict]) -> list[str]:
+    """The project's goals checked on an experiment's rows (empty for experiments without a goal).
+
+    ``occlusion``, ``density``, ``noise``: STEP diameter MAE below 1 cm
+    (for occlusion: on the arcs of 40 deg and more), per normals/circles
+    variant, with the worst case; ``trees``: cylinder-following |volume
+    error| within 10 %, per tree, sampling and mode.
+    """
+    lines = []
+    if name in ("occlusion", "density", "noise"):
+        for normals in ("oracle", "pca"):
+            for circles in ("hs", "refit"):
+                sel = [r for r in rows if r["normals"] == normals and r["circles"] == circles
+                       and (name != "occlusion" or r["arc_deg"] >= 40)]
+                if not sel:
+                    continue
+                worst = max(sel, key=lambda r: r["diameter_mae_cm"])
+                key = {"occlusion": "arc_deg", "density": "density_pts_cm2", "noise": "noise_cm"}[name]
+                verdict = "met" if worst["diameter_mae_cm"] < 1.0 else "NOT met"
+                lines.append(f"goal diameter MAE < 1 cm{' (arc >= 40 deg)' if name == 'occlusion' else ''}, "
+                             f"{normals} normals, {circles}: {verdict}; worst {worst['diameter_mae_cm']:.2f} cm "
+                             f"at {key} = {worst[key]:g}")
+    elif name == "trees":
+        for r in rows:
+            if r["method"].startswith("cylinders"):
+                verdict = "met" if abs(r["volume_error_pct"]) <= 10.0 else "NOT met"
+                lines.append(f"goal |volume error| <= 10 %, {r['tree']}, {r['sampling']}, {r['method']}: {verdict} "
+                             f"({r['volume_error_pct']:+.1f} %)")
+    return lines
+
+
 def _plot(name: str, rows: list[dict], out: Path) -> None:
     import matplotlib
 
@@ -314,6 +345,8 @@ def run_all(out: Path, only=None, quick: bool = False, seed: int = 0) -> dict:
         results[name] = rows
         print(f"\n== {name} ({time.perf_counter() - start:.0f} s)")
         print(format_table(rows, _COLUMNS[name]))
+        for line in goal_lines(name, rows):
+            print(line)
         (out / f"{name}.json").write_text(json.dumps(rows, indent=1, default=float))
         _plot(name, rows, out)
     return results
