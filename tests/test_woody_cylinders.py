@@ -1,0 +1,105 @@
+"""Cylinder following: a hand-made Y recovers topology and volume; fits, hierarchy, skeleton and errors."""
+
+import numpy as np
+import pytest
+
+from woody import FollowParams, WoodyError, follow_cylinders, score
+from woody.cylinders import fit_circle, fit_direction
+from woody.synthetic import add_noise, sample_cylinders, straight_cylinder
+
+Y = [{"id": 0, "parent": -1, "order": 1, "branch": 0, "start": [0, 0, 0], "end": [0, 0, 0.8],
+      "radius_m": 0.05, "radius_end_m": 0.05},
+     {"id": 1, "parent": 0, "order": 2, "branch": 1, "start": [0, 0, 0.8], "end": [0.4, 0, 1.3],
+      "radius_m": 0.03, "radius_end_m": 0.03},
+     {"id": 2, "parent": 0, "order": 2, "branch": 2, "start": [0, 0, 0.8], "end": [-0.35, 0.1, 1.35],
+      "radius_m": 0.03, "radius_end_m": 0.03}]
+
+
+@pytest.fixture(scope="module")
+def y_result():
+    cloud = sample_cylinders(Y, 1e4, seed=2)
+    return cloud, follow_cylinders(cloud.points)
+
+
+def test_y_shaped_branches_recover_topology_and_volume(y_result):
+    cloud, result = y_result
+    s = score(cloud.truth, result.cylinders())
+    assert s["branches_detected"] == 3
+    assert s["topology"]["edge_recall"] == 1.0 and s["topology"]["edge_precision"] == 1.0
+    assert abs(s["volume_error"]) < 0.10
+    trunk = result.branches[0]
+    assert trunk["parent"] == -1 and trunk["order"] == 1
+    assert trunk["radius_m"] == pytest.approx(0.05, rel=0.05)
+    assert {b["order"] for b in result.branches if b["parent"] == 0} == {2}
+    assert result.stats["unassigned"] < 0.01 * len(cloud.points)
+
+
+def test_hierarchy_skeleton_and_labels_are_consistent(y_result):
+    cloud, result = y_result
+    ids = {b["id"] for b in result.branches}
+    for b in result.branches:
+        assert b["parent"] == -1 or b["parent"] in ids
+        assert all(c in ids for c in b["children"])
+    assert np.bincount(result.labels[result.labels >= 0]).tolist() == [b["n_points"] for b in result.branches]
+    nodes, edges = result.skeleton()
+    assert len(edges) == 2 * len(result.branches) - 1  # one axis per branch, one link per child
+    assert edges.max() < len(nodes)
+    cylinders = result.cylinders()
+    assert all(c["parent"] < c["id"] for c in cylinders)
+    assert result.volume == pytest.approx(sum(np.pi * c["radius_m"] ** 2 * np.linalg.norm(
+        np.subtract(c["end"], c["start"])) for c in cylinders))
+    assert result.mesh().volume == pytest.approx(result.volume, rel=0.05)
+
+
+def test_straight_cylinder_is_one_branch_with_its_radius():
+    cloud = sample_cylinders(straight_cylinder(0.04, 0.8), 1e4, seed=3)
+    result = follow_cylinders(cloud.points)
+    assert len(result.branches) == 1
+    assert result.branches[0]["radius_m"] == pytest.approx(0.04, rel=0.02)
+    assert result.volume == pytest.approx(np.pi * 0.04 ** 2 * 0.8, rel=0.05)
+    literal = follow_cylinders(cloud.points, radius="max", section_radii=0)
+    assert literal.branches[0]["radius_m"] >= 0.04  # the paper's largest distance never under-estimates
+
+
+@pytest.mark.parametrize("method", ["covariance", "iterative"])
+def test_direction_estimators_recover_the_axis(method):
+    rng = np.random.default_rng(7)
+    d = rng.normal(size=3)
+    d /= np.linalg.norm(d)
+    cloud = sample_cylinders([{"start": (-0.3 * d).tolist(), "end": (0.3 * d).tolist(), "radius_m": 0.05}],
+                             3e4, seed=8)
+    axis = fit_direction(add_noise(cloud.points, 0.001, seed=9, kind="gaussian"), method)
+    assert np.degrees(np.arccos(min(abs(axis @ d), 1.0))) < 2.0
+
+
+def test_circle_fit_is_exact_on_a_short_arc():
+    angle = np.linspace(0.0, np.radians(60), 30)
+    centre, radius = fit_circle(np.column_stack([0.3 + 0.2 * np.cos(angle), -0.1 + 0.2 * np.sin(angle)]))
+    assert radius == pytest.approx(0.2, abs=1e-9) and np.allclose(centre, [0.3, -0.1], atol=1e-9)
+    assert np.isnan(fit_circle(np.zeros((2, 2)))[1])
+
+
+def test_free_seed_table_reads_order_thresholds():
+    params = FollowParams()
+    assert [params.n_s(o) for o in (1, 2, 3, 4, 7, 8, 11)] == [80, 60, 60, 40, 40, 30, 20]
+
+
+@pytest.mark.parametrize("overrides, message", [
+    ({"k_r": (1.0, 1.1)}, "k_r"),
+    ({"free_seed": ((3, 10), (1, 5))}, "free_seed"),
+    ({"radius": "biggest"}, "radius"),
+    ({"precision_m": -1.0}, "precision_m"),
+    ({"no_such_setting": 1}, "unknown"),
+])
+def test_absurd_parameters_are_refused(overrides, message):
+    with pytest.raises(WoodyError, match=message):
+        follow_cylinders(np.random.default_rng(0).normal(size=(50, 3)), **overrides)
+
+
+def test_invalid_clouds_are_refused():
+    with pytest.raises(WoodyError, match="empty"):
+        follow_cylinders(np.empty((0, 3)))
+    with pytest.raises(WoodyError, match="NaN"):
+        follow_cylinders(np.array([[0.0, 0.0, 0.0], [np.inf, 0.0, 0.0], [1.0, 1.0, 1.0]]))
+    with pytest.raises(WoodyError, match="at least 3"):
+        follow_cylinders(np.zeros((2, 3)))

@@ -1,0 +1,98 @@
+"""Scores against truth on hand-made cylinder lists: perfect match, missed branch, false positive, radius bias."""
+
+import copy
+
+import numpy as np
+import pytest
+
+from woody import WoodyError, score
+from woody.geometry import cylinders_volume
+
+
+def _cyl(cid, parent, order, branch, start, end, r0, r1=None):
+    return {"id": cid, "parent": parent, "order": order, "branch": branch, "start": list(start), "end": list(end),
+            "radius_m": r0, "radius_end_m": r0 if r1 is None else r1}
+
+
+TRUTH = [_cyl(0, -1, 1, 0, (0, 0, 0), (0, 0, 1), 0.05),
+         _cyl(1, 0, 2, 1, (0, 0, 1), (0.6, 0, 1.8), 0.02),
+         _cyl(2, 0, 2, 2, (0, 0, 1), (-0.6, 0, 1.8), 0.02)]
+
+
+def test_perfect_reconstruction_scores_perfectly():
+    s = score({"cylinders": TRUTH, "volume_m3": cylinders_volume(TRUTH)}, copy.deepcopy(TRUTH))
+    assert s["radius_error_m"]["mae"] == 0 and s["diameter_error_m"]["max"] == 0
+    assert s["completeness"] == pytest.approx(1.0) and s["precision"] == pytest.approx(1.0)
+    assert s["volume_error"] == pytest.approx(0.0)
+    assert s["detection_rate"] == 1.0 and s["length_error"]["max"] == pytest.approx(0.0, abs=1e-9)
+    topo = s["topology"]
+    assert topo["edge_precision"] == 1.0 and topo["edge_recall"] == 1.0 and topo["order_accuracy"] == 1.0
+    assert topo["fragmentation"] == 1.0 and topo["max_order_rec"] == topo["max_order_true"] == 2
+    assert s["taper"]["taper_ok_height_m"] == pytest.approx(1.0)
+
+
+def test_missed_branch_lowers_completeness_detection_recall_and_volume():
+    s = score(TRUTH, copy.deepcopy(TRUTH[:2]))
+    assert s["completeness"] == pytest.approx(2.0 / 3.0, abs=0.005)  # junction overlaps are not visible
+    assert s["branches_detected"] == 2 and s["detection_rate"] == pytest.approx(2.0 / 3.0)
+    missing = np.pi * 0.02 ** 2 * 1.0
+    assert s["volume_error"] == pytest.approx(-missing / cylinders_volume(TRUTH))
+    assert s["topology"]["edge_recall"] == 0.5 and s["topology"]["edge_precision"] == 1.0
+    assert s["precision"] == pytest.approx(1.0)
+
+
+def test_false_positive_is_counted_as_unmatched_reconstructed_length():
+    extra = _cyl(3, -1, 1, 3, (5, 5, 0), (5, 5, 1), 0.02)
+    s = score(TRUTH, copy.deepcopy(TRUTH) + [extra])
+    assert s["false_positive_length_m"] == pytest.approx(1.0)
+    assert s["reconstructed_length_m"] == pytest.approx(4.0, abs=0.05)
+    assert s["precision"] == pytest.approx(1.0 - 1.0 / s["reconstructed_length_m"])
+    assert s["completeness"] == pytest.approx(1.0)
+
+
+def test_radius_bias_is_reported_exactly_for_radius_diameter_volume_and_taper():
+    rec = copy.deepcopy(TRUTH)
+    for c in rec:
+        c["radius_m"] += 0.002
+        c["radius_end_m"] += 0.002
+    s = score(TRUTH, rec)
+    assert s["radius_error_m"]["bias"] == pytest.approx(0.002)
+    assert s["radius_error_m"]["sd"] == pytest.approx(0.0, abs=1e-12)
+    assert s["diameter_error_m"]["bias"] == pytest.approx(0.004)
+    expected = (cylinders_volume(rec) - cylinders_volume(TRUTH)) / cylinders_volume(TRUTH)
+    assert s["volume_error"] == pytest.approx(expected)
+    assert s["taper"]["taper_ok_height_m"] == pytest.approx(1.0)  # 4 mm diameter error is within 1 cm
+    for c in rec:
+        c["radius_m"] += 0.004
+        c["radius_end_m"] += 0.004
+    assert score(TRUTH, rec)["taper"]["taper_ok_height_m"] == 0.0  # 12 mm is not
+
+
+def test_frustum_radius_is_interpolated_along_the_axis():
+    rec = [_cyl(0, -1, 1, 0, (0, 0, 0), (0, 0, 1), 0.06, 0.04)]
+    s = score([TRUTH[0]], rec)
+    assert s["radius_error_m"]["bias"] == pytest.approx(0.0, abs=1e-9)
+    assert s["radius_error_m"]["mae"] == pytest.approx(0.005, rel=1e-3)
+    assert s["radius_error_m"]["max"] == pytest.approx(0.01, rel=0.02)
+
+
+def test_axis_angle_and_distance_limit_matches():
+    tilted = [_cyl(0, -1, 1, 0, (0, 0, 0), (0.8, 0, 0.6), 0.05)]  # 53 deg off the truth axis
+    assert score([TRUTH[0]], tilted)["completeness"] < 0.1
+    shifted = [_cyl(0, -1, 1, 0, (0.2, 0, 0), (0.2, 0, 1), 0.05)]  # 20 cm beside it
+    assert score([TRUTH[0]], shifted)["completeness"] == 0.0
+
+
+def test_buried_child_base_is_not_counted():
+    child = _cyl(1, 0, 2, 1, (0, 0, 0.5), (0.5, 0, 0.5), 0.02)  # starts on the trunk axis
+    s = score([TRUTH[0], child], [TRUTH[0], child])
+    assert s["truth_length_m"] == pytest.approx(1.0 + 0.45, abs=0.011)
+
+
+def test_step_output_without_orders_has_no_topology_and_bad_input_is_refused():
+    rec = [dict(c, order=None) for c in TRUTH]
+    assert score(TRUTH, rec)["topology"] is None
+    with pytest.raises(WoodyError, match="no cylinders"):
+        score([], TRUTH)
+    with pytest.raises(WoodyError, match="lacks"):
+        score(TRUTH, [{"start": [0, 0, 0]}])

@@ -1,0 +1,135 @@
+"""Geometry shared by both methods: frusta, cylinder lists, distances and tube meshes.
+
+Both methods report their result as a *cylinder list*, the format of a woody
+object's truth in ``docs/contracts.md``: dicts with ``id``, ``parent`` (-1
+for a root), ``order``, ``branch``, ``start`` and ``end`` ([x, y, z], m),
+``radius_m`` (at ``start``) and ``radius_end_m`` (at ``end``). A cylinder with
+two radii is a frustum (truncated cone).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from scenes.primitives import orthonormal_frame
+
+
+def frustum_volume(r0, r1, length):
+    """Volume of frusta of end radii ``r0``, ``r1`` and axis ``length`` (m^3)."""
+    r0, r1 = np.asarray(r0, float), np.asarray(r1, float)
+    return np.pi * np.asarray(length, float) * (r0 * r0 + r0 * r1 + r1 * r1) / 3.0
+
+
+def cylinder_arrays(cylinders: list[dict]) -> dict[str, np.ndarray]:
+    """Columns of a cylinder list: ``start``, ``end`` (m, 3), ``r0``, ``r1``, ``id``, ``parent``, ``branch``, ``order``.
+
+    A missing ``radius_end_m`` equals ``radius_m``; a missing or ``None`` id
+    is the row number, parent -1, branch the row number and order -1.
+    """
+    count = len(cylinders)
+    out = {
+        "start": np.array([c["start"] for c in cylinders], float).reshape(count, 3),
+        "end": np.array([c["end"] for c in cylinders], float).reshape(count, 3),
+        "r0": np.array([c["radius_m"] for c in cylinders], float),
+        "r1": np.array([c.get("radius_end_m", c["radius_m"]) for c in cylinders], float),
+    }
+    defaults = {"id": lambda i: i, "parent": lambda i: -1, "branch": lambda i: i, "order": lambda i: -1}
+    for key, default in defaults.items():
+        out[key] = np.array([default(i) if c.get(key) is None else c[key] for i, c in enumerate(cylinders)],
+                            np.int64).reshape(count)
+    return out
+
+
+def cylinders_volume(cylinders: list[dict]) -> float:
+    """Total volume of a cylinder list, m^3 (each entry a frustum)."""
+    if not cylinders:
+        return 0.0
+    arr = cylinder_arrays(cylinders)
+    return float(frustum_volume(arr["r0"], arr["r1"], np.linalg.norm(arr["end"] - arr["start"], axis=1)).sum())
+
+
+def segment_distance(points: np.ndarray, start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance of points to segments and the clipped axial parameter.
+
+    Parameters
+    ----------
+    points : ndarray, (m, 3)
+    start, end : ndarray, (3,) or (m, 3)
+        Segment end points (one segment for all points, or one per point).
+
+    Returns
+    -------
+    distance : ndarray, (m,)
+        Euclidean distance to the segment, m.
+    t : ndarray, (m,)
+        Position of the closest segment point, 0 at ``start``, 1 at ``end``.
+    """
+    axis = end - start
+    length2 = np.einsum("...i,...i->...", axis, axis)
+    t = np.einsum("...i,...i->...", points - start, axis) / np.where(length2 > 0, length2, 1.0)
+    t = np.clip(t, 0.0, 1.0)
+    closest = start + t[..., None] * axis
+    return np.linalg.norm(points - closest, axis=-1), t
+
+
+def ring_frames(tangents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Twist-free frames ``(u, v)`` perpendicular to a sequence of unit tangents (parallel transport)."""
+    u = np.empty_like(tangents)
+    u[0] = orthonormal_frame(tangents[0])[0]
+    for i in range(1, len(tangents)):
+        carried = u[i - 1] - np.dot(u[i - 1], tangents[i]) * tangents[i]
+        norm = np.linalg.norm(carried)
+        u[i] = carried / norm if norm > 1e-9 else orthonormal_frame(tangents[i])[0]
+    return u, np.cross(tangents, u)
+
+
+def tube_mesh(centres: np.ndarray, tangents: np.ndarray, radii: np.ndarray, sections: int = 16):
+    """A closed triangle mesh through a sequence of circles (a tuboid or a single frustum).
+
+    Parameters
+    ----------
+    centres, tangents : ndarray, (k, 3)
+        Circle centres (m) and unit normals of the circle planes, k >= 2.
+    radii : ndarray, (k,)
+        Circle radii, m.
+    sections : int
+        Vertices per circle.
+
+    Returns
+    -------
+    trimesh.Trimesh
+    """
+    import trimesh
+
+    k = len(centres)
+    u, v = ring_frames(np.asarray(tangents, float))
+    angle = 2.0 * np.pi * np.arange(sections) / sections
+    rings = centres[:, None, :] + radii[:, None, None] * (np.cos(angle)[None, :, None] * u[:, None, :]
+                                                          + np.sin(angle)[None, :, None] * v[:, None, :])
+    vertices = np.concatenate([rings.reshape(-1, 3), centres[[0, -1]]])
+    j = np.arange(sections)
+    jn = (j + 1) % sections
+    faces = []
+    for i in range(k - 1):
+        a, b = i * sections + j, (i + 1) * sections + j
+        an, bn = i * sections + jn, (i + 1) * sections + jn
+        faces += [np.column_stack([a, an, bn]), np.column_stack([a, bn, b])]
+    first, last = k * sections, k * sections + 1
+    faces += [np.column_stack([np.full(sections, first), jn, j]),
+              np.column_stack([np.full(sections, last), (k - 1) * sections + j, (k - 1) * sections + jn])]
+    return trimesh.Trimesh(vertices, np.concatenate(faces), process=False)
+
+
+def cylinders_mesh(cylinders: list[dict], sections: int = 16):
+    """One closed frustum mesh per cylinder of a cylinder list, concatenated (trimesh.Trimesh)."""
+    import trimesh
+
+    arr = cylinder_arrays(cylinders)
+    meshes = []
+    for start, end, r0, r1 in zip(arr["start"], arr["end"], arr["r0"], arr["r1"]):
+        axis = end - start
+        length = np.linalg.norm(axis)
+        if length > 0:
+            tangent = np.repeat((axis / length)[None], 2, axis=0)
+            meshes.append(tube_mesh(np.array([start, end]), tangent, np.array([r0, r1]), sections))
+    return trimesh.util.concatenate(meshes) if meshes else trimesh.Trimesh()

@@ -1,0 +1,90 @@
+"""Run time and peak memory of both methods against point count.
+
+Each measurement runs in a fresh process (``multiprocessing`` spawn), so
+that its peak resident memory is its own: the figure reported is the peak
+RSS of the run minus the RSS right before it (imports and the cloud
+excluded). Clouds are drawn on fixed geometry at increasing density:
+
+- STEP: a 15 m conifer stem with branch stubs (:func:`woody.synthetic.conifer_stem`),
+  oracle normals, Hough cells 2 cm / 1 cm, radii 2-30 cm, at most 20 tuboids;
+- cylinder following: the apple-like tree (:func:`woody.synthetic.apple_like_tree`).
+
+Cylinder following should scale as N log N (KD-tree build and queries,
+one heap push per neighbour per point); the report gives the time per
+``N log2 N`` unit, which stays flat when it does.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import platform
+import resource
+import time
+
+import numpy as np
+
+
+def _geometry(method: str):
+    from woody.synthetic import apple_like_tree, conifer_stem
+
+    return conifer_stem() if method == "step" else apple_like_tree(0)
+
+
+def _measure(method: str, size: int, queue) -> None:
+    from woody.geometry import cylinders_volume
+    from woody.synthetic import sample_cylinders
+
+    cylinders = _geometry(method)
+    area = sum(np.pi * (c["radius_m"] + c["radius_end_m"]) * np.linalg.norm(np.subtract(c["end"], c["start"]))
+               for c in cylinders)
+    cloud = sample_cylinders(cylinders, size / area, seed=1)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    start = time.perf_counter()
+    if method == "step":
+        from woody.step import step
+
+        result = step(cloud.points, cloud.normals, r_min_m=0.02, r_max_m=0.30, max_tuboids=20, refine=False)
+    else:
+        from woody.cylinders import follow_cylinders
+
+        result = follow_cylinders(cloud.points)
+    elapsed = time.perf_counter() - start
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    queue.put({"method": method, "points": int(len(cloud.points)), "time_s": elapsed,
+               "peak_mb": max(peak - before, 0) / 1024.0, "stats": result.stats,
+               "volume_error": result.volume / cylinders_volume(cylinders) - 1.0})
+
+
+def run_perf(sizes, methods) -> dict:
+    """Measure each method at each point count (one fresh process per run)."""
+    from tqdm import tqdm
+
+    context = multiprocessing.get_context("spawn")
+    rows = []
+    for method in methods:
+        for size in tqdm(sizes, desc=f"bench {method}", leave=False):
+            queue = context.Queue()
+            worker = context.Process(target=_measure, args=(method, size, queue))
+            worker.start()
+            rows.append(queue.get())
+            worker.join()
+    for row in rows:
+        n = row["points"]
+        row["us_per_nlogn"] = 1e6 * row["time_s"] / (n * np.log2(n))
+    return {"machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
+            "cpus": multiprocessing.cpu_count(), "rows": rows}
+
+
+def print_report(report: dict) -> None:
+    """The report as a table."""
+    print(f"machine: {report['machine']}, {report['cpus']} cpus; peak memory = peak RSS of the run above its start")
+    print(f"{'method':<10} {'points':>9} {'time_s':>9} {'peak_MB':>9} {'us/NlogN':>9}  notes")
+    for row in report["rows"]:
+        stats = row["stats"]
+        if row["method"] == "step":
+            note = (f"Hough {stats['occupied_cells']} cells = {stats['hough_bytes'] / 1e6:.1f} MB "
+                    f"(dense would be {stats['dense_cells'] * 4 / 1e6:.0f} MB), {stats['tuboids']} tuboids")
+        else:
+            note = f"{stats['branches']} branches, volume error {100 * row['volume_error']:+.1f} %"
+        print(f"{row['method']:<10} {row['points']:>9} {row['time_s']:>9.2f} {row['peak_mb']:>9.1f} "
+              f"{row['us_per_nlogn']:>9.3f}  {note}")
