@@ -109,13 +109,15 @@ def plot_height_errors(rows: list[dict]) -> Figure:
 
 
 def pick_showcase(rows: list[dict]) -> dict | None:
-    """The case shown before/after: preferably a single leaf with visible outliers (ROP >= 0.1) that every
-    variant reconstructed, and among those the one whose variants ran fastest, since the figure re-runs them."""
+    """The case shown before/after, among those scored on leaves: preferably a single leaf with visible
+    outliers (ROP >= 0.1) that every variant reconstructed, and among those the one whose variants ran fastest, since the figure re-runs them."""
     runtime: dict[str, float] = {}
     skipped: dict[str, bool] = {}
     cases: dict[str, dict] = {}
     for r in rows:
-        if r["error"] or not r["metrics"]["targets"] or heightfields.is_heightfield(r["case_spec"]["scene"]):
+        targets = [] if r["error"] else r["metrics"]["targets"]
+        leaf_scores = bool(targets) and all("rop_before" in t for t in targets)  # woody targets have none
+        if not leaf_scores or heightfields.is_heightfield(r["case_spec"]["scene"]):
             continue
         name = r["case_name"]
         runtime[name] = runtime.get(name, 0.0) + (r["runtime_s"] or 0.0)

@@ -314,3 +314,17 @@ def test_case_scanner_overrides_reach_the_window_and_the_model():
     _, scan = simulate_case(Case("k", {"builtin": "knife-edge"}, {"window": window, "step_deg": 0.036}, 0))
     assert scan.shape == (6, 6)
     assert scan.scanner_model["step_deg"] == 0.036
+
+
+def test_showcase_is_a_leaf_case_and_none_without_leaves():
+    """The before/after figure needs leaf scores: woody-only runs have none and get no showcase."""
+    from benchmarks.report import pick_showcase
+
+    def row(name, scene, target):
+        return {"error": None, "case_name": name, "case_spec": {"name": name, "scene": scene}, "runtime_s": 1.0,
+                "metrics": {"targets": [target]}}
+
+    woody = row("leafless-tree", {"builtin": "leafless-tree"}, {"target": "trunk", "volume_rel_err": 0.1})
+    leaf = row("leaf", {"builtin": "leaf-1.5m"}, {"target": "leaf", "object_type": "leaf", "rop_before": 0.2})
+    assert pick_showcase([woody]) is None
+    assert pick_showcase([woody, leaf])["name"] == "leaf"
