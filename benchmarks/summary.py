@@ -63,6 +63,8 @@ HEADLINE = (("variant", "variant", "{}"), ("ROP after", "rop_after", "{:.3f}"),
 HEADLINE_HEIGHTS = (("variant", "variant", "{}"), ("mean |height err|", "abs_eps_mean", "{:.2%}"),
                     ("within 5 %", "within_5pct", "{:.1%}"), ("completeness", "completeness", "{:.1%}"),
                     ("runtime/case", "runtime_s", "{:.3f} s"), ("errors", "n_errors", "{}"))
+#: Columns added for woody objects (STEP and cylinder following).
+WOODY_COLUMNS = (("diam err med", "diameter_err_median_m", "{:.4f} m"), ("|vol err| med", "volume_rel_err", "{:.1%}"))
 
 
 def target_scores(rows: list[dict]) -> list[dict]:
@@ -167,10 +169,16 @@ def _fmt(value, fmt: str) -> str:
 
 
 def headline_columns(summary: list[dict]) -> tuple:
-    """:data:`HEADLINE`, or :data:`HEADLINE_HEIGHTS` for results without any leaf score."""
+    """:data:`HEADLINE`, or :data:`HEADLINE_HEIGHTS` for results without any leaf score; with
+    :data:`WOODY_COLUMNS` before the runtime where woody objects were scored (alone for woody-only results)."""
     leaves = any(row["rop_after"] is not None for row in summary)
     heights = any(row["abs_eps_mean"] is not None for row in summary)
-    return HEADLINE_HEIGHTS if heights and not leaves else HEADLINE
+    columns = HEADLINE_HEIGHTS if heights and not leaves else HEADLINE
+    if not any(row["volume_rel_err"] is not None for row in summary):
+        return columns
+    if not (leaves or heights):
+        columns = columns[:1] + columns[-2:]
+    return columns[:-2] + WOODY_COLUMNS + columns[-2:]
 
 
 def headline_table(summary: list[dict]) -> str:

@@ -122,11 +122,11 @@ def conifer_stem() -> Scene:
                                         "pose": {"translate": [8.0, 0, -1.5]}}, [0, 0, 0], 0.05)
 
 
-@register("cylinder-50cm", "upright cylinder, radius 0.5 m, length 2 m (woody C.3 S1) 5 m away; step 0.03 deg "
-                           "(about 14 pts/cm2)")
+@register("cylinder-50cm", "upright cylinder, radius 0.5 m, length 2 m (woody C.3 S1) 5 m away; step 0.066 deg "
+                           "(about 3 pts/cm2, the common TLS density of the woody experiments)")
 def cylinder_50cm() -> Scene:
     return _tree_scene("cylinder-50cm", {"name": "cylinder", "type": "tree", "preset": "cylinder",
-                                         "pose": {"translate": [5.0, 0, -1.0]}}, [0, 0, 0], 0.03)
+                                         "pose": {"translate": [5.0, 0, -1.0]}}, [0, 0, 0], 0.066)
 
 
 @register("orchard-row", "Conference pear row: 19 V-trellised trees 1.05 m apart, 5700 leaves, scanner 1.3 m high "

@@ -8,7 +8,7 @@ import trimesh
 
 from benchmarks import metrics
 from benchmarks.scoring import trait_errors
-from benchmarks.summary import summarize, summarize_by_scene
+from benchmarks.summary import headline_columns, headline_table, summarize, summarize_by_scene
 
 
 @pytest.fixture(scope="module")
@@ -156,3 +156,20 @@ def test_height_errors_follow_the_thesis_definition():
     assert errors["abs_eps_mean"] == pytest.approx(0.075)
     assert errors["within_5pct"] == 0.0  # 5 % and 10 %: neither is strictly below 5 %
     assert metrics.height_errors(np.full((2, 2), np.nan), truth, mask)["completeness"] == 0.0
+
+
+def test_headline_shows_woody_columns_only_when_woody_objects_were_scored():
+    def row(case, variant, targets):
+        return {"case_name": case, "variant": variant, "family": "woody", "case_spec": {"scene": {"builtin": case}},
+                "metrics": {"targets": targets}, "runtime_s": 1.0, "peak_mem_mb": 2.0, "error": None}
+
+    wood = [{"diameter_err_mae_m": 0.004, "volume_rel_err": -0.2}]
+    leaf = [{"rop_before": 0.2, "rop_after": 0.1}]
+    woody_only = summarize([row("tree", "step", wood)], "s")
+    titles = [title for title, _, _ in headline_columns(woody_only)]
+    assert titles == ["variant", "diam err med", "|vol err| med", "runtime/case", "errors"]
+    assert "|vol err| med" in headline_table(woody_only) and "20.0%" in headline_table(woody_only)
+    mixed = summarize([row("tree", "step", wood), row("leaf", "raw", leaf)], "s")
+    assert [t for t, _, _ in headline_columns(mixed)][:2] == ["variant", "ROP after"]
+    assert "|vol err| med" in [t for t, _, _ in headline_columns(mixed)]
+    assert "|vol err| med" not in [t for t, _, _ in headline_columns(summarize([row("leaf", "raw", leaf)], "s"))]
