@@ -80,7 +80,9 @@ def simulate_case(case: Case):
     """Rebuild a case's scene and simulate its scan (deterministic from the case).
 
     The case's ``scanner`` entries override the scene's scanner section
-    (window, pose) and the scanner model's fields.
+    (window, pose) and the scanner model's fields; a case's ``step_deg``
+    also replaces the step of the scene's window (built-in scenes give
+    their window a step, which would otherwise win).
 
     Returns
     -------
@@ -90,8 +92,10 @@ def simulate_case(case: Case):
     from tlssim.simulate import setup_from_section, simulate
 
     scene = build_scene(case.scene)
-    return scene, simulate(scene, setup_from_section({**scene.scanner, **case.scanner}), seed=case.seed,
-                           progress=False)
+    section = {**scene.scanner, **case.scanner}
+    if "step_deg" in case.scanner and "window" not in case.scanner and "window" in section:
+        section["window"] = {**section["window"], "step_deg": case.scanner["step_deg"]}
+    return scene, simulate(scene, setup_from_section(section), seed=case.seed, progress=False)
 
 
 def case_rows(case: dict, variants: list[dict]):
