@@ -22,7 +22,7 @@ drown 60 single-leaf cases):
   the same with the absolute angle errors (on ``n_leaves_traits`` leaves);
   ``surface_rmse_m``: median over cases of the median over leaves;
 - ``runtime_s``: median wall time of the variant on one case (all its
-  leaves); ``runtime_total_s``: sum over cases; ``peak_mem_mb``: largest
+  targets), over the cases where it had targets; ``runtime_total_s``: sum over cases; ``peak_mem_mb``: largest
   peak over cases;
 - woody objects (scored with :func:`woody.score`): ``diameter_err_median_m``,
   median over cases of the median over woody objects of the mean absolute
@@ -136,7 +136,8 @@ def _summary_row(mine: list[dict], labels: dict) -> dict:
     row["azimuth_err_median_deg"] = _over_cases(ok, "azimuth_err_deg", np.median, visible=True)
     row["diameter_err_median_m"] = _over_cases(ok, "diameter_err_mae_m", np.median)
     row["volume_rel_err"] = _over_cases(ok, "volume_rel_err", np.median, absolute=True)
-    runtimes = [r["runtime_s"] for r in ok if r["runtime_s"] is not None]
+    # Runtime over the cases that gave the variant something to score (woody methods skip leaf cases).
+    runtimes = [r["runtime_s"] for r in ok if r["runtime_s"] is not None and r["metrics"]["targets"]]
     peaks = [r["peak_mem_mb"] for r in ok if r["peak_mem_mb"] is not None]
     row["runtime_s"] = float(np.median(runtimes)) if runtimes else None
     row["runtime_total_s"] = float(np.sum(runtimes)) if runtimes else None

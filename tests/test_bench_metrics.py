@@ -159,13 +159,15 @@ def test_height_errors_follow_the_thesis_definition():
 
 
 def test_headline_shows_woody_columns_only_when_woody_objects_were_scored():
-    def row(case, variant, targets):
+    def row(case, variant, targets, runtime_s=1.0):
         return {"case_name": case, "variant": variant, "family": "woody", "case_spec": {"scene": {"builtin": case}},
-                "metrics": {"targets": targets}, "runtime_s": 1.0, "peak_mem_mb": 2.0, "error": None}
+                "metrics": {"targets": targets}, "runtime_s": runtime_s, "peak_mem_mb": 2.0, "error": None}
 
     wood = [{"diameter_err_mae_m": 0.004, "volume_rel_err": -0.2}]
     leaf = [{"rop_before": 0.2, "rop_after": 0.1}]
-    woody_only = summarize([row("tree", "step", wood)], "s")
+    # Leaf cases give a woody method nothing to do: they do not count for its runtime.
+    woody_only = summarize([row("tree", "step", wood)] + [row(f"leaf{i}", "step", [], 0.0) for i in range(3)], "s")
+    assert woody_only[0]["runtime_s"] == 1.0
     titles = [title for title, _, _ in headline_columns(woody_only)]
     assert titles == ["variant", "diam err med", "|vol err| med", "runtime/case", "errors"]
     assert "|vol err| med" in headline_table(woody_only) and "20.0%" in headline_table(woody_only)
