@@ -29,6 +29,8 @@ from tlssim.scan import GRID_KEYS, TRUTH_KEYS
 PURE_MIXED_FRACTION = 1e-3
 #: Pixels kept around a leaf's points when its part of the scan is cut out for the variants.
 CROP_MARGIN_PX = 8
+#: Footprint radii (1/e²) added to that margin, so that pure background lies beyond the mixed band.
+CROP_MARGIN_FOOTPRINTS = 2.0
 #: Truth layers of a simulated scan naming each pulse's second object and its power share.
 SECOND_LAYERS = ("truth_second_id", "second_fraction")
 
@@ -65,7 +67,7 @@ class LeafTruth(Target):
     """What the variants are scored against on one leaf (or analytic surface).
 
     ``scan`` is the part of the scan around the leaf (its points plus
-    :data:`CROP_MARGIN_PX` pixels); ``mask`` selects the leaf's points: the
+    :func:`crop_margin_px` pixels); ``mask`` selects the leaf's points: the
     returns with at least ``min_share`` of their power from it.
 
     Attributes
@@ -110,6 +112,21 @@ def grid_steps(scan) -> tuple[float, float]:
     """Angular steps ``(theta, psi)`` of a simulated scan's grid, rad."""
     theta_deg, psi_deg = scan.meta["window"]["step_deg"]
     return math.radians(theta_deg), math.radians(psi_deg)
+
+
+def crop_margin_px(scan, distance_m: float) -> int:
+    """Pixels kept around a leaf's points at ``distance_m``: :data:`CROP_MARGIN_PX` plus
+    :data:`CROP_MARGIN_FOOTPRINTS` beam radii (1/e², ``w0 + d tan(divergence)``) in pixels.
+
+    The leaf's points end where its power share falls below 10 %, but pulses
+    beyond are still mixed for about two radii; a fixed margin would give a
+    method only a sliver of pure background near the scanner (about 7 pixels
+    per radius at 0.8 m and 0.018 deg), where the footprint spans many pixels.
+    """
+    model = scan.scanner_model
+    radius_m = model["beam_waist_radius_m"] + distance_m * math.tan(math.radians(model["divergence_deg"]))
+    radius_px = radius_m / (distance_m * min(grid_steps(scan)))
+    return CROP_MARGIN_PX + math.ceil(CROP_MARGIN_FOOTPRINTS * radius_px)
 
 
 def power_share(scan, object_id: int) -> np.ndarray:
@@ -218,7 +235,7 @@ def prepare_leaves(scene, scan, targets: list[str] | None = None,
             continue
         distance_m = float(np.median(scan.range[own_grid]))
         points = valid & (power_share(scan, oid) >= min_share)
-        window = _window(points, CROP_MARGIN_PX)
+        window = _window(points, crop_margin_px(scan, distance_m))
         part, mask = crop_scan(scan, *window), points[window]
         attributed = part.truth_id[mask]
         distance = surfaces.distance(part.xyz[mask], attributed)

@@ -68,3 +68,16 @@ def test_raw_and_an_oracle_correction(two_leaves):
     # Dropping every point leaves no outlier and loses every good point.
     dropped = scoring.score_leaf(front, VariantOutput(np.full_like(xyz, np.nan)))
     assert dropped["rop_after"] == 0.0 and dropped["good_points_lost"] == 1.0 and dropped["completeness"] == 0.0
+
+
+def test_crop_margin_covers_the_mixed_band_near_the_scanner():
+    """At 0.8 m and 0.018 deg the 1/e² beam radius (1.70 mm) spans 6.75 pixels of 0.251 mm: the crop keeps two
+    radii beyond the fixed margin; on a coarse far scan (4 m, 0.08 deg: radius 0.44 px) the margin barely grows."""
+    from types import SimpleNamespace
+
+    def scan(step_deg):
+        return SimpleNamespace(scanner_model={"beam_waist_radius_m": 0.0015, "divergence_deg": 0.014},
+                               meta={"window": {"step_deg": [step_deg, step_deg]}})
+
+    assert scoring.crop_margin_px(scan(0.018), 0.8) == scoring.CROP_MARGIN_PX + 14
+    assert scoring.crop_margin_px(scan(0.08), 4.0) == scoring.CROP_MARGIN_PX + 1
