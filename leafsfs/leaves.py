@@ -201,10 +201,15 @@ def split_thin_parts(surfaces: np.ndarray, range_m: np.ndarray, step_rad: float,
 
     The parts of a surface that an opening by a disc of diameter
     ``min_width_m`` removes, where they hold at least ``min_pixels`` pulses
-    (smaller ones are the corners and tips of the surface itself).
+    or reach the window's border (smaller ones inside the window are the
+    corners and tips of the surface itself; a thin part that leaves the
+    window is a twig or stem, however few of its pulses the window holds,
+    and must not make its leaf a border surface).
     """
     out = surfaces.copy()
     count = int(surfaces.max())
+    edge = np.ones(surfaces.shape, dtype=bool)
+    edge[1:-1, 1:-1] = False
     for k, box in enumerate(ndimage.find_objects(surfaces), start=1):
         if box is None:
             continue
@@ -216,7 +221,10 @@ def split_thin_parts(surfaces: np.ndarray, range_m: np.ndarray, step_rad: float,
         parts, _ = ndimage.label(inside & ~ndimage.binary_opening(inside, disc))
         sizes = np.bincount(parts.ravel())
         sizes[0] = 0
-        for part in np.nonzero(sizes >= min_pixels)[0]:
+        split = sizes >= min_pixels
+        split[np.unique(parts[edge[box]])] = True
+        split[0] = False
+        for part in np.nonzero(split)[0]:
             count += 1
             out[box][parts == part] = count
     return out

@@ -116,6 +116,22 @@ def test_a_twig_linked_to_a_leaf_is_split_off_and_is_not_a_leaf():
     assert widths[split[60, 50]] == pytest.approx(0.03, rel=0.1) and widths[split[60, 120]] < 0.004
 
 
+def test_a_short_twig_stub_leaving_the_window_is_split_off():
+    # The same blade, its twig cut by the window's right border after 30 pulses (fewer than min_pixels = 100):
+    # a thin part that reaches the border is split off however small, so the blade is not a border surface.
+    step = np.radians(0.018)
+    rows, cols = np.mgrid[0:120, 0:100]
+    blade = np.hypot(rows - 60, cols - 50) < 24
+    twig = (np.abs(rows - 60) < 2) & (cols >= 70)
+    assert (twig & ~blade).sum() < 100
+    split = split_thin_parts((blade | twig).astype(int), np.full(rows.shape, 2.0), step, 0.004, 100)
+    assert split[60, 99] != split[60, 50]
+    assert not np.isin(split[60, 50], np.concatenate([split[:, 0], split[:, -1], split[0], split[-1]]))
+    # a stub of the same size that stays inside the window is a tip of the blade
+    inside = split_thin_parts((blade | (twig & (cols < 95))).astype(int), np.full(rows.shape, 2.0), step, 0.004, 100)
+    assert inside[60, 90] == inside[60, 50]
+
+
 def _petiole_scene():
     """A square plate 1.5 m away with a thin strip (a petiole) leaving its right edge, a wall 2.5 m away.
 
