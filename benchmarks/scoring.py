@@ -24,6 +24,7 @@ from benchmarks import metrics
 from benchmarks.errors import BenchError
 from benchmarks.registry import VariantOutput
 from tlssim.scan import GRID_KEYS, TRUTH_KEYS
+from tlssim.scanner import ScannerModel
 
 #: Pure returns (used for the range noise and the intensity) have less than this power share from other objects.
 PURE_MIXED_FRACTION = 1e-3
@@ -123,8 +124,7 @@ def crop_margin_px(scan, distance_m: float) -> int:
     method only a sliver of pure background near the scanner (about 7 pixels
     per radius at 0.8 m and 0.018 deg), where the footprint spans many pixels.
     """
-    model = scan.scanner_model
-    radius_m = model["beam_waist_radius_m"] + distance_m * math.tan(math.radians(model["divergence_deg"]))
+    radius_m = ScannerModel.from_dict(scan.scanner_model).beam_radius_m(distance_m)
     radius_px = radius_m / (distance_m * min(grid_steps(scan)))
     return CROP_MARGIN_PX + math.ceil(CROP_MARGIN_FOOTPRINTS * radius_px)
 
