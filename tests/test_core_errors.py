@@ -69,3 +69,24 @@ def test_cli_reports_one_line_errors(argv, message, capsys, tmp_path, monkeypatc
     err = capsys.readouterr().err.strip()
     assert err.startswith("tlssim: error:") and message in err and "Traceback" not in err
     assert len(err.splitlines()) == 1
+
+
+def test_scan_memory_is_refused_or_warned_before_allocating():
+    from tlssim.simulate import BYTES_PER_PULSE, WARN_SCAN_BYTES, check_scan_memory
+
+    with pytest.raises(ScanError, match=r"1000 x 2000 = 2,000,000 pulses needs about 0.4 GB.*larger step_deg"):
+        check_scan_memory((1000, 2000), available_bytes=10**8)
+    rows = WARN_SCAN_BYTES // BYTES_PER_PULSE // 1000 + 1
+    with pytest.warns(UserWarning, match="will hold about"):
+        assert check_scan_memory((rows, 1000), available_bytes=10**12) == rows * 1000 * BYTES_PER_PULSE
+    assert check_scan_memory((10, 10), available_bytes=10**12) == 100 * BYTES_PER_PULSE
+
+
+def test_a_tiny_step_is_refused_in_one_line(tmp_path, capsys):
+    scene = tmp_path / "wall.yaml"
+    scene.write_text("scanner:\n  window: {theta_deg: [-10, 10], psi_deg: [80, 100], step_deg: 0.000001}\n"
+                     "objects:\n  - {type: plane, name: wall, size: [2, 2], pose: {center: [3, 0, 0], "
+                     "facing: scanner}, material: spectralon-99}\n")
+    assert tlssim_main(["scan", str(scene), "-o", str(tmp_path / "s.npz"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pulses needs about" in err[0]

@@ -2,18 +2,24 @@
 
 Every package raises one exception type for user mistakes (all subclass
 ``ValueError``); the console scripts print its message and exit with status 2
-instead of showing a traceback. An interrupted command exits with status 130.
+instead of showing a traceback; warnings are printed as one line each. An interrupted command exits with status 130.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 
 
 def run_main(parser: argparse.ArgumentParser, argv: list[str]) -> int:
     """Parse ``argv``, run the selected command's ``func(args)`` and return the exit status."""
     args = parser.parse_args(argv)
+
+    def one_line_warning(message, category, filename, lineno, file=None, line=None):
+        print(f"{parser.prog}: warning: {message}", file=sys.stderr)
+
+    warnings.showwarning = one_line_warning
     try:
         status = args.func(args)
     except KeyboardInterrupt:

@@ -16,6 +16,7 @@ smear) and the detector stream (amplitude and range noise).
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -118,6 +119,7 @@ def simulate(scene: Scene, setup: ScanSetup, seed: int = 0, backend: str = "auto
     """
     model, pose, window = setup.model, setup.pose, setup.window
     window.check_within(model)
+    check_scan_memory(window.shape)
     used_backend = select_backend(backend)
     traced = trace_scene(scene, model, pose)
     beam = sample_beam(model.n_subrays, model.beam_profile)
@@ -173,6 +175,60 @@ def simulate(scene: Scene, setup: ScanSetup, seed: int = 0, backend: str = "auto
         layers=layers,
         **{key: grid(value) for key, value in truth.items()},
     )
+
+
+#: Memory the simulator holds per pulse, bytes: the column-major accumulators and truth layers, their
+#: (psi, theta) copies and the output scan's grids. Measured: the orchard row at 0.036 deg (44 M pulses)
+#: peaked at 8.8 GB, i.e. about 200 B per pulse.
+BYTES_PER_PULSE = 200
+#: A scan estimated above this size is simulated with a warning, bytes.
+WARN_SCAN_BYTES = 2 * 1024**3
+
+
+def check_scan_memory(shape: tuple[int, int], available_bytes: int | None = None) -> int:
+    """Estimate a scan's peak memory; refuse it when it cannot fit, warn when it is large.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        Grid shape ``(rows, cols)`` of the scan window, pulses.
+    available_bytes : int, optional
+        Memory available to the process, bytes (default: ``MemAvailable`` of
+        ``/proc/meminfo``; no refusal where the system does not report it).
+
+    Returns
+    -------
+    int
+        The estimated peak memory, bytes.
+
+    Raises
+    ------
+    ScanError
+        If the estimate exceeds the available memory; the message names the
+        grid, the estimate and how to make the scan smaller.
+    """
+    pulses = int(shape[0]) * int(shape[1])
+    need = pulses * BYTES_PER_PULSE
+    if available_bytes is None:
+        available_bytes = _available_memory_bytes()
+    advice = "use a larger step_deg or a smaller window"
+    if available_bytes is not None and need > available_bytes:
+        raise ScanError(f"a scan of {shape[0]} x {shape[1]} = {pulses:,} pulses needs about {need / 1e9:,.1f} GB, "
+                        f"more than the {available_bytes / 1e9:,.1f} GB available: {advice}")
+    if need > WARN_SCAN_BYTES:
+        warnings.warn(f"a scan of {shape[0]} x {shape[1]} = {pulses:,} pulses will hold about {need / 1e9:,.1f} GB "
+                      f"in memory ({advice} to lower it)", stacklevel=3)
+    return need
+
+
+def _available_memory_bytes() -> int | None:
+    try:
+        for line in open("/proc/meminfo", encoding="ascii"):
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
 
 
 def trace_scene(scene: Scene, model: ScannerModel, pose: ScannerPose) -> TraceScene:
