@@ -112,7 +112,7 @@ def test_unstructured_e57_is_refused(tmp_path):
 
     with pye57.E57(str(tmp_path / "cloud.e57"), mode="w") as e57:
         e57.write_scan_raw({"cartesianX": np.zeros(4), "cartesianY": np.ones(4), "cartesianZ": np.arange(4.0)})
-    with pytest.raises(ScanError, match="not structured"):
+    with pytest.raises(ScanError, match="no rowIndex / columnIndex and its points cannot be gridded"):
         import_scan(tmp_path / "cloud.e57")
 
 
@@ -126,3 +126,44 @@ def test_export_and_import_commands(scan, tmp_path, capsys):
     assert np.array_equal(back.valid, scan.valid)
     assert main(["import", str(tmp_path / "scan.npz"), "-o", str(tmp_path / "x.npz")]) == 2
     assert "unknown scan format" in capsys.readouterr().err
+
+
+def test_unstructured_e57_is_gridded_from_its_angles(scan, tmp_path):
+    """An E57 export without row/column indices (as many are) comes back on the same grid."""
+    import pye57
+
+    structured = export_scan(scan, tmp_path / "grid.e57")
+    with pye57.E57(str(structured)) as e57:
+        data = e57.read_scan_raw(0)
+        header = e57.get_header(0)
+        rotation, translation = header.rotation, header.translation
+    rng = np.random.default_rng(3)
+    order = rng.permutation(len(data["cartesianX"]))  # exporters need not keep the scan order
+    cloud = {k: v[order] for k, v in data.items() if k not in ("rowIndex", "columnIndex")}
+    path = tmp_path / "cloud.e57"
+    with pye57.E57(str(path), mode="w") as e57:
+        e57.write_scan_raw(cloud, rotation=rotation, translation=translation)
+    back = import_scan(path)
+    assert back.shape == scan.shape and np.array_equal(back.valid, scan.valid)
+    assert np.max(np.abs(back.xyz[scan.valid] - scan.xyz[scan.valid])) <= 4e-6
+
+
+E57_SAMPLES = __import__("pathlib").Path(__file__).parent / "data" / "e57"
+
+
+@pytest.mark.parametrize("name,message", [
+    ("bad-crc.e57", r"not a readable E57 file \(checksum mismatch, file is corrupted \(ErrorBadChecksum\)\)$"),
+    ("empty.e57", "holds no scan$"),
+    ("ZeroPoints.e57", "holds no points$"),
+    ("InvalidCVHeader.e57", "holds no points$"),
+    ("ZeroPointsInvalid.e57", r"malformed or truncated E57 scan \(.*ErrorInvalidZeroRecordsData3D\)\)$"),
+    ("ColourRepresentation.e57", r"malformed or truncated E57 scan \(.*ErrorValueNotRepresentable\)\)$"),
+    ("ColouredCubeFloat.e57", "do not lie on one station's regular angular grid .* read it as a point cloud"),
+])
+def test_libe57_samples_give_one_line_errors(name, message, tmp_path, capsys):
+    path = E57_SAMPLES / name
+    with pytest.raises(ScanError, match=message):
+        import_scan(path)
+    assert main(["import", str(path), "-o", str(tmp_path / "out.npz")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "out.npz").exists()

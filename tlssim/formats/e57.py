@@ -8,7 +8,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from tlssim.errors import ScanError
-from tlssim.formats.grid import angles_of, complete_angles, local_points, scan_from_local
+from tlssim.formats.grid import angles_of, complete_angles, grid_indices, local_points, scan_from_local
 from tlssim.pattern import ScannerPose
 from tlssim.scan import Scan
 
@@ -41,8 +41,11 @@ def write(scan: Scan, path: Path) -> None:
 def read(path: Path, intensity_max_dn: float = 2047.0) -> Scan:
     """Read the first scan of an E57 file as a truth-less :class:`Scan`.
 
-    The scan must be structured (``rowIndex`` and ``columnIndex``); cartesian
-    or spherical coordinates are accepted. Intensities normalised to [0, 1]
+    A structured scan (``rowIndex`` and ``columnIndex``) keeps its grid; an
+    unstructured one is gridded from its angles when it is one station's scan
+    on a regular angular grid (:func:`~tlssim.formats.grid.grid_indices`), and
+    refused with the reason otherwise. Cartesian or spherical coordinates are
+    accepted. Intensities normalised to [0, 1]
     (``intensityLimits`` maximum <= 1) are scaled to ``0..intensity_max_dn``.
     """
     import pye57
@@ -50,7 +53,7 @@ def read(path: Path, intensity_max_dn: float = 2047.0) -> Scan:
     try:
         e57 = pye57.E57(str(path))
     except Exception as exc:  # libE57 raises its own exception types
-        raise ScanError(f"{path}: not a readable E57 file ({exc})") from None
+        raise ScanError(f"{path}: not a readable E57 file ({_first_line(exc)})") from None
     try:
         if e57.scan_count < 1:
             raise ScanError(f"{path}: the E57 file holds no scan")
@@ -61,23 +64,33 @@ def read(path: Path, intensity_max_dn: float = 2047.0) -> Scan:
     except ScanError:
         raise
     except Exception as exc:
-        raise ScanError(f"{path}: malformed or truncated E57 scan ({exc})") from None
+        raise ScanError(f"{path}: malformed or truncated E57 scan ({_first_line(exc)})") from None
     finally:
         e57.close()
-    if "rowIndex" not in data or "columnIndex" not in data:
-        raise ScanError(f"{path}: the E57 scan is not structured (no rowIndex / columnIndex); tlssim needs a grid")
     local, invalid = _coordinates(path, data)
-    row, col = data["rowIndex"].astype(np.int64), data["columnIndex"].astype(np.int64)
-    row, col = row - row.min(), col - col.min()
+    intensity_dn = data.get("intensity")
+    if not len(local):
+        raise ScanError(f"{path}: the E57 scan holds no points")
+    if "rowIndex" in data and "columnIndex" in data:
+        row, col = data["rowIndex"].astype(np.int64), data["columnIndex"].astype(np.int64)
+        row, col = row - row.min(), col - col.min()
+    else:
+        located = invalid < 2  # points with a direction
+        local, invalid = local[located], invalid[located]
+        intensity_dn = None if intensity_dn is None else intensity_dn[located]
+        try:
+            row, col = grid_indices(local)
+        except ScanError as exc:
+            raise ScanError(f"{path}: the E57 scan has no rowIndex / columnIndex and {exc}") from None
     shape = (int(row.max()) + 1, int(col.max()) + 1)
     grid = np.full(shape + (3,), np.nan)
     grid[row, col] = local
     valid = np.zeros(shape, dtype=bool)
     valid[row, col] = invalid == 0
     intensity = np.full(shape, np.nan)
-    if "intensity" in data:
+    if intensity_dn is not None:
         scale = intensity_max_dn if limit is not None and limit <= 1.0 else 1.0
-        intensity[row, col] = data["intensity"] * scale
+        intensity[row, col] = intensity_dn * scale
     has_direction = np.zeros(shape, dtype=bool)
     has_direction[row, col] = invalid < 2
     theta, psi = angles_of(np.where(has_direction[..., None], grid, np.nan))
@@ -103,6 +116,12 @@ def _coordinates(path: Path, data: dict) -> tuple[np.ndarray, np.ndarray]:
     else:
         raise ScanError(f"{path}: the E57 scan has neither cartesian nor spherical coordinates")
     return local.astype(np.float64), np.asarray(invalid).astype(np.int64)
+
+
+def _first_line(exc: Exception) -> str:
+    """The first non-empty line of a libE57 message (the rest is the library's debug dump)."""
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    return lines[0] if lines else type(exc).__name__
 
 
 def _intensity_limit(header) -> float | None:

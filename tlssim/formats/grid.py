@@ -6,6 +6,7 @@ import warnings
 
 import numpy as np
 
+from tlssim.errors import ScanError
 from tlssim.pattern import ScannerPose, beam_frame
 from tlssim.scan import Scan
 
@@ -39,6 +40,70 @@ def complete_angles(theta: np.ndarray, psi: np.ndarray) -> tuple[np.ndarray, np.
         row_psi = _fill_line(np.nanmedian(psi, axis=1))
     return (np.where(np.isnan(theta), column_theta[None, :], theta),
             np.where(np.isnan(psi), row_psi[:, None], psi))
+
+
+#: Largest share of points that may fall into an already occupied cell of a gridded cloud.
+MAX_SHARED_CELLS = 0.01
+#: Largest grid an unstructured cloud is gridded into, cells.
+MAX_GRID_CELLS = 200_000_000
+
+
+def grid_indices(local: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Grid rows and columns of an unstructured single-station cloud, from its angles.
+
+    A phase-shift scanner samples a regular (psi, theta) grid; exports often
+    drop the row and column indices. In (theta, psi) the points of such a
+    scan form a rectangular lattice: the step along each axis is the median
+    offset, along that axis, of the nearest neighbours that lie along it; a
+    point's row and column are its zenith and azimuth in steps, rounded.
+
+    Parameters
+    ----------
+    local : ndarray, (n, 3)
+        Points (or beam directions) in the scanner frame, m.
+
+    Returns
+    -------
+    row, col : ndarray of int64, (n,)
+        Grid indices from 0.
+
+    Raises
+    ------
+    ScanError
+        If the points do not lie on one station's regular angular grid (more
+        than :data:`MAX_SHARED_CELLS` of them share a cell, or the grid would
+        exceed :data:`MAX_GRID_CELLS`); the message says which.
+    """
+    from scipy.spatial import cKDTree
+
+    theta, psi = angles_of(local[None, :, :])
+    theta, psi = theta[0], psi[0]
+    if len(local) < 4 or not (np.isfinite(theta).all() and np.isfinite(psi).all()):
+        raise ScanError("its points cannot be gridded: fewer than 4 points or points at the scanner's origin")
+    order = np.argsort(theta)
+    theta[order] = np.unwrap(theta[order])  # a window across +-180 deg becomes one interval
+    angles = np.column_stack([theta, psi])
+    _, neighbours = cKDTree(angles).query(angles, k=min(5, len(angles)))
+    offset = np.abs(angles[neighbours[:, 1:]] - angles[:, None, :]).reshape(-1, 2)
+    along_theta = offset[:, 1] < 0.25 * offset[:, 0]
+    along_psi = offset[:, 0] < 0.25 * offset[:, 1]
+    if not (along_theta.any() and along_psi.any()):
+        raise ScanError("its points cannot be gridded: no rows and columns of directions (not a scan grid)")
+    step_theta, step_psi = float(np.median(offset[along_theta, 0])), float(np.median(offset[along_psi, 1]))
+    if not (step_theta > 0 and step_psi > 0):
+        raise ScanError("its points cannot be gridded: repeated directions (no angular step)")
+    row = np.rint((psi - psi.min()) / step_psi).astype(np.int64)
+    col = np.rint((theta - theta.min()) / step_theta).astype(np.int64)
+    steps = f"{np.degrees(step_theta):.3g} x {np.degrees(step_psi):.3g} deg"
+    cells = (int(row.max()) + 1) * (int(col.max()) + 1)
+    if cells > MAX_GRID_CELLS:
+        raise ScanError(f"its angular steps {steps} give a {cells:,}-cell grid: it is not one station's scan "
+                        f"(read it as a point cloud, e.g. with woody)")
+    shared = 1.0 - len(np.unique(row * (int(col.max()) + 1) + col)) / len(row)
+    if shared > MAX_SHARED_CELLS:
+        raise ScanError(f"its points do not lie on one station's regular angular grid ({100 * shared:.1f} % share "
+                        f"a cell at the {steps} steps): read it as a point cloud (e.g. woody)")
+    return row, col
 
 
 def scan_from_local(local: np.ndarray, valid: np.ndarray, intensity: np.ndarray, pose: ScannerPose,
