@@ -156,6 +156,16 @@ def _print_headline(store: Store, run_id: str) -> None:
     print(summary.goal_status(table, registry.unavailable()))
 
 
+def _failures(store: Store, run_ids: list[str]) -> int:
+    """Say how many results of the runs failed, with the first error; 1 if any failed, else 0."""
+    failed = [row for run_id in run_ids for row in store.results(run_id) if row.get("error")]
+    if failed:
+        first = failed[0]
+        print(f"{len(failed)} result(s) failed; the first: case {first['case_name']!r}, variant {first['variant']!r}: "
+              f"{first['error']}", file=sys.stderr)
+    return 1 if failed else 0
+
+
 def cmd_run(args) -> int:
     suite = load_suite(args.suite)
     with Store(args.db) as store:
@@ -163,14 +173,15 @@ def cmd_run(args) -> int:
         outcome = _run_suite(suite, args, store, resume=resume)
         html_path, json_path = _write_reports(store, outcome.run_id, args.output)
         _print_headline(store, outcome.run_id)
+        status = _failures(store, [outcome.run_id])
     print(f"report: {html_path} and {json_path}")
-    return 0
+    return status
 
 
 def cmd_report(args) -> int:
     from benchmarks.report import report_document, write_html
 
-    with Store(args.db) as store:
+    with Store(args.db, create=False) as store:
         run_id = store.resolve(args.run)
         if args.output:
             path = write_html(store, run_id, args.output, before_after=not args.no_before_after)
@@ -185,7 +196,7 @@ def cmd_report(args) -> int:
 def cmd_compare(args) -> int:
     from benchmarks.compare import compare_runs, format_comparison
 
-    with Store(args.db) as store:
+    with Store(args.db, create=False) as store:
         run_a, run_b = store.resolve(args.run_a), store.resolve(args.run_b)
         entries = compare_runs(store.results(run_a), store.results(run_b), z=args.z)
     print(f"B = {run_b} against A = {run_a}")
@@ -209,11 +220,12 @@ def cmd_sweep(args) -> int:
         suite = sweeps.sweep_suite(args.kind, args.scene, args.values, _assignments(args.param, "--param"),
                                    _assignments(args.scanner, "--scanner"), args.repeats)
         run_id, table = _sweep(suite, args, store)
+        status = _failures(store, [run_id])
     csv_path, png_path = sweeps.write_sweep(table, args.kind, args.output)
     print(f"sweep {args.kind}, run {run_id}")
     print(sweeps.format_table(table))
     print(f"table: {csv_path}  plot: {png_path}")
-    return 0
+    return status
 
 
 def cmd_main(args) -> int:
@@ -233,9 +245,10 @@ def cmd_main(args) -> int:
         html_path, json_path = _write_reports(store, outcome.run_id, outdir)
         print()
         _print_headline(store, outcome.run_id)
+        status = _failures(store, [outcome.run_id, *sweep_ids])
     print(f"report: {html_path} and {json_path}; sweeps: {', '.join(MAIN_SWEEPS)} in {outdir}")
     print(f"main job finished in {time.perf_counter() - start:.0f} s")
-    return 0
+    return status
 
 
 def cmd_list(args) -> int:

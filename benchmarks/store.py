@@ -102,10 +102,17 @@ class Store:
     ----------
     path : str or Path
         SQLite file.
+    create : bool
+        Create the file (and its tables) if needed. Commands that only read
+        pass ``False``: a missing or foreign file is then an error and is
+        left untouched.
     """
 
-    def __init__(self, path):
+    def __init__(self, path, create: bool = True):
         self.path = Path(path)
+        if not create:
+            self._open_existing()
+            return
         self.path.parent.mkdir(parents=True, exist_ok=True)
         try:
             self._db = sqlite3.connect(self.path, timeout=LOCK_WAIT_S, isolation_level=None)
@@ -118,6 +125,20 @@ class Store:
                         self._db.execute(statement)
         except sqlite3.DatabaseError as exc:
             raise BenchError(f"{self.path}: not a usable results database ({exc})") from None
+
+    def _open_existing(self) -> None:
+        if not self.path.is_file():
+            raise BenchError(f"{self.path}: no results database (check --db, or run a suite first)")
+        try:
+            self._db = sqlite3.connect(f"{self.path.resolve().as_uri()}?mode=ro", uri=True, timeout=LOCK_WAIT_S,
+                                       isolation_level=None)
+            self._db.row_factory = sqlite3.Row
+            tables = {r[0] for r in self._db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        except sqlite3.DatabaseError as exc:
+            raise BenchError(f"{self.path}: not a usable results database ({exc})") from None
+        if not {"runs", "results"} <= tables:
+            self._db.close()
+            raise BenchError(f"{self.path}: not a tlsbench results database (no runs and results tables)")
 
     def close(self) -> None:
         """Close the connection."""
@@ -203,13 +224,18 @@ class Store:
     def resolve(self, run: str) -> str:
         """A run id from an id, a unique id prefix or ``latest``.
 
+        ``latest`` is the latest suite run; sweep runs (suites named
+        ``sweep-*``, which a main job runs after its suite) count only when
+        the store holds nothing else.
+
         Raises
         ------
         BenchError
             If no run (or more than one) matches.
         """
         if run == "latest":
-            row = self._db.execute("SELECT run_id FROM runs ORDER BY created DESC LIMIT 1").fetchone()
+            row = self._db.execute("SELECT run_id FROM runs ORDER BY suite LIKE 'sweep-%', created DESC LIMIT 1"
+                                   ).fetchone()
             if row is None:
                 raise BenchError(f"{self.path}: the store holds no run yet")
             return row["run_id"]

@@ -331,3 +331,14 @@ def test_showcase_is_a_leaf_case_and_none_without_leaves():
     leaf = row("leaf", {"builtin": "leaf-1.5m"}, {"target": "leaf", "object_type": "leaf", "rop_before": 0.2})
     assert pick_showcase([woody]) is None
     assert pick_showcase([woody, leaf])["name"] == "leaf"
+
+
+def test_a_run_with_failed_cases_exits_non_zero_with_the_first_error(tmp_path, capsys):
+    suite = tmp_path / "bad.yaml"
+    suite.write_text(yaml.safe_dump({"name": "bad", "cases": [
+        {"name": "behind-the-scanner", "scene": {"generator": "single-leaf", "distance_m": -1.5}}]}))
+    argv = ["run", "--suite", str(suite), "--db", str(tmp_path / "r.sqlite"), "-o", str(tmp_path / "out"),
+            "--workers", "0", "--quiet", "--variants", "raw"]
+    assert cli.main(argv) == 1
+    err = capsys.readouterr().err
+    assert "1 result(s) failed; the first: case 'behind-the-scanner', variant 'raw'" in err

@@ -78,3 +78,31 @@ def test_concurrent_writers_do_not_corrupt_the_store(tmp_path):
     with sqlite3.connect(path) as db:
         assert db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
         assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+
+
+def test_read_commands_never_create_or_change_files(tmp_path, capsys):
+    from benchmarks import cli
+
+    missing = tmp_path / "typo.sqlite"
+    with pytest.raises(BenchError, match="no results database"):
+        Store(missing, create=False)
+    assert not missing.exists()
+    empty_json = tmp_path / "report.json"
+    empty_json.write_bytes(b"")
+    for argv in (["report", "latest", "--db", str(empty_json)], ["compare", "a", "b", "--db", str(missing)]):
+        assert cli.main(argv) == 2
+        assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert empty_json.read_bytes() == b"" and not missing.exists()
+
+
+def test_latest_is_the_latest_suite_run_not_a_sweep(tmp_path):
+    with Store(tmp_path / "r.sqlite") as store:
+        store.create_run("sweep-distance", "sd", {}, "a", commit="c")
+        suite = store.create_run("quick", "sd", {}, "b", commit="c")
+        store.create_run("sweep-incidence", "sd", {}, "c", commit="c")
+        assert store.resolve("latest") == suite
+    with Store(tmp_path / "r.sqlite", create=False) as store:
+        assert store.resolve("latest") == suite
+    with Store(tmp_path / "sweeps.sqlite") as store:
+        only = store.create_run("sweep-distance", "sd", {}, "a", commit="c")
+        assert store.resolve("latest") == only
