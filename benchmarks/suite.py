@@ -145,7 +145,9 @@ def load_suite(spec: str) -> Suite:
     if not path.is_file():
         raise BenchError(f"unknown suite {spec!r}: not a built-in suite ({', '.join(suite_names())}) nor a file")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise BenchError(f"{path}: not a text file (a suite is UTF-8 YAML)") from None
     except yaml.YAMLError as exc:
         raise BenchError(f"{path}: not valid YAML ({exc})") from None
     try:

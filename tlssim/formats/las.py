@@ -52,6 +52,29 @@ def write(scan: Scan, path: Path) -> None:
     points.write(str(path))
 
 
+#: Sizes in the LAS public header (LAS 1.0-1.4 specifications): the header, a VLR's and an EVLR's own header, bytes.
+_LAS_HEADER_MIN, _VLR_HEADER, _EVLR_HEADER = 227, 54, 60
+
+
+def _check_header(path: Path) -> None:
+    """Refuse a LAS/LAZ file whose header promises more records than the file holds.
+
+    laspy trusts the header's record counts: a damaged count makes it read
+    billions of empty records instead of failing.
+    """
+    size = path.stat().st_size
+    with open(path, "rb") as handle:
+        head = handle.read(247)
+    if len(head) < _LAS_HEADER_MIN or head[:4] != b"LASF":
+        raise ScanError(f"{path}: not a LAS/LAZ file (no LASF header)")
+    header_size = int.from_bytes(head[94:96], "little")
+    n_vlrs = int.from_bytes(head[100:104], "little")
+    n_evlrs = int.from_bytes(head[243:247], "little") if header_size >= 247 and len(head) >= 247 else 0
+    if header_size + n_vlrs * _VLR_HEADER + n_evlrs * _EVLR_HEADER > size:
+        raise ScanError(f"{path}: truncated or damaged LAS/LAZ header ({n_vlrs} variable-length records "
+                        f"and {n_evlrs} extended ones announced, {size} bytes in the file)")
+
+
 def read(path: Path) -> Scan:
     """Read a LAS/LAZ file written by :func:`write` back into a :class:`Scan`.
 
@@ -60,6 +83,7 @@ def read(path: Path) -> Scan:
     """
     import laspy
 
+    _check_header(path)
     try:
         points = laspy.read(str(path))
     except Exception as exc:  # laspy raises LaspyException, ValueError, OSError...
