@@ -18,8 +18,10 @@ from __future__ import annotations
 import collections
 import multiprocessing
 import multiprocessing.connection
+import os
 import resource
 import signal
+import threading
 import time
 
 from benchmarks.errors import BenchError
@@ -27,8 +29,28 @@ from benchmarks.errors import BenchError
 _READY = "ready"
 
 
+def _exit_with_parent() -> None:
+    """End this worker as soon as its parent process is gone (killed, even by SIGKILL)."""
+    parent = multiprocessing.parent_process()
+    if parent is None:
+        return
+
+    def watch():
+        multiprocessing.connection.wait([parent.sentinel])
+        os._exit(0)
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
 def _worker(connection, memory_limit_bytes: int | None) -> None:
-    """Worker process: warm up, then run ``(case, specs)`` tasks until told to stop (``None``)."""
+    """Worker process: warm up, then run ``(case, specs)`` tasks until told to stop (``None``).
+
+    Ctrl-C reaches the whole process group: the worker ignores it and the
+    parent stops the workers, so an interrupted run prints no worker
+    traceback. A worker whose parent dies ends at once.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _exit_with_parent()
     if memory_limit_bytes:
         resource.setrlimit(resource.RLIMIT_DATA, (memory_limit_bytes, memory_limit_bytes))
     from benchmarks.runner import case_rows, simulate_case
@@ -36,11 +58,14 @@ def _worker(connection, memory_limit_bytes: int | None) -> None:
 
     # Compile the simulator's kernels once, so that no case pays for it.
     simulate_case(Case("warm-up", {"builtin": "knife-edge"}, {"window": {"theta_deg": [0, 0], "psi_deg": [90, 90]}}, 0))
-    connection.send(_READY)
-    while (task := connection.recv()) is not None:
-        for row in case_rows(*task):
-            connection.send(row)
-        connection.send(None)
+    try:
+        connection.send(_READY)
+        while (task := connection.recv()) is not None:
+            for row in case_rows(*task):
+                connection.send(row)
+            connection.send(None)
+    except (BrokenPipeError, EOFError, ConnectionResetError):
+        os._exit(0)  # the parent went away: nothing to report to
 
 
 class _Slot:

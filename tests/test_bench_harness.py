@@ -342,3 +342,54 @@ def test_a_run_with_failed_cases_exits_non_zero_with_the_first_error(tmp_path, c
     assert cli.main(argv) == 1
     err = capsys.readouterr().err
     assert "1 result(s) failed; the first: case 'behind-the-scanner', variant 'raw'" in err
+
+
+_ORPHAN = """
+import multiprocessing, time
+from benchmarks.pool import _Slot
+slot = _Slot(multiprocessing.get_context("spawn"), None)
+while not slot.ready:  # the worker has warmed up and waits for a case
+    slot.collect()
+    time.sleep(0.1)
+print(slot.process.pid, flush=True)
+try:
+    time.sleep(600)
+except KeyboardInterrupt:
+    pass
+"""
+
+
+@pytest.mark.parametrize("how", ["SIGKILL to the run", "Ctrl-C to the process group"])
+def test_workers_end_with_their_run_without_tracebacks(tmp_path, how):
+    """A killed or interrupted benchmark run leaves no worker behind, and no worker prints a traceback."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    stderr = tmp_path / "stderr.txt"
+    with open(stderr, "w") as err:
+        parent = subprocess.Popen([sys.executable, "-c", _ORPHAN], cwd=ROOT, stdout=subprocess.PIPE, stderr=err,
+                                  text=True, start_new_session=True,
+                                  preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        worker = int(parent.stdout.readline())
+        ignored = int(next(line for line in open(f"/proc/{worker}/status") if line.startswith("SigIgn:")).split()[1], 16)
+        assert ignored & (1 << (signal.SIGINT - 1)), "a worker must leave Ctrl-C to its run"
+        if how.startswith("SIGKILL"):
+            os.kill(parent.pid, signal.SIGKILL)
+        else:
+            os.killpg(parent.pid, signal.SIGINT)
+        parent.wait(timeout=30)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            try:
+                os.kill(worker, 0)
+            except ProcessLookupError:
+                break
+            time.sleep(0.1)
+        else:
+            os.kill(worker, signal.SIGKILL)
+            raise AssertionError(f"the worker outlived its run ({how}) by 10 s")
+    time.sleep(0.5)
+    assert "Traceback" not in stderr.read_text()
