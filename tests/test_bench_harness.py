@@ -351,8 +351,8 @@ slot = _Slot(multiprocessing.get_context("spawn"), None)
 while not slot.ready:  # the worker has warmed up and waits for a case
     slot.collect()
     time.sleep(0.1)
-print(slot.process.pid, flush=True)
 try:
+    print(slot.process.pid, flush=True)
     time.sleep(600)
 except KeyboardInterrupt:
     pass
