@@ -67,11 +67,18 @@ def describe_generators() -> dict[str, str]:
 def check_scene(spec: dict) -> None:
     """Validate a case's scene description without building it.
 
+    Parameters
+    ----------
+    spec : dict
+        The case's ``scene`` entry (see :func:`build_scene`).
+
     Raises
     ------
     BenchError
-        On an unknown scene or generator, or parameters the generator does
-        not accept (the message lists what is allowed).
+        On an unknown scene or generator, parameters the generator does not
+        accept (the message lists what is allowed), or a length (``*_m``)
+        that is not a positive number or an angle (``*_deg``) that is not a
+        finite one.
     """
     from benchmarks.heightfields import check_heightfield, is_heightfield
 
@@ -95,6 +102,12 @@ def check_scene(spec: dict) -> None:
     unknown = sorted(set(spec) - {"generator"} - set(allowed))
     if unknown:
         raise BenchError(f"scene generator {name!r} has no parameter(s) {unknown}; allowed: {allowed}")
+    for key, value in spec.items():
+        if key.endswith(("_m", "_deg")) and not (isinstance(value, (int, float)) and math.isfinite(value)):
+            raise BenchError(f"scene generator {name!r}: {key} must be a finite number, got {value!r}")
+        if key.endswith("_m") and value <= 0:
+            raise BenchError(f"scene generator {name!r}: {key} is a length or distance in metres and must be "
+                             f"positive, got {value!r}")
 
 
 def build_scene(spec: dict) -> Scene:

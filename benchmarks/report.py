@@ -233,7 +233,8 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
         figures.append(("Height-field errors", plot_height_errors(rows)))
     showcase = pick_showcase(rows) if before_after else None
     if showcase is not None:
-        specs = list({r["variant"]: {"name": r["variant"], "params": r["params"]} for r in rows}.values())
+        shown = [r for r in rows if r["case_name"] == showcase["name"] and not r["error"]]
+        specs = list({r["variant"]: {"name": r["variant"], "params": r["params"]} for r in shown}.values())
         figures.append(("Before / after on one leaf", plot_before_after(showcase, specs)))
     for sweep in document["sweeps"]:
         if sweep["table"]:

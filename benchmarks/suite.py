@@ -41,7 +41,9 @@ import yaml
 
 from benchmarks.errors import BenchError
 from benchmarks.generators import check_scene
-from tlssim.scanner import ScannerModel
+from tlssim.errors import ScanError
+from tlssim.pattern import ScanWindow
+from tlssim.scanner import ScannerModel, get_preset
 
 #: Directory of the built-in suites (``<name>.yaml``).
 SUITE_DIR = Path(__file__).parent / "suites"
@@ -186,11 +188,34 @@ def parse_suite(data, source: str = "") -> Suite:
     return Suite(data["name"], str(data.get("description", "")), tuple(cases), source)
 
 
-def _check_scanner(overrides: dict) -> None:
+def check_scanner(overrides: dict) -> None:
+    """Refuse unknown scanner overrides and invalid values before anything runs.
+
+    Parameters
+    ----------
+    overrides : dict
+        A case's ``scanner`` entry: section keys (window, position,
+        orientation, preset) and scanner-model fields.
+
+    Raises
+    ------
+    BenchError
+        Naming the unknown key or the invalid value and what is allowed.
+    """
     allowed = ({f.name for f in dataclasses.fields(ScannerModel)} - {"name"}) | _SECTION_KEYS
     unknown = sorted(set(overrides) - allowed)
     if unknown:
         raise BenchError(f"unknown scanner override(s) {unknown}; allowed: {sorted(allowed)}")
+    fields = {k: v for k, v in overrides.items() if k not in _SECTION_KEYS}
+    try:
+        model = get_preset(overrides.get("preset", "faro-ls880"), **fields)
+        if "window" in overrides:
+            window = overrides["window"]
+            if not isinstance(window, dict) or not {"theta_deg", "psi_deg"} <= set(window):
+                raise ScanError(f"window must give theta_deg and psi_deg ranges in degrees, got {window!r}")
+            ScanWindow(window["theta_deg"], window["psi_deg"], window.get("step_deg", model.step_deg))
+    except (ScanError, TypeError) as exc:
+        raise BenchError(f"scanner: {exc}") from None
 
 
 def _expand(entry) -> list[Case]:
@@ -237,7 +262,7 @@ def _expand(entry) -> list[Case]:
         except (KeyError, IndexError, ValueError) as exc:
             raise BenchError(f"name template {entry['name']!r} uses a field that is not varied ({exc})") from None
         check_scene(case_scene)
-        _check_scanner(case_scanner)
+        check_scanner(case_scanner)
         cases.append(Case(name, case_scene, case_scanner, case_seed(name) if seed is None else seed,
                           None if targets is None else tuple(targets), case_params))
     if vary and len({c.name for c in cases}) < len(cases):

@@ -24,7 +24,7 @@ from matplotlib.figure import Figure
 
 from benchmarks.errors import BenchError
 from benchmarks.generators import check_scene
-from benchmarks.suite import Case, Suite, case_seed
+from benchmarks.suite import Case, Suite, case_seed, check_scanner
 from tlssim.scanner import get_preset
 
 
@@ -103,6 +103,7 @@ def sweep_suite(kind: str, scene: str = "single-leaf", values=None, params: dict
             case_scanner = dict(scanner or {})
             (case_scene if spec.where == "scene" else case_scanner)[spec.key] = value
             check_scene(case_scene)
+            check_scanner(case_scanner)
             name = f"{kind}={value:g}" + (f"#{repeat + 1}" if repeats > 1 else "")
             cases.append(Case(name, case_scene, case_scanner, case_seed(name)))
     return Suite(f"sweep-{kind}", f"{kind} sweep on {scene}", tuple(cases), f"sweep:{kind}")

@@ -145,3 +145,23 @@ def test_analytic_surface_is_a_default_target():
     assert np.linalg.norm(surface.vertices, axis=1).min() == pytest.approx(2.0 - 0.06 / 2 * math.tan(math.pi / 6), rel=1e-3)
     with pytest.raises(BenchError, match="analytic-surface"):
         build_scene({"generator": "analytic-surface", "surface": "teapot"})
+
+
+@pytest.mark.parametrize("case,message", [
+    ({"name": "c", "scene": {"generator": "single-leaf", "distance_m": -1.5}}, "distance_m is a length or distance"),
+    ({"name": "c", "scene": {"generator": "single-leaf", "incidence_deg": float("nan")}}, "incidence_deg must be a finite"),
+    ({"name": "c", "scene": {"builtin": "knife-edge"}, "scanner": {"step_deg": 0}}, "scanner: .*step_deg"),
+    ({"name": "c", "scene": {"builtin": "knife-edge"}, "scanner": {"window": {"theta_deg": [0, 1]}}}, "scanner: window"),
+])
+def test_invalid_values_are_refused_when_the_suite_is_read(case, message):
+    with pytest.raises(BenchError, match=message):
+        parse_suite({"name": "s", "cases": [case]})
+
+
+def test_a_sweep_refuses_invalid_values_before_running():
+    from benchmarks.sweeps import sweep_suite
+
+    with pytest.raises(BenchError, match="distance_m is a length"):
+        sweep_suite("distance", values=[-1, 0])
+    with pytest.raises(BenchError, match="step_deg"):
+        sweep_suite("step", values=[0.0])
