@@ -153,7 +153,7 @@ def _print_headline(store: Store, run_id: str) -> None:
     table = summary.summarize(store.results(run_id), info["suite"])
     print(f"suite {info['suite']}, run {run_id}")
     print(summary.headline_table(table))
-    print(summary.goal_status(table, registry.unavailable()))
+    print(summary.goal_status(table))
 
 
 def _failures(store: Store, run_ids: list[str]) -> int:
@@ -258,8 +258,6 @@ def cmd_list(args) -> int:
         variant = registry.get_variant(name)
         params = json.dumps(variant.params)
         print(f"  {name:12s} {variant.family:9s} {variant.description}" + (f"  {params}" if len(params) < 100 else ""))
-    for family, why in registry.unavailable().items():
-        print(f"  ({family}: not registered, {why})")
     print("scene generators:")
     for name, text in describe_generators().items():
         print(f"  {name:14s} {text}")

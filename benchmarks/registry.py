@@ -129,7 +129,6 @@ class Variant:
 
 
 _VARIANTS: dict[str, Variant] = {}
-_UNAVAILABLE: dict[str, str] = {}
 
 
 def register_variant(variant: Variant) -> Variant:
@@ -151,18 +150,11 @@ def get_variant(name: str) -> Variant:
     Raises
     ------
     BenchError
-        If no variant has that name (the message lists them, and says why
-        known methods are missing).
+        If no variant has that name (the message lists them).
     """
     if name not in _VARIANTS:
-        missing = "".join(f"; {n} is unavailable: {why}" for n, why in _UNAVAILABLE.items())
-        raise BenchError(f"unknown variant {name!r}; registered: {', '.join(variant_names())}{missing}")
+        raise BenchError(f"unknown variant {name!r}; registered: {', '.join(variant_names())}")
     return _VARIANTS[name]
-
-
-def unavailable() -> dict[str, str]:
-    """Families of methods that are not registered here, with the reason."""
-    return dict(_UNAVAILABLE)
 
 
 def resolve(names: list[str] | None = None, overrides: dict[str, dict] | None = None) -> list[Variant]:
@@ -231,8 +223,6 @@ def _register_prop_sfs() -> None:
     ``buffer`` (the thesis' reference variant) with the other shell-rule sets T1, T2, T3* of thesis ch.7."""
     import leafsfs
 
-    if not hasattr(leafsfs, "reconstruct"):
-        return
     defaults = {"segmentation": "auto", **leafsfs.SfsParams().to_dict()}
     for engine in leafsfs.VARIANTS:
         register_variant(_prop_sfs_variant(engine, engine, defaults))
@@ -293,10 +283,6 @@ def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
 def _register_woody() -> None:
     """STEP and cylinder following, with their packages' defaults (scalar parameters are overridable)."""
     import woody
-
-    if not all(hasattr(woody, name) for name in ("step", "follow_cylinders", "score", "FollowParams")):
-        _UNAVAILABLE["woody"] = "woody.step / woody.follow_cylinders / woody.score do not exist yet"
-        return
 
     def step(scan, mask, **params):
         result = woody.step(scan.xyz[mask], viewpoints=scan.pose.position, **params)

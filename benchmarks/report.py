@@ -22,7 +22,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from benchmarks import heightfields, scoring, summary, sweeps
-from benchmarks.registry import get_variant, unavailable
+from benchmarks.registry import get_variant
 from benchmarks.runner import simulate_case
 from benchmarks.store import Store
 from benchmarks.suite import Case
@@ -35,10 +35,9 @@ def report_document(store: Store, run_id: str) -> dict:
     table = summary.summarize(rows, info["suite"])
     document = {
         "run": {k: info[k] for k in ("run_id", "created", "finished", "status", "git_commit", "machine", "suite")},
-        "goal": summary.goal_status(table, unavailable()),
+        "goal": summary.goal_status(table),
         "rows": table,
         "by_scene": summary.summarize_by_scene(rows, info["suite"]),
-        "unavailable_variants": unavailable(),
         "errors": [{"case": r["case_name"], "variant": r["variant"], "error": r["error"]} for r in rows if r["error"]],
         "sweeps": [],
     }
@@ -221,9 +220,6 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
         "outliers farther than τ from the true surface of their object). Area and angle errors: medians of absolute "
         "errors over leaves. Runtime: median per case. Lengths in mm.</p>",
     ]
-    if document["unavailable_variants"]:
-        parts.append("<p>Not registered yet: " + "; ".join(
-            f"{html.escape(k)} ({html.escape(v)})" for k, v in document["unavailable_variants"].items()) + "</p>")
     figures = []
     if any(leaf.get("object_type") == "leaf" for leaf in leaves):
         figures.append(("ROP against distance", plot_rop_vs_distance(leaves)))

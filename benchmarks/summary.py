@@ -145,7 +145,7 @@ def _summary_row(mine: list[dict], labels: dict) -> dict:
     return {key: row[key] for key in tuple(labels) + SUMMARY_KEYS[1:]}
 
 
-def goal_status(summary: list[dict], unavailable: dict[str, str] | None = None) -> str:
+def goal_status(summary: list[dict]) -> str:
     """One sentence on whether a PROP-SFS variant meets the project goal on these results."""
     goal = (f"goal: a PROP-SFS variant with ROP reduction >= {GOAL_ROP_REDUCTION:.0%} and median |area error| "
             f"<= {GOAL_AREA_REL_ERR:.0%}")
@@ -153,8 +153,7 @@ def goal_status(summary: list[dict], unavailable: dict[str, str] | None = None) 
     if candidates and all(r["rop_reduction"] is None for r in candidates):
         return f"{goal}: not measured by this suite (no leaf scored)"
     if not candidates:
-        why = (unavailable or {}).get("prop-sfs", "no PROP-SFS variant was run")
-        return f"{goal}: NOT MET - no PROP-SFS variant in this run ({why})"
+        return f"{goal}: NOT MET - no PROP-SFS variant in this run"
     met = [r["variant"] for r in candidates
            if (r["rop_reduction"] or 0) >= GOAL_ROP_REDUCTION
            and r["area_rel_err_median"] is not None and r["area_rel_err_median"] <= GOAL_AREA_REL_ERR]

@@ -91,10 +91,8 @@ def _load_scan(path: Path):
     if suffix == ".npz":
         return Scan.load(path)
     if suffix in (".e57", ".ptx"):
-        try:
-            from tlssim import formats
-        except ImportError:
-            raise SfsError(f"{path}: reading {suffix} files needs tlssim.formats, which this tlssim lacks") from None
+        from tlssim import formats
+
         return formats.import_scan(path)
     raise SfsError(f"{path}: unknown scan format {suffix!r}; allowed: .npz, .e57, .ptx")
 

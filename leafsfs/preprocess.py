@@ -32,10 +32,8 @@ def resolve_calibration(calibration, scan=None):
         return calibration
     if not isinstance(calibration, (str, Path)):
         raise SfsError(f"calibration must be a Calibration, a JSON path or 'model', got {type(calibration).__name__}")
-    try:
-        from tlssim.calibration import Calibration, calibrate_model
-    except ImportError:  # pragma: no cover - tlssim without the calibration module
-        raise SfsError("this tlssim has no calibration module; pass a calibration object") from None
+    from tlssim.calibration import Calibration, calibrate_model
+
     if str(calibration) == "model":
         if scan is None or not scan.scanner_model:
             raise SfsError("calibration 'model' needs a scan that records its scanner model")

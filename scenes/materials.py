@@ -140,12 +140,3 @@ def material_from_spec(spec, where: str = "material") -> Material:
     except SceneError as exc:
         raise SceneError(f"{where}: {exc}") from None
 
-
-def material_to_spec(material: Material):
-    """Scene-file value of ``material``: its library name when it is a nominal library entry."""
-    if material.name in _LIBRARY and _LIBRARY[material.name].material == material:
-        return material.name
-    spec = {"name": material.name, "reflectance": material.reflectance}
-    if material.transmittance:
-        spec["transmittance"] = material.transmittance
-    return spec
