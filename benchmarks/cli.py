@@ -8,6 +8,8 @@
 - ``tlsbench sweep KIND [--scene GENERATOR] [--values ...]`` runs a stress sweep and writes its table and plot;
 - ``tlsbench main -o DIR`` is the project's main job (``make bench``): the main suite with every
   registered variant, the distance and incidence sweeps, the store, the report and the headline table;
+- ``tlsbench experiment NAME`` and ``tlsbench perf NAME`` run the experiments and performance harnesses of
+  :mod:`benchmarks.experiments`;
 - ``tlsbench list`` shows suites, variants, scene generators and sweeps.
 """
 
@@ -23,6 +25,7 @@ import yaml
 
 from benchmarks import registry, summary, sweeps
 from benchmarks.errors import BenchError
+from benchmarks.experiments.cli import add_parsers as add_experiment_parsers
 from benchmarks.generators import describe_generators
 from benchmarks.runner import MEMORY_LIMIT_GB, TIMEOUT_S, execute
 from benchmarks.store import Store
@@ -121,6 +124,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_execution(p, db_default=None)
     p.add_argument("--db", default=None, help="results database (default OUTPUT/results.sqlite)")
     p.set_defaults(func=cmd_main)
+
+    add_experiment_parsers(sub)
 
     p = sub.add_parser("list", help="list suites, variants, scene generators and sweeps")
     p.set_defaults(func=cmd_list)

@@ -1,9 +1,11 @@
 """A local pool of worker processes that survives the variants it runs.
 
 Each worker is a spawned process (the Dr.Jit JIT does not survive ``fork``)
-that warms the simulator up once, then runs cases sent over a pipe and
-sends back one row per variant as soon as it is scored
-(:func:`benchmarks.runner.case_rows`). Unlike a
+that runs its caller's warm-up once (the runner compiles the simulator's
+kernels), then runs cases sent over a pipe and sends back one row per
+variant as soon as it is scored (the caller's task function, e.g.
+:func:`benchmarks.runner.case_rows`). The pool knows nothing of cases and
+rows beyond those functions. Unlike a
 :class:`concurrent.futures.ProcessPoolExecutor`, a worker that dies (out of
 memory, a crash in native code) or stays silent beyond the time limit costs
 only the variant it was running: that variant gets an error row, the
@@ -42,8 +44,8 @@ def _exit_with_parent() -> None:
     threading.Thread(target=watch, daemon=True).start()
 
 
-def _worker(connection, memory_limit_bytes: int | None) -> None:
-    """Worker process: warm up, then run ``(case, specs)`` tasks until told to stop (``None``).
+def _worker(connection, memory_limit_bytes: int | None, run_task, warm_up) -> None:
+    """Worker process: ``warm_up()``, then ``run_task(case, specs)`` for each task until told to stop (``None``).
 
     Ctrl-C reaches the whole process group: the worker ignores it and the
     parent stops the workers, so an interrupted run prints no worker
@@ -53,15 +55,12 @@ def _worker(connection, memory_limit_bytes: int | None) -> None:
     _exit_with_parent()
     if memory_limit_bytes:
         resource.setrlimit(resource.RLIMIT_DATA, (memory_limit_bytes, memory_limit_bytes))
-    from benchmarks.runner import case_rows, simulate_case
-    from benchmarks.suite import Case
-
-    # Compile the simulator's kernels once, so that no case pays for it.
-    simulate_case(Case("warm-up", {"builtin": "knife-edge"}, {"window": {"theta_deg": [0, 0], "psi_deg": [90, 90]}}, 0))
+    if warm_up is not None:
+        warm_up()
     try:
         connection.send(_READY)
         while (task := connection.recv()) is not None:
-            for row in case_rows(*task):
+            for row in run_task(*task):
                 connection.send(row)
             connection.send(None)
     except (BrokenPipeError, EOFError, ConnectionResetError):
@@ -71,9 +70,10 @@ def _worker(connection, memory_limit_bytes: int | None) -> None:
 class _Slot:
     """One worker process and the task it is running."""
 
-    def __init__(self, context, memory_limit_bytes: int | None):
+    def __init__(self, context, memory_limit_bytes: int | None, run_task, warm_up):
         self.connection, child = context.Pipe()
-        self.process = context.Process(target=_worker, args=(child, memory_limit_bytes), daemon=True)
+        self.process = context.Process(target=_worker, args=(child, memory_limit_bytes, run_task, warm_up),
+                                       daemon=True)
         self.process.start()
         child.close()
         self.ready = False
@@ -117,8 +117,8 @@ def _death(exitcode: int | None) -> str:
     return f"the worker process exited with status {exitcode}"
 
 
-def run_local(todo: list[tuple[dict, list[dict]]], workers: int, memory_limit_gb: float | None = None,
-              timeout_s: float | None = None):
+def run_local(todo: list[tuple[dict, list[dict]]], workers: int, run_task, failed_row, warm_up=None,
+              memory_limit_gb: float | None = None, timeout_s: float | None = None):
     """Run ``(case, variant specs)`` tasks on local worker processes.
 
     Parameters
@@ -128,6 +128,14 @@ def run_local(todo: list[tuple[dict, list[dict]]], workers: int, memory_limit_gb
         variants to run on each.
     workers : int
         Worker processes.
+    run_task : callable
+        ``run_task(case, specs)`` yields one result row per spec; a
+        module-level function (workers are spawned and receive it by name).
+    failed_row : callable
+        ``failed_row(case, spec, reason)``: the row of a variant whose worker
+        died or timed out.
+    warm_up : callable, optional
+        Run once by each worker before its first task.
     memory_limit_gb : float, optional
         Data-segment limit of each worker, GiB (``None`` or 0: none).
     timeout_s : float, optional
@@ -144,13 +152,10 @@ def run_local(todo: list[tuple[dict, list[dict]]], workers: int, memory_limit_gb
     BenchError
         If a worker process cannot start.
     """
-    from benchmarks.runner import error_row
-    from benchmarks.suite import Case
-
     context = multiprocessing.get_context("spawn")
     limit = int(memory_limit_gb * 2 ** 30) if memory_limit_gb else None
     queue = collections.deque(todo)
-    slots = [_Slot(context, limit) for _ in range(max(1, min(workers, len(todo))))]
+    slots = [_Slot(context, limit, run_task, warm_up) for _ in range(max(1, min(workers, len(todo))))]
     try:
         while queue or any(slot.task for slot in slots):
             for slot in slots:
@@ -169,10 +174,10 @@ def run_local(todo: list[tuple[dict, list[dict]]], workers: int, memory_limit_gb
                         case, pending = slot.task
                         reason = (f"no result within {timeout_s:g} s (stopped)" if silent
                                   else _death(slot.process.exitcode))
-                        rows.append(error_row(Case.from_dict(case), pending[0], reason))
+                        rows.append(failed_row(case, pending[0], reason))
                         if pending[1:]:
                             queue.appendleft((case, pending[1:]))
-                    slots[index] = _Slot(context, limit)
+                    slots[index] = _Slot(context, limit, run_task, warm_up)
                 if rows:
                     yield rows
     finally:

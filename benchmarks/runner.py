@@ -185,6 +185,16 @@ def error_row(case: Case, spec: dict, message: str) -> dict:
     return _row(case, spec, {"targets": []}, None, None, None, message)
 
 
+def _failed_row(case: dict, spec: dict, message: str) -> dict:
+    """:func:`error_row` of a case given as :meth:`~benchmarks.suite.Case.to_dict` (what the pool holds)."""
+    return error_row(Case.from_dict(case), spec, message)
+
+
+def _warm_up() -> None:
+    """Compile the simulator's kernels once per worker, so that no case pays for it."""
+    simulate_case(Case("warm-up", {"builtin": "knife-edge"}, {"window": {"theta_deg": [0, 0], "psi_deg": [90, 90]}}, 0))
+
+
 def _message(exc: BaseException) -> str:
     """``Type: message``, and where it was raised unless it is a user-facing error (ValueError)."""
     text = f"{type(exc).__name__}: {exc}"
@@ -314,7 +324,8 @@ def _dispatch(todo: list[tuple[dict, list[dict]]], workers: int | None, schedule
             for row in case_rows(case, specs):
                 yield [row]
     else:
-        yield from run_local(todo, workers or os.cpu_count() or 1, memory_limit_gb, timeout_s)
+        yield from run_local(todo, workers or os.cpu_count() or 1, case_rows, _failed_row, _warm_up, memory_limit_gb,
+                             timeout_s)
 
 
 def _dispatch_dask(todo: list[tuple[dict, list[dict]]], address: str):

@@ -20,7 +20,7 @@ from scenes.fields import Fields
 from scenes.leaf import PEAR, leaf_objects, sample_pear_leaf
 from scenes.materials import material_from_spec
 from scenes.pose import Pose, pose_from_spec
-from scenes.primitives import cross, facet_size_m, rectangle
+from scenes.primitives import cross, facet_size_m, rectangle, section_beam
 from scenes.scene import Material, SceneObject
 from scenes.shapes import box_mesh, disk_mesh, ellipsoid_mesh, frustum_volume, tube_mesh
 from scenes.surfaces import SURFACE_NAMES, get_surface, surface_mesh, surface_parameters, surface_truth
@@ -161,7 +161,7 @@ def build_surface(f: Fields, name: str, ctx: Context):
         raise f.error("params", str(exc)) from None
     size = f.number("size", positive=True, unit="m")
     pose = _pose(f, ctx)
-    facet = facet_size_m(_distance(ctx, pose), ctx.scanner)
+    facet = facet_size_m(_distance(ctx, pose), *section_beam(ctx.scanner))
     resolution = f.number("resolution", min(1001, math.ceil(size / facet) + 1), integer=True, low=2)
     local, faces, scale, center = surface_mesh(surface, size, resolution)
     return _single(f, name, "surface", local, faces, pose, surface_truth(surface, pose, scale, center))
@@ -239,7 +239,7 @@ def _leaf_shape(f: Fields):
 def build_leaf(f: Fields, name: str, ctx: Context):
     shape, seed = _leaf_shape(f)
     pose = _rigid_pose(f, ctx)
-    facet = f.number("facet", facet_size_m(_distance(ctx, pose), ctx.scanner), positive=True, unit="m")
+    facet = f.number("facet", facet_size_m(_distance(ctx, pose), *section_beam(ctx.scanner)), positive=True, unit="m")
     material = _material(f, default=material_from_spec("pear-leaf"))
     extra = {"preset": "pear", "seed": seed}
     return leaf_objects([shape], pose.rotation[None], pose.translation[None], [name], [material], facet,
@@ -259,7 +259,8 @@ def _leaf_facet(ctx: Context, detail: float):
     """Facet of population leaves: ``detail`` x the footprint diameter at each leaf's distance."""
 
     def facet(anchors):
-        return facet_size_m(np.linalg.norm(anchors - ctx.scanner_position, axis=1), ctx.scanner, fraction=detail)
+        return facet_size_m(np.linalg.norm(anchors - ctx.scanner_position, axis=1), *section_beam(ctx.scanner),
+                            fraction=detail)
 
     return facet
 

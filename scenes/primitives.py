@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from scenes.errors import SceneError
@@ -108,32 +110,47 @@ def square_to_disk(u, v) -> tuple[np.ndarray, np.ndarray]:
 
 #: Largest facet, as a fraction of the beam footprint diameter, that the scanner cannot resolve.
 FACET_FRACTION = 0.25
+#: The beam that facets are sized for when a scene's scanner section names none: 1/e² waist radius (m) and
+#: half-angle divergence (deg) of the ``faro-ls880`` preset (:mod:`tlssim.scanner`; a test checks they agree).
+DEFAULT_BEAM_WAIST_RADIUS_M, DEFAULT_DIVERGENCE_DEG = 0.0015, 0.014
 
 
-def facet_size_m(distance_m, scanner: dict | None = None, fraction: float = FACET_FRACTION):
+def section_beam(scanner: dict | None) -> tuple[float, float]:
+    """Beam waist radius (m) and divergence (deg) of a scene's scanner section, defaults where it gives none.
+
+    Parameters
+    ----------
+    scanner : dict or None
+        The scene's scanner section; its ``beam_waist_radius_m`` and
+        ``divergence_deg`` entries are used when present.
+    """
+    scanner = scanner or {}
+    return (scanner.get("beam_waist_radius_m", DEFAULT_BEAM_WAIST_RADIUS_M),
+            scanner.get("divergence_deg", DEFAULT_DIVERGENCE_DEG))
+
+
+def facet_size_m(distance_m, beam_waist_radius_m: float = DEFAULT_BEAM_WAIST_RADIUS_M,
+                 divergence_deg: float = DEFAULT_DIVERGENCE_DEG, fraction: float = FACET_FRACTION):
     """Facet (triangle edge) size that the scanner cannot see at ``distance_m``.
 
     The rule: facets no larger than ``fraction`` (default 1/4) of the 1/e²
     beam footprint diameter ``2 (w0 + d tan(divergence))`` of the scene's
     scanner at that distance, so that every footprint averages over many
     facets and the mesh's piecewise-flat shape does not show in range or
-    intensity. For the FARO LS880 preset this is 0.87 mm at 1 m, 0.93 mm at
-    1.5 m, 1.1 mm at 3 m and 1.4 mm at 5 m.
+    intensity. For the FARO LS880 beam (the default) this is 0.87 mm at 1 m,
+    0.93 mm at 1.5 m, 1.1 mm at 3 m and 1.4 mm at 5 m.
 
     Parameters
     ----------
     distance_m : float or ndarray
         Distance from the scanner, m.
-    scanner : dict, optional
-        The scene's scanner section (its ``preset`` and any
-        ``beam_waist_radius_m`` / ``divergence_deg`` override are used);
-        default: the ``faro-ls880`` preset.
+    beam_waist_radius_m : float
+        1/e² beam radius at the exit aperture, m (see :func:`section_beam`).
+    divergence_deg : float
+        Half-angle divergence of the 1/e² radius, degrees.
     fraction : float
         Facet size as a fraction of the footprint diameter.
     """
-    from tlssim.scanner import get_preset  # lazy: tlssim imports scenes
-
-    scanner = scanner or {}
-    beam = {k: scanner[k] for k in ("beam_waist_radius_m", "divergence_deg") if k in scanner}
-    model = get_preset(scanner.get("preset", "faro-ls880"), **beam)
-    return fraction * 2.0 * model.beam_radius_m(np.maximum(np.asarray(distance_m, dtype=float), 0.0))
+    radius = beam_waist_radius_m + np.maximum(np.asarray(distance_m, dtype=float), 0.0) * math.tan(
+        math.radians(divergence_deg))
+    return fraction * 2.0 * radius

@@ -367,7 +367,8 @@ def test_invalid_cases_are_refused_and_failed_results_exit_non_zero(tiny_path, t
 _ORPHAN = """
 import multiprocessing, time
 from benchmarks.pool import _Slot
-slot = _Slot(multiprocessing.get_context("spawn"), None)
+from benchmarks.runner import _warm_up, case_rows
+slot = _Slot(multiprocessing.get_context("spawn"), None, case_rows, _warm_up)
 while not slot.ready:  # the worker has warmed up and waits for a case
     slot.collect()
     time.sleep(0.1)

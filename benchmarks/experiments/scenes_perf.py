@@ -1,6 +1,6 @@
-"""Benchmark: build time of the big built-in scenes, and optionally their scan time.
+"""Build time of the big built-in scenes, and optionally their scan time.
 
-Run ``python -m scenes.bench [--repeat N] [--scan] [NAME ...]``; it prints
+Run ``tlsbench perf scenes [--repeat N] [--scan] [NAME ...]``; it prints
 one line per scene with the median build time (wall and CPU, since the
 machine may be shared) over ``N`` builds, the object
 and triangle counts, and with ``--scan`` the time of one simulated scan of
@@ -9,22 +9,28 @@ the scene's own window (default scanner settings, no progress bar).
 
 from __future__ import annotations
 
-import argparse
 import platform
 import statistics
 import time
 
 import scenes
+from tlssim.simulate import setup_from_section, simulate
 
 DEFAULT_SCENES = ("orchard-row", "leafy-tree", "leafless-tree", "leaf-cluster", "leaf-1.5m", "surface-hemisphere")
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m scenes.bench", description=__doc__.splitlines()[0])
-    parser.add_argument("names", nargs="*", default=list(DEFAULT_SCENES), help="built-in scenes to time")
-    parser.add_argument("--repeat", type=int, default=3, help="builds per scene (median reported)")
-    parser.add_argument("--scan", action="store_true", help="also time one scan of each scene's window")
-    args = parser.parse_args(argv)
+def add_parser(sub) -> None:
+    """Register ``scenes`` with the ``tlsbench perf`` sub-commands."""
+    p = sub.add_parser("scenes", help="build (and scan) time of the big built-in scenes",
+                       description=__doc__.splitlines()[0])
+    p.add_argument("names", nargs="*", default=list(DEFAULT_SCENES), help="built-in scenes to time")
+    p.add_argument("--repeat", type=int, default=3, help="builds per scene (median reported)")
+    p.add_argument("--scan", action="store_true", help="also time one scan of each scene's window")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    """Print one line of timings per scene of ``args.names``."""
     print(f"machine: {platform.machine()} {platform.processor() or ''}, python {platform.python_version()}")
     for name in args.names:
         times, cpu = [], []
@@ -38,8 +44,6 @@ def main(argv: list[str] | None = None) -> int:
                 f"(medians of {len(times)})  "
                 f"{len(scene.objects):6d} objects  {triangles / 1e6:6.3f} M triangles")
         if args.scan:
-            from tlssim.simulate import setup_from_section, simulate
-
             setup = setup_from_section(scene.scanner)
             start = time.perf_counter()
             simulate(scene, setup, progress=False)
@@ -47,7 +51,3 @@ def main(argv: list[str] | None = None) -> int:
             line += f"  scan {time.perf_counter() - start:6.1f} s ({rows} x {cols} pulses)"
         print(line, flush=True)
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
