@@ -11,7 +11,39 @@ from __future__ import annotations
 
 import numpy as np
 
-from scenes.primitives import orthonormal_frame
+from woody.errors import WoodyError
+
+
+def orthonormal_frame(normal, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Right-handed frame ``(u, v, n)`` with ``n`` along ``normal`` and ``v`` as close to ``up`` as possible.
+
+    The same construction as :func:`scenes.primitives.orthonormal_frame`,
+    kept here so that reconstruction does not load the scene library.
+
+    Parameters
+    ----------
+    normal : array_like, shape (3,)
+        Direction of the frame's third axis (need not be unit length).
+    up : array_like, shape (3,), optional
+        Preferred direction of the second axis; replaced by +x when it is
+        parallel to ``normal``.
+
+    Returns
+    -------
+    u, v, n : ndarray, shape (3,)
+        Unit vectors with ``u × v = n``.
+    """
+    n = np.asarray(normal, dtype=float)
+    length = np.linalg.norm(n)
+    if not np.isfinite(length) or length == 0:
+        raise WoodyError(f"a direction must be a finite non-zero vector, got {normal!r}")
+    n = n / length
+    up = np.asarray(up, dtype=float)
+    v = up - np.dot(up, n) * n
+    if np.linalg.norm(v) < 1e-9:
+        v = np.array([1.0, 0.0, 0.0]) - n[0] * n
+    v /= np.linalg.norm(v)
+    return np.cross(v, n), v, n
 
 
 def frustum_volume(r0, r1, length):

@@ -20,9 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from scenes.primitives import orthonormal_frame
 from woody.errors import WoodyError
-from woody.geometry import cylinder_arrays, cylinders_volume, segment_distance
+from woody.geometry import cylinder_arrays, cylinders_volume, orthonormal_frame, segment_distance
 
 
 @dataclass
