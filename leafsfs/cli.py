@@ -1,4 +1,8 @@
-"""The ``leafsfs`` command line: ``leafsfs reconstruct SCAN -o OUTDIR``, ``perf``, ``compare``."""
+"""The ``leafsfs`` command line: ``leafsfs reconstruct SCAN -o OUTDIR``.
+
+The engine's run-time benchmark and the buffer/fused comparison are
+``tlsbench perf sfs`` and ``tlsbench experiment sfs-compare``.
+"""
 
 from __future__ import annotations
 
@@ -29,18 +33,6 @@ def build_parser() -> argparse.ArgumentParser:
                                   "(default: automatic leaf segmentation)")
     p.add_argument("--params", help="JSON file of PROP-SFS parameters (leafsfs.SfsParams fields)")
     p.set_defaults(func=_reconstruct)
-    p = sub.add_parser("perf", help="runtime against alpha-matrix size and quantisation",
-                       description="Time the engine on hemispheres of growing size and on leaf masks; fit the "
-                                   "log-log slope; profile one 10 000-pixel leaf.")
-    p.add_argument("--sizes", default="25,50,100,150,200", help="matrix sides (default 25,50,100,150,200)")
-    p.add_argument("--repeat", type=int, default=3, help="repetitions per case, medians reported (default 3)")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(func=_perf)
-    p = sub.add_parser("compare", help="buffer against fused on analytic surfaces and a simulated leaf",
-                       description="The accuracy of the buffer and fused variants under alpha noise and bias "
-                                   "(analytic surfaces) and under a biased calibration (simulated leaf).")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(func=_compare)
     return parser
 
 
@@ -95,29 +87,6 @@ def _load_scan(path: Path):
 
         return formats.import_scan(path)
     raise SfsError(f"{path}: unknown scan format {suffix!r}; allowed: .npz, .e57, .ptx")
-
-
-def _perf(args) -> int:
-    from leafsfs.errors import SfsError
-    from leafsfs.perf import print_report, run_perf
-
-    try:
-        sizes = [int(s) for s in args.sizes.split(",")]
-    except ValueError:
-        raise SfsError(f"--sizes must be comma-separated integers, got {args.sizes!r}") from None
-    if any(s < 10 for s in sizes) or args.repeat < 1:
-        raise SfsError("--sizes must be >= 10 and --repeat >= 1")
-    report = run_perf(sizes, args.repeat)
-    print(json.dumps(report, indent=1) if args.json else print_report(report))
-    return 0
-
-
-def _compare(args) -> int:
-    from leafsfs.compare import compare_leaf, compare_surfaces, print_comparison
-
-    surfaces, leaf = compare_surfaces(), compare_leaf()
-    print(json.dumps({"surfaces": surfaces, "leaf": leaf}, indent=1) if args.json else print_comparison(surfaces, leaf))
-    return 0
 
 
 if __name__ == "__main__":

@@ -85,7 +85,7 @@ class LambertCalibration:
     (:mod:`tlssim.detector`, :mod:`tlssim.radiometry`), solved for alpha.
     A stand-in for a fitted :class:`tlssim.calibration.Calibration` on
     simulated scans; an assumed reflectance different from the target's
-    gives a biased calibration (used by ``leafsfs compare``).
+    gives a biased calibration (used by ``tlsbench experiment sfs-compare``).
 
     Parameters
     ----------

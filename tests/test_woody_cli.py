@@ -1,4 +1,4 @@
-"""The ``woody`` console script: reconstruct, experiments, bench, and one-line errors."""
+"""The ``woody`` console script: reconstruct and one-line errors."""
 
 import json
 
@@ -42,36 +42,3 @@ def test_user_errors_are_one_line_messages_with_status_2(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("woody: error:") and "empty" in err and err.count("\n") == 1
     assert main(["reconstruct", str(path), "--method", "step", "-o", str(tmp_path / "o"), "--cell-m", "0.01"]) == 2
-    assert main(["experiments", "--only", "nonsense"]) == 2
-
-
-def test_experiments_write_tables_and_json(tmp_path, capsys):
-    assert main(["experiments", "--quick", "--only", "directions", "-o", str(tmp_path)]) == 0
-    rows = json.loads((tmp_path / "directions.json").read_text())
-    assert {r["estimator"] for r in rows} == {"covariance", "iterative", "normals"}
-    assert all(r["angle_mean_deg"] < 5 for r in rows)
-    assert "angle_mean_deg" in capsys.readouterr().out
-
-
-def test_bench_reports_time_memory_and_nlogn(capsys):
-    assert main(["bench", "--sizes", "2000", "--methods", "cylinders", "--json"]) == 0
-    report = json.loads(capsys.readouterr().out)
-    row = report["rows"][0]
-    assert row["method"] == "cylinders" and abs(row["points"] - 2000) < 200
-    assert row["time_s"] > 0 and row["peak_mb"] >= 0
-    assert row["us_per_nlogn"] == 1e6 * row["time_s"] / (row["points"] * np.log2(row["points"]))
-
-
-def test_goal_lines_judge_the_worst_case_within_the_goal_range():
-    from woody.experiments import goal_lines
-
-    rows = [{"arc_deg": arc, "normals": "pca", "circles": "refit", "diameter_mae_cm": mae}
-            for arc, mae in ((10, 9.0), (40, 0.8), (90, 0.2))]
-    (line,) = goal_lines("occlusion", rows)
-    assert ": met; worst 0.80 cm at arc_deg = 40" in line  # the 10-deg arc is outside the goal's range
-    rows[1]["diameter_mae_cm"] = 1.2
-    assert "NOT met" in goal_lines("occlusion", rows)[0]
-    trees = [{"tree": "apple-like", "sampling": "one side", "method": "cylinders (spec)", "volume_error_pct": -10.5},
-             {"tree": "apple-like", "sampling": "one side", "method": "step (pca)", "volume_error_pct": 1.0}]
-    assert goal_lines("trees", trees) == ["goal |volume error| <= 10 %, apple-like, one side, cylinders (spec): "
-                                          "NOT met (-10.5 %)"]

@@ -17,7 +17,6 @@ COMMAND_MODULES = (
     "tlssim.commands.scan",
     "tlssim.commands.scenes",
     "tlssim.commands.presets",
-    "tlssim.commands.perf",
     "tlssim.commands.truth",
     "tlssim.commands.preview",
     "tlssim.commands.formats",

@@ -4,10 +4,10 @@
   the woody structure of a point cloud (NPZ, PLY, LAS, E57) and write
   ``cylinders.json`` (cylinder list, volume, run statistics), ``mesh.ply``
   and the method's own output (``tuboids.json`` for STEP; ``branches.json``
-  with the skeleton and ``point_labels.npy`` for cylinder following);
-- ``woody experiments -o DIR``: the experiments of the woody spec (Part C),
-  printed as tables and written as JSON and plots;
-- ``woody bench``: run time and peak memory against point count.
+  with the skeleton and ``point_labels.npy`` for cylinder following).
+
+The experiments of the woody spec and the run-time benchmark are
+``tlsbench experiment woody`` and ``tlsbench perf woody``.
 """
 
 from __future__ import annotations
@@ -47,21 +47,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help="cylinders: output cylinder length in branch radii; 0 = one per branch (default 4)")
     p.set_defaults(func=run_reconstruct)
 
-    p = sub.add_parser("experiments", help="run the woody experiments (tables, JSON, plots)",
-                       description="Cylinder sweeps (density, occlusion, noise), curved tube, conifer stem, "
-                                   "apple-like and vine-like trees.")
-    p.add_argument("-o", "--output", default="woody-experiments", help="output directory")
-    p.add_argument("--only", default=None,
-                   help="comma-separated subset of: density, occlusion, noise, tube, conifer, trees, directions")
-    p.add_argument("--quick", action="store_true", help="fewer levels and lower densities (a smoke run)")
-    p.add_argument("--seed", type=int, default=0)
-    p.set_defaults(func=run_experiments)
-
-    p = sub.add_parser("bench", help="time and peak memory against point count for both methods")
-    p.add_argument("--sizes", default="1e4,3e4,1e5,3e5,1e6", help="comma-separated point counts")
-    p.add_argument("--methods", default="step,cylinders", help="comma-separated: step, cylinders")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(func=run_bench)
     return parser
 
 
@@ -99,35 +84,6 @@ def run_reconstruct(args) -> int:
     kind = "tuboids" if args.method == "step" else "branches"
     count = len(result.tuboids) if args.method == "step" else len(result.branches)
     print(f"{count} {kind}, {len(cylinders)} cylinders, volume {result.volume * 1e3:.3f} dm^3 -> {out}")
-    return 0
-
-
-def run_experiments(args) -> int:
-    from woody.experiments import EXPERIMENTS, run_all
-
-    only = None if args.only is None else [name.strip() for name in args.only.split(",") if name.strip()]
-    unknown = sorted(set(only or []) - set(EXPERIMENTS))
-    if unknown:
-        raise ValueError(f"unknown experiment(s) {unknown}; choose from {', '.join(EXPERIMENTS)}")
-    run_all(Path(args.output), only=only, quick=args.quick, seed=args.seed)
-    return 0
-
-
-def run_bench(args) -> int:
-    from woody.perf import print_report, run_perf
-
-    try:
-        sizes = [int(float(s)) for s in args.sizes.split(",")]
-    except ValueError:
-        raise ValueError(f"--sizes must be comma-separated numbers, got {args.sizes!r}") from None
-    methods = [m.strip() for m in args.methods.split(",")]
-    if not sizes or min(sizes) < 100 or set(methods) - {"step", "cylinders"}:
-        raise ValueError("--sizes must be point counts >= 100 and --methods a subset of step, cylinders")
-    report = run_perf(sizes, methods)
-    if args.json:
-        print(json.dumps(report, indent=2))
-    else:
-        print_report(report)
     return 0
 
 

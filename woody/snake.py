@@ -51,7 +51,7 @@ class SnakeParams:
 
     The paper reports none of these values; the defaults are the spec's
     starting points (D-S6, D-S7, D-S8) tuned on the synthetic cylinder and
-    curved tube (see ``woody experiments``).
+    curved tube (see ``tlsbench experiment woody``).
 
     Attributes
     ----------

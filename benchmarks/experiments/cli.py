@@ -10,9 +10,10 @@ from __future__ import annotations
 import importlib
 
 #: Modules of ``tlsbench experiment NAME`` (each registers one NAME).
-EXPERIMENT_MODULES: tuple[str, ...] = ()
+EXPERIMENT_MODULES: tuple[str, ...] = ("benchmarks.experiments.sfs_compare", "benchmarks.experiments.woody_experiments")
 #: Modules of ``tlsbench perf NAME``.
-PERF_MODULES: tuple[str, ...] = ("benchmarks.experiments.scenes_perf",)
+PERF_MODULES: tuple[str, ...] = ("benchmarks.experiments.scenes_perf", "benchmarks.experiments.simulator_perf",
+                                 "benchmarks.experiments.sfs_perf", "benchmarks.experiments.woody_perf")
 
 
 def add_parsers(sub) -> None:

@@ -1,4 +1,4 @@
-"""Throughput benchmark: simulator pulses/s against the backend's raw first-hit rate.
+"""Throughput benchmark: simulator pulses/s against the backend's raw first-hit rate (``tlsbench perf simulator``).
 
 Both are measured in the same process on the same sub-rays: the raw rate is
 ``ray_intersect_preliminary`` on pre-built sub-rays (distance and primitive
@@ -9,6 +9,7 @@ to end (ray generation, tracing, radiometry, phasor sums, truth, detector).
 
 from __future__ import annotations
 
+import json
 import platform
 import resource
 import statistics
@@ -17,7 +18,8 @@ import time
 import numpy as np
 
 import scenes
-from tlssim.backend import TraceScene, select_backend
+from benchmarks.errors import BenchError
+from tlssim.backend import BACKENDS, TraceScene, select_backend
 from tlssim.beam import sample_beam
 from tlssim.pattern import ScanWindow
 from tlssim.simulate import CHUNK_SUBRAYS, ScanSetup, setup_from_section, simulate
@@ -107,3 +109,32 @@ def run_perf(size: int = 500, repeat: int = 3, backend: str = "auto") -> dict:
         "efficiency": pulses_per_s * subrays / raw,
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
     }
+
+
+def add_parser(sub) -> None:
+    """Register ``simulator`` with the ``tlsbench perf`` sub-commands."""
+    p = sub.add_parser("simulator", help="simulator throughput and memory",
+                       description="Scan a fixed built-in scene; report raw rays/s, pulses/s, efficiency, peak memory.")
+    p.add_argument("--size", type=int, default=500, help="window of SIZE x SIZE pulses (default 500)")
+    p.add_argument("--repeat", type=int, default=3, help="repetitions, medians reported (default 3)")
+    p.add_argument("--backend", choices=BACKENDS, default="auto")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    """Measure with the parsed arguments and print the report."""
+    if args.size < 2 or args.repeat < 1:
+        raise BenchError("--size must be >= 2 and --repeat >= 1")
+    report = run_perf(size=args.size, repeat=args.repeat, backend=args.backend)
+    if args.json:
+        print(json.dumps(report, indent=2))
+        return 0
+    print(f"scene {report['scene']} ({report['triangles']} triangles), {args.size}x{args.size} pulses, "
+          f"{report['subrays']} sub-rays, backend {report['backend']}, medians of {report['repeat']}")
+    print(f"  raw first-hit rate   {report['raw_rays_per_s'] / 1e6:8.2f} Mrays/s")
+    print(f"  simulator            {report['pulses_per_s'] / 1e3:8.1f} kpulses/s "
+          f"({report['subrays_per_s'] / 1e6:.2f} Msub-rays/s)")
+    print(f"  efficiency           {report['efficiency']:8.2f}  (goal >= 0.6)")
+    print(f"  peak memory (RSS)    {report['peak_rss_mb']:8.0f} MB")
+    return 0

@@ -1,4 +1,4 @@
-"""Buffer against fused: the numbers behind the fused variant (``leafsfs compare``).
+"""Buffer against fused: the numbers behind the fused variant (``tlsbench experiment sfs-compare``).
 
 Two experiments, each reporting, per variant, the median and 90th
 percentile of the absolute height (range) error and the share of pixels
@@ -18,11 +18,17 @@ within a tolerance:
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 
+import scenes
 from leafsfs.engine import reconstruct_heights
 from leafsfs.params import SfsParams
+from leafsfs.reconstruct import reconstruct
 from leafsfs.synthetic import LambertCalibration, sample_surface
+from scenes.surfaces import get_surface
+from tlssim.simulate import setup_from_section, simulate
 
 SURFACES = (("hemisphere", 41), ("ellipsoid", 40), ("saddle", 50), ("complex", 80))
 BIASES = (-5.0, 0.0, 5.0)
@@ -37,8 +43,6 @@ def _summary(errors: np.ndarray, tolerance: float) -> dict:
 
 def compare_surfaces(seed: int = 2) -> list[dict]:
     """Experiment 1 (see the module docstring)."""
-    from scenes.surfaces import get_surface
-
     rows = []
     for name, side in SURFACES:
         for bias in BIASES:
@@ -57,13 +61,8 @@ def compare_surfaces(seed: int = 2) -> list[dict]:
 
 def compare_leaf(seed: int = 0) -> list[dict]:
     """Experiment 2 (see the module docstring)."""
-    import scenes
-    import tlssim
-
-    from leafsfs.reconstruct import reconstruct
-
     scene = scenes.build("leaf-1.5m")
-    scan = tlssim.simulate(scene, tlssim.setup_from_section(scene.scanner), seed=seed, progress=False)
+    scan = simulate(scene, setup_from_section(scene.scanner), seed=seed, progress=False)
     leaf_id = scan.object_names.index("leaf")
     on_leaf = (scan.truth_id == leaf_id) & (np.abs(scan.truth_range - np.nanmedian(scan.range[scan.truth_id == leaf_id]))
                                             < 0.2)
@@ -101,3 +100,19 @@ def print_comparison(surfaces: list[dict], leaf: list[dict]) -> str:
                          f"{row[v]['area_cm2']:8.1f}")
     lines.append(f"true leaf area {leaf[0]['true_area_cm2']:.1f} cm2" if leaf else "")
     return "\n".join(lines)
+
+
+def add_parser(sub) -> None:
+    """Register ``sfs-compare`` with the ``tlsbench experiment`` sub-commands."""
+    p = sub.add_parser("sfs-compare", help="PROP-SFS buffer against fused on analytic surfaces and a simulated leaf",
+                       description="The accuracy of the buffer and fused variants under alpha noise and bias "
+                                   "(analytic surfaces) and under a biased calibration (simulated leaf).")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    """Run both experiments and print them."""
+    surfaces, leaf = compare_surfaces(), compare_leaf()
+    print(json.dumps({"surfaces": surfaces, "leaf": leaf}, indent=1) if args.json else print_comparison(surfaces, leaf))
+    return 0

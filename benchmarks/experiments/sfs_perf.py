@@ -1,5 +1,7 @@
 """Runtime of PROP-SFS against alpha-matrix size and quantisation (thesis ch.5 §3.4), with a profile.
 
+Run as ``tlsbench perf sfs``.
+
 The thesis fitted ``t = 0.022 a_tot^1.37 / eps_alpha^1.12 + 14`` on
 hemispheres of sides 25-58 (digest A15: a shape target, not absolute
 times). Here: hemispheres of the given sides (radius = half the side) at
@@ -15,6 +17,7 @@ otherwise idle machine for comparable numbers.
 from __future__ import annotations
 
 import cProfile
+import json
 import os
 import platform
 import pstats
@@ -23,9 +26,13 @@ import time
 
 import numpy as np
 
+import scenes
+from benchmarks.errors import BenchError
 from leafsfs.engine import reconstruct_heights
 from leafsfs.params import SfsParams
 from leafsfs.synthetic import sample_surface
+from scenes.surfaces import get_surface
+from tlssim.simulate import setup_from_section, simulate
 
 EPSILONS = (0.05, 0.10, 0.15, 0.20)
 LEAF_SCENES = ("leaf-1.5m", "leaf-3m", "leaf-5m")
@@ -46,8 +53,6 @@ def _time(run, repeat: int) -> float:
 
 
 def _hemisphere(side: int):
-    from scenes.surfaces import get_surface
-
     return sample_surface(get_surface("hemisphere", radius=side / 2.0), side)
 
 
@@ -57,13 +62,10 @@ def _slope(x, y) -> float:
 
 def leaf_inputs():
     """``(name, alpha, height, mask)`` of the simulated leaf scenes (true incidence, noise-free ranges)."""
-    import scenes
-    import tlssim
-
     out = []
     for name in LEAF_SCENES:
         scene = scenes.build(name)
-        scan = tlssim.simulate(scene, tlssim.setup_from_section(scene.scanner), seed=0, progress=False)
+        scan = simulate(scene, setup_from_section(scene.scanner), seed=0, progress=False)
         mask = (scan.truth_id == 0) & (scan.mixed_fraction < 0.05)
         out.append((name, np.where(mask, scan.incidence, np.nan), scan.range, mask))
     return out
@@ -156,3 +158,27 @@ def print_report(report: dict) -> str:
     lines.append("  cumulative, leafsfs functions:")
     lines += [f"  {item['function']:48s} {item['seconds']:7.3f} s" for item in prof["cumulative_top"]]
     return "\n".join(lines)
+
+
+def add_parser(sub) -> None:
+    """Register ``sfs`` with the ``tlsbench perf`` sub-commands."""
+    p = sub.add_parser("sfs", help="PROP-SFS runtime against alpha-matrix size and quantisation",
+                       description="Time the engine on hemispheres of growing size and on leaf masks; fit the "
+                                   "log-log slope; profile one 10 000-pixel leaf.")
+    p.add_argument("--sizes", default="25,50,100,150,200", help="matrix sides (default 25,50,100,150,200)")
+    p.add_argument("--repeat", type=int, default=3, help="repetitions per case, medians reported (default 3)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    """Measure with the parsed arguments and print the report."""
+    try:
+        sizes = [int(s) for s in args.sizes.split(",")]
+    except ValueError:
+        raise BenchError(f"--sizes must be comma-separated integers, got {args.sizes!r}") from None
+    if any(s < 10 for s in sizes) or args.repeat < 1:
+        raise BenchError("--sizes must be >= 10 and --repeat >= 1")
+    report = run_perf(sizes, args.repeat)
+    print(json.dumps(report, indent=1) if args.json else print_report(report))
+    return 0

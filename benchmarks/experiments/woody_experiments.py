@@ -1,4 +1,4 @@
-"""The experiments of the woody spec (Part C), rebuilt on synthetic clouds.
+"""The experiments of the woody spec (Part C), rebuilt on synthetic clouds (``tlsbench experiment woody``).
 
 Each experiment prints a table and writes ``<name>.json`` (and a plot where
 one helps) under the output directory. Clouds are drawn on truth cylinders
@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.errors import BenchError
 from woody.cylinders import fit_direction, follow_cylinders
 from woody.normals import pca_normals
 from woody.scoring import score
@@ -350,3 +351,25 @@ def run_all(out: Path, only=None, quick: bool = False, seed: int = 0) -> dict:
         (out / f"{name}.json").write_text(json.dumps(rows, indent=1, default=float))
         _plot(name, rows, out)
     return results
+
+
+def add_parser(sub) -> None:
+    """Register ``woody`` with the ``tlsbench experiment`` sub-commands."""
+    p = sub.add_parser("woody", help="the woody experiments (tables, JSON, plots)",
+                       description="Cylinder sweeps (density, occlusion, noise), curved tube, conifer stem, "
+                                   "apple-like and vine-like trees.")
+    p.add_argument("-o", "--output", default="woody-experiments", help="output directory")
+    p.add_argument("--only", default=None, help=f"comma-separated subset of: {', '.join(EXPERIMENTS)}")
+    p.add_argument("--quick", action="store_true", help="fewer levels and lower densities (a smoke run)")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    """Run the selected experiments with the parsed arguments."""
+    only = None if args.only is None else [name.strip() for name in args.only.split(",") if name.strip()]
+    unknown = sorted(set(only or []) - set(EXPERIMENTS))
+    if unknown:
+        raise BenchError(f"unknown experiment(s) {unknown}; choose from {', '.join(EXPERIMENTS)}")
+    run_all(Path(args.output), only=only, quick=args.quick, seed=args.seed)
+    return 0

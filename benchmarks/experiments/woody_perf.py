@@ -1,4 +1,4 @@
-"""Run time and peak memory of both methods against point count.
+"""Run time and peak memory of both methods against point count (``tlsbench perf woody``).
 
 Each measurement runs in a fresh process (``multiprocessing`` spawn), so
 that its peak resident memory is its own: the figure reported is the peak
@@ -16,12 +16,15 @@ one heap push per neighbour per point); the report gives the time per
 
 from __future__ import annotations
 
+import json
 import multiprocessing
 import platform
 import resource
 import time
 
 import numpy as np
+
+from benchmarks.errors import BenchError
 
 
 def _geometry(method: str):
@@ -88,3 +91,29 @@ def print_report(report: dict) -> None:
             note = f"{stats['branches']} branches, volume error {100 * row['volume_error']:+.1f} %"
         print(f"{row['method']:<10} {row['points']:>9} {row['time_s']:>9.2f} {row['peak_mb']:>9.1f} "
               f"{row['us_per_nlogn']:>9.3f}  {note}")
+
+
+def add_parser(sub) -> None:
+    """Register ``woody`` with the ``tlsbench perf`` sub-commands."""
+    p = sub.add_parser("woody", help="STEP and cylinder following: time and peak memory against point count")
+    p.add_argument("--sizes", default="1e4,3e4,1e5,3e5,1e6", help="comma-separated point counts")
+    p.add_argument("--methods", default="step,cylinders", help="comma-separated: step, cylinders")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    """Measure with the parsed arguments and print the report."""
+    try:
+        sizes = [int(float(s)) for s in args.sizes.split(",")]
+    except ValueError:
+        raise BenchError(f"--sizes must be comma-separated numbers, got {args.sizes!r}") from None
+    methods = [m.strip() for m in args.methods.split(",")]
+    if not sizes or min(sizes) < 100 or set(methods) - {"step", "cylinders"}:
+        raise BenchError("--sizes must be point counts >= 100 and --methods a subset of step, cylinders")
+    report = run_perf(sizes, methods)
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print_report(report)
+    return 0

@@ -1,0 +1,56 @@
+"""``tlsbench experiment NAME`` and ``tlsbench perf NAME``: the experiments and perf harnesses of the packages."""
+
+import json
+
+import numpy as np
+
+from benchmarks.cli import main
+
+
+def test_unknown_experiment_subset_is_a_one_line_error(capsys):
+    assert main(["experiment", "woody", "--only", "nonsense"]) == 2
+    err = capsys.readouterr().err
+    assert "nonsense" in err and err.count("\n") == 1
+
+
+def test_experiments_write_tables_and_json(tmp_path, capsys):
+    assert main(["experiment", "woody", "--quick", "--only", "directions", "-o", str(tmp_path)]) == 0
+    rows = json.loads((tmp_path / "directions.json").read_text())
+    assert {r["estimator"] for r in rows} == {"covariance", "iterative", "normals"}
+    assert all(r["angle_mean_deg"] < 5 for r in rows)
+    assert "angle_mean_deg" in capsys.readouterr().out
+
+
+def test_bench_reports_time_memory_and_nlogn(capsys):
+    assert main(["perf", "woody", "--sizes", "2000", "--methods", "cylinders", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    row = report["rows"][0]
+    assert row["method"] == "cylinders" and abs(row["points"] - 2000) < 200
+    assert row["time_s"] > 0 and row["peak_mb"] >= 0
+    assert row["us_per_nlogn"] == 1e6 * row["time_s"] / (row["points"] * np.log2(row["points"]))
+
+
+def test_goal_lines_judge_the_worst_case_within_the_goal_range():
+    from benchmarks.experiments.woody_experiments import goal_lines
+
+    rows = [{"arc_deg": arc, "normals": "pca", "circles": "refit", "diameter_mae_cm": mae}
+            for arc, mae in ((10, 9.0), (40, 0.8), (90, 0.2))]
+    (line,) = goal_lines("occlusion", rows)
+    assert ": met; worst 0.80 cm at arc_deg = 40" in line  # the 10-deg arc is outside the goal's range
+    rows[1]["diameter_mae_cm"] = 1.2
+    assert "NOT met" in goal_lines("occlusion", rows)[0]
+    trees = [{"tree": "apple-like", "sampling": "one side", "method": "cylinders (spec)", "volume_error_pct": -10.5},
+             {"tree": "apple-like", "sampling": "one side", "method": "step (pca)", "volume_error_pct": 1.0}]
+    assert goal_lines("trees", trees) == ["goal |volume error| <= 10 %, apple-like, one side, cylinders (spec): "
+                                          "NOT met (-10.5 %)"]
+
+
+def test_every_experiment_and_perf_command_is_registered(capsys):
+    from benchmarks.cli import build_parser
+
+    parser = build_parser()
+    for argv in (["experiment", "woody"], ["experiment", "sfs-compare"], ["perf", "scenes"], ["perf", "simulator"],
+                 ["perf", "sfs"], ["perf", "woody"]):
+        assert callable(parser.parse_args(argv).func)
+    assert main(["perf", "sfs", "--sizes", "5"]) == 2  # refused before anything runs
+    assert "--sizes must be >= 10" in capsys.readouterr().err
