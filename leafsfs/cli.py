@@ -1,4 +1,4 @@
-"""The ``leafsfs`` command line: ``leafsfs reconstruct SCAN -o OUTDIR``.
+"""The ``leafsfs`` command line: ``leafsfs reconstruct SCAN --calibration FILE -o OUTDIR``, ``leafsfs calibrate``.
 
 The engine's run-time benchmark and the buffer/fused comparison are
 ``tlsbench perf sfs`` and ``tlsbench experiment sfs-compare``.
@@ -26,13 +26,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scan", help="scan file: .npz (tlssim), .e57 or .ptx")
     p.add_argument("-o", "--outdir", required=True, help="output directory")
     p.add_argument("--variant", choices=VARIANTS, default="buffer", help="PROP-SFS variant (default buffer)")
-    p.add_argument("--calibration", default="model",
-                   help="calibration JSON file (tlssim), or 'model' to calibrate the scan's scanner model by "
-                        "simulation (default)")
+    p.add_argument("--calibration", required=True,
+                   help="calibration JSON file ('leafsfs calibrate', or 'tlsbench experiment calibration' for a "
+                        "simulated scanner)")
     p.add_argument("--mask", help="NPZ file with a boolean or integer label array 'mask' of the scan's shape "
                                   "(default: automatic leaf segmentation)")
     p.add_argument("--params", help="JSON file of PROP-SFS parameters (leafsfs.SfsParams fields)")
     p.set_defaults(func=_reconstruct)
+    p = sub.add_parser("calibrate", help="fit the intensity calibration from a panel table and a goniometer table",
+                       description="Fit the distance correction (panel table) and the intensity-incidence relation "
+                                   "(goniometer table), both measured with 'tlssim calibrate'; write the "
+                                   "calibration JSON that 'leafsfs reconstruct --calibration' takes, and a PNG.")
+    p.add_argument("panels", help="panel table (JSON) of a panel-series scan")
+    p.add_argument("goniometer", help="goniometer table (JSON) of a goniometer scan")
+    p.add_argument("-o", "--output", default="calibration.json", help="calibration file (default calibration.json)")
+    p.add_argument("--mode", choices=("additive", "ratio"), default="additive", help="distance-correction form")
+    p.set_defaults(func=_calibrate)
     return parser
 
 
@@ -72,6 +81,23 @@ def _reconstruct(args) -> int:
           f"{int(result.outlier.sum())} outliers; rppp_1 {result.rppp()['rppp_1']:.3f}")
     for kind, path in paths.items():
         print(f"  {kind:10s} {path}")
+    return 0
+
+
+def _calibrate(args) -> int:
+    from leafsfs.calibration import fit_calibration, panel_statistics
+    from leafsfs.calibration_plot import plot_calibration
+    from tlssim.calibration import load_table
+
+    panels, model = load_table(args.panels, "panels")
+    goniometer, _ = load_table(args.goniometer, "goniometer")
+    calibration = fit_calibration(panels, goniometer, args.mode, model)
+    path = calibration.save(args.output)
+    png = plot_calibration(panels, goniometer, calibration, Path(args.output).with_suffix(".png"))
+    stats = panel_statistics(panels, calibration.curve, args.mode)
+    print(f"f99({calibration.curve.reference_distance_m} m) = {calibration.curve.reference_dn:.1f} DN; mean shift "
+          "below it by reflectance: " + ", ".join(f"{rho:.2f}: {s['mean_shift_dn']:.0f} DN" for rho, s in stats.items()))
+    print(f"  {path}\n  {png}")
     return 0
 
 

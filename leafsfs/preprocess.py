@@ -1,11 +1,14 @@
 """From scan intensities to the alpha image: distance correction and the intensity-incidence relation.
 
-The calibration (thesis ch.6; :mod:`tlssim.calibration`) corrects the
+The calibration (thesis ch.6; :mod:`leafsfs.calibration`) corrects the
 intensity for distance against the 99 % reference curve and inverts the
 fitted intensity-incidence relation: ``alpha = calibration.alpha(intensity,
 range)``, with ``calibration.reliable(...)`` false beyond its validity limit
 (about 60 deg, tls-physics §7 item 13). Any object with those two methods can
-serve; a path is read with :meth:`tlssim.calibration.Calibration.load`.
+serve; a path is read with :meth:`leafsfs.calibration.Calibration.load`.
+Reconstruction never simulates: a calibration of a simulated scanner comes
+from ``tlsbench experiment calibration`` (or
+:func:`benchmarks.experiments.calibration.simulated_calibration`).
 """
 
 from __future__ import annotations
@@ -14,40 +17,27 @@ from pathlib import Path
 
 import numpy as np
 
+from leafsfs.calibration import Calibration
 from leafsfs.errors import SfsError
 
 
 def resolve_calibration(calibration, scan=None):
-    """A calibration object from an object, a JSON path, or ``"model"`` (simulate the scan's scanner model).
+    """A calibration object from an object with ``alpha`` and ``reliable`` methods, or the path of its JSON file.
 
     Raises
     ------
     SfsError
-        If no calibration is given, or it cannot be read or built.
+        If no calibration is given, or it cannot be read.
     """
-    if calibration is None:
-        raise SfsError("PROP-SFS needs an intensity calibration: pass a tlssim Calibration, the path of its JSON "
-                       "file, or 'model' to calibrate the scan's own scanner model by simulation")
+    if calibration is None or str(calibration) == "model":
+        raise SfsError("PROP-SFS needs an intensity calibration: pass a leafsfs Calibration or the path of its JSON "
+                       "file (measure one with 'tlssim calibrate' and 'leafsfs calibrate', or simulate one for a "
+                       "scanner model with 'tlsbench experiment calibration')")
     if hasattr(calibration, "alpha") and hasattr(calibration, "reliable"):
         return calibration
     if not isinstance(calibration, (str, Path)):
-        raise SfsError(f"calibration must be a Calibration, a JSON path or 'model', got {type(calibration).__name__}")
-    from tlssim.calibration import Calibration, calibrate_model
-
-    if str(calibration) == "model":
-        if scan is None or not scan.scanner_model:
-            raise SfsError("calibration 'model' needs a scan that records its scanner model")
-        from tlssim.scanner import ScannerModel
-
-        try:
-            model = ScannerModel(**scan.scanner_model)
-        except (TypeError, ValueError) as exc:
-            raise SfsError(f"the scan's scanner model cannot be rebuilt for calibration ({exc})") from None
-        return calibrate_model(model)
-    try:
-        return Calibration.load(calibration)
-    except ValueError as exc:
-        raise SfsError(str(exc)) from None
+        raise SfsError(f"calibration must be a Calibration or a JSON path, got {type(calibration).__name__}")
+    return Calibration.load(calibration)
 
 
 def scan_alpha(intensity: np.ndarray, range_m: np.ndarray, calibration) -> tuple[np.ndarray, np.ndarray]:

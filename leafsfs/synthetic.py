@@ -83,7 +83,7 @@ class LambertCalibration:
 
     ``I = I_ref + k ln(P / P_ref)`` with ``P = rho cos(alpha) g(d)``
     (:mod:`tlssim.detector`, :mod:`tlssim.radiometry`), solved for alpha.
-    A stand-in for a fitted :class:`tlssim.calibration.Calibration` on
+    A stand-in for a fitted :class:`leafsfs.calibration.Calibration` on
     simulated scans; an assumed reflectance different from the target's
     gives a biased calibration (used by ``tlsbench experiment sfs-compare``).
 
@@ -101,8 +101,7 @@ class LambertCalibration:
         from tlssim.scanner import ScannerModel
 
         if isinstance(model, dict):
-            known = {f for f in ScannerModel.__dataclass_fields__}
-            model = ScannerModel(**{k: v for k, v in model.items() if k in known})
+            model = ScannerModel.from_dict(model)
         self.model, self.reflectance, self.limit = model, float(reflectance), np.radians(limit_deg)
 
     def alpha(self, intensity_dn, range_m) -> np.ndarray:

@@ -9,12 +9,13 @@ from scipy import ndimage
 
 import scenes
 import tlssim
+from benchmarks.experiments.calibration import simulated_calibration
 from leafsfs import SfsError, SfsParams, reconstruct
 from leafsfs.cli import main
 from leafsfs.frame import local_frame
 from leafsfs.grid import local_planes
 from leafsfs.leaves import segment_leaves
-from leafsfs.preprocess import resolve_calibration, scan_alpha
+from leafsfs.preprocess import scan_alpha
 from leafsfs.reconstruct import plausible
 from leafsfs.synthetic import LambertCalibration
 from tlssim.pattern import beam_frame
@@ -28,7 +29,8 @@ def _simulate(name):
 @pytest.fixture(scope="module")
 def leaf_scan():
     scene, scan = _simulate("leaf-1.5m")
-    return scene, scan, resolve_calibration("model", scan)  # tlssim's simulated panel + goniometer calibration
+    # the benchmarks' simulated panel + goniometer calibration of the scan's scanner model
+    return scene, scan, simulated_calibration(tlssim.ScannerModel.from_dict(scan.scanner_model))
 
 
 @pytest.fixture(scope="module")
@@ -157,12 +159,13 @@ def test_leaf_cluster_segmentation_separates_the_leaves():
         assert np.mean(scan.truth_id[labels == label] == wood) < 0.25
 
 
-def test_corrected_scan_round_trip_and_cli(leaf_scan, tmp_path, monkeypatch):
+def test_corrected_scan_round_trip_and_cli(leaf_scan, tmp_path):
     _, scan, calibration = leaf_scan
     path = scan.save(tmp_path / "leaf.npz")
-    monkeypatch.setattr(sys.modules["leafsfs.reconstruct"], "resolve_calibration", lambda spec, scan=None: calibration)
     outdir = tmp_path / "out"
-    assert main(["reconstruct", str(path), "--variant", "buffer", "-o", str(outdir)]) == 0
+    calibration_path = str(calibration.save(tmp_path / "calibration.json"))
+    assert main(["reconstruct", str(path), "--variant", "buffer", "--calibration", calibration_path, "-o",
+                 str(outdir)]) == 0
     corrected = tlssim.Scan.load(outdir / "corrected.npz")
     with np.load(path) as before, np.load(outdir / "corrected.npz") as after:
         assert set(before.files) | {"outlier", "candidates", "leaf", "background", "range_spread"} == set(after.files)
@@ -191,10 +194,10 @@ def test_reconstruct_errors(leaf_scan, tmp_path, capsys):
         SfsParams(alpha_max_deg=95)
     with pytest.raises(SfsError, match="unknown PROP-SFS variant"):
         reconstruct(scan, variant="best", calibration=calibration)
-    assert main(["reconstruct", str(tmp_path / "missing.npz"), "-o", str(tmp_path)]) == 2
+    assert main(["reconstruct", str(tmp_path / "missing.npz"), "--calibration", "c.json", "-o", str(tmp_path)]) == 2
     assert "no such scan file" in capsys.readouterr().err
     (tmp_path / "scan.xyz").write_text("1 2 3")
-    assert main(["reconstruct", str(tmp_path / "scan.xyz"), "-o", str(tmp_path)]) == 2
+    assert main(["reconstruct", str(tmp_path / "scan.xyz"), "--calibration", "c.json", "-o", str(tmp_path)]) == 2
     assert "unknown scan format" in capsys.readouterr().err
 
 

@@ -7,18 +7,22 @@ import numpy as np
 import pytest
 
 import scenes
+from benchmarks.experiments.calibration import simulated_calibration
+from leafsfs.calibration import (Calibration, IncidenceRelation, fit_calibration, fit_incidence_relation,
+                                 station_intensities)
+from leafsfs.cli import main as leafsfs_main
+from leafsfs.errors import SfsError
+from leafsfs.preprocess import resolve_calibration
 from scenes.calibration_scenes import GONIOMETER_ANGLES_DEG
-from tlssim.calibration import (Calibration, IncidenceRelation, calibrate_model, fit_incidence_relation, fit_plane,
-                                goniometer_table, patch_incidence)
+from tlssim.calibration import fit_plane, goniometer_table, load_table, panel_table, patch_incidence, save_table
 from tlssim.cli import main
-from tlssim.errors import ScanError
 from tlssim.scanner import get_preset
 from tlssim.simulate import setup_from_section, simulate
 
 
 @pytest.fixture(scope="module")
 def calibration(llvm):
-    return calibrate_model(get_preset("faro-ls880"))
+    return simulated_calibration(get_preset("faro-ls880"))
 
 
 @pytest.fixture(scope="module")
@@ -27,21 +31,23 @@ def goniometer_scan(llvm):
     return simulate(scene, setup_from_section(scene.scanner), seed=1, progress=False, backend="llvm")
 
 
-def test_calibrate_model_is_cached(calibration):
-    assert calibrate_model(get_preset("faro-ls880")) is calibration
+def test_simulated_calibration_is_cached(calibration, tmp_path, monkeypatch):
+    from benchmarks.experiments import calibration as experiment
 
-
-def test_calibrate_model_disk_cache(calibration, tmp_path):
     model = get_preset("faro-ls880")
-    first = calibrate_model(model, cache_dir=tmp_path)
+    assert simulated_calibration(model) is calibration
+    monkeypatch.setattr(experiment, "_MEMORY", {})
+    first = simulated_calibration(model, cache_dir=tmp_path)
     files = list(tmp_path.glob("calibration-*.json"))
     assert len(files) == 1
-    again = calibrate_model(model, cache_dir=tmp_path)  # read back from the file
+    monkeypatch.setattr(experiment, "_MEMORY", {})
+    monkeypatch.setattr(experiment, "simulate_tables", None)  # a second simulation would fail
+    again = simulated_calibration(model, cache_dir=tmp_path)  # read back from the file
     assert again == first == calibration
 
 
-def test_plane_fit_incidence_follows_the_goniometer(calibration, goniometer_scan):
-    table = goniometer_table(goniometer_scan, calibration.curve)
+def test_plane_fit_incidence_follows_the_goniometer(goniometer_scan):
+    table = goniometer_table(goniometer_scan)
     error = np.degrees(table["alpha_rad"]) - table["nominal_deg"]
     # both rotation axes; the horizontal one loses its narrowest (largest-angle) stations
     assert len(table["name"]) >= 30
@@ -50,13 +56,14 @@ def test_plane_fit_incidence_follows_the_goniometer(calibration, goniometer_scan
 
 
 def test_lambertian_leaf_follows_k_ln_cos(calibration, goniometer_scan):
-    table = goniometer_table(goniometer_scan, calibration.curve)
+    table = goniometer_table(goniometer_scan)
+    corrected, _ = station_intensities(table, calibration.curve)
     k = get_preset("faro-ls880").log_gain_dn
-    top = table["corrected_dn"][table["nominal_deg"] == 0].mean()
+    top = corrected[table["nominal_deg"] == 0].mean()
     # pure-leaf samples: the 48 % leaf keeps its Table 2 offset below the 99 % curve, and k·ln cos(alpha)
     assert top == pytest.approx(calibration.curve.reference_dn + k * math.log(0.48 / 0.99), abs=3)
     expected = top + k * np.log(np.cos(np.radians(table["nominal_deg"])))
-    assert np.max(np.abs(table["corrected_dn"] - expected)) < 4
+    assert np.max(np.abs(corrected - expected)) < 4
 
 
 def test_relation_is_monotone_and_inverts(calibration):
@@ -88,10 +95,10 @@ def test_calibration_bundle_round_trips(calibration, tmp_path):
 def test_broken_calibration_files_name_the_file(tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
-    with pytest.raises(ScanError, match="bad.json"):
+    with pytest.raises(SfsError, match="bad.json"):
         Calibration.load(bad)
     bad.write_text(json.dumps({"format": "something else"}))
-    with pytest.raises(ScanError, match="bad.json.*not a tlssim calibration"):
+    with pytest.raises(SfsError, match="bad.json.*not a tlssim calibration"):
         Calibration.load(bad)
 
 
@@ -102,7 +109,7 @@ def test_fit_incidence_relation_on_a_known_curve():
     assert np.allclose(relation.lut_dn, dn)
     probe = np.radians([3.0, 33.0, 61.0])
     assert np.allclose(relation.alpha(1600 + 263 * np.log(np.cos(probe))), probe, atol=np.radians(0.6))
-    with pytest.raises(ScanError, match="distinct angles"):
+    with pytest.raises(SfsError, match="distinct angles"):
         fit_incidence_relation([0.1, 0.1, 0.2], [1, 2, 3])
 
 
@@ -136,20 +143,34 @@ def test_goniometer_scene_spans_the_published_angles():
         assert leaf.face_areas().sum() == pytest.approx(math.pi / 4 * 0.0647 * 0.0219, rel=0.01)
 
 
-def test_calibrate_cli_writes_json_and_png(calibration, goniometer_scan, tmp_path, capsys):
+def test_tables_round_trip_through_their_files_exactly(calibration, goniometer_scan, tmp_path):
+    table = goniometer_table(goniometer_scan)
+    again, model = load_table(save_table(table, tmp_path / "g.json", "goniometer", {"name": "x"}), "goniometer")
+    assert model == {"name": "x"} and set(again) == set(table)
+    for key, value in table.items():
+        assert np.array_equal(again[key], value) and again[key].dtype.kind == value.dtype.kind
+    assert np.array_equal(station_intensities(again, calibration.curve)[0], station_intensities(table, calibration.curve)[0])
+    with pytest.raises(ValueError, match="g.json: not a panels table"):
+        load_table(tmp_path / "g.json", "panels")
+
+
+def test_calibration_workflow_from_scans_to_reconstruction(calibration, goniometer_scan, tmp_path, capsys):
+    """tlssim calibrate measures both tables, leafsfs calibrate fits them, leafsfs reconstruct takes the result."""
     scene = scenes.build("panel-series")
-    simulate(scene, setup_from_section(scene.scanner), progress=False, backend="llvm").save(tmp_path / "panels.npz")
+    panel_scan = simulate(scene, setup_from_section(scene.scanner), progress=False, backend="llvm")
+    panel_scan.save(tmp_path / "panels.npz")
     goniometer_scan.save(tmp_path / "gonio.npz")
     assert main(["calibrate", str(tmp_path / "panels.npz")]) == 0
-    curve = json.loads((tmp_path / "panels.json").read_text())
-    assert curve["reference_dn"] == pytest.approx(1781.45, abs=5)
-    assert set(curve["statistics"]) == {"0.99", "0.83", "0.80", "0.68", "0.48", "0.22", "0.03"}
-    assert (tmp_path / "panels.png").stat().st_size > 10_000
-    assert main(["calibrate", str(tmp_path / "gonio.npz"), "--curve", str(tmp_path / "panels.json"),
-                 "-o", str(tmp_path / "out" / "relation")]) == 0
-    loaded = Calibration.load(tmp_path / "out" / "relation.json")
+    assert main(["calibrate", str(tmp_path / "gonio.npz"), "-o", str(tmp_path / "out" / "gonio")]) == 0
+    assert (tmp_path / "panels.png").stat().st_size > 10_000 and (tmp_path / "out" / "gonio.png").is_file()
+    assert leafsfs_main(["calibrate", str(tmp_path / "panels.json"), str(tmp_path / "out" / "gonio.json"),
+                         "-o", str(tmp_path / "cal.json")]) == 0
+    assert "f99(3.56 m) = 178" in capsys.readouterr().out
+    loaded = resolve_calibration(str(tmp_path / "cal.json"))  # what leafsfs reconstruct --calibration does
+    assert loaded.curve.reference_dn == pytest.approx(1781.45, abs=5)
+    assert loaded == fit_calibration(panel_table(panel_scan), goniometer_table(goniometer_scan))  # files are exact
     assert loaded.incidence.alpha(1500.0) == pytest.approx(calibration.incidence.alpha(1500.0), abs=math.radians(1))
-    assert (tmp_path / "out" / "relation.png").is_file()
+    assert (tmp_path / "cal.png").is_file()
     capsys.readouterr()
-    assert main(["calibrate", str(tmp_path / "gonio.npz"), "--curve", str(tmp_path / "missing.json")]) == 2
-    assert "missing.json" in capsys.readouterr().err
+    assert leafsfs_main(["calibrate", str(tmp_path / "out" / "gonio.json"), str(tmp_path / "panels.json")]) == 2
+    assert "not a panels table" in capsys.readouterr().err

@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 
 import scenes
-from tlssim.calibration import (ReferenceCurve, correct_distance, fit_reference_curve, panel_statistics,
-                                panel_table, reference_curve_from_scan)
+from leafsfs.calibration import (ReferenceCurve, correct_distance, fit_reference_curve, panel_statistics,
+                                 reference_curve_from_table)
+from leafsfs.errors import SfsError
+from tlssim.calibration import panel_table
 from tlssim.errors import ScanError
 from tlssim.simulate import setup_from_section, simulate
 
@@ -21,7 +23,7 @@ def panels(llvm):
     setup = setup_from_section(scene.scanner)
     scan = simulate(scene, setup, seed=0, progress=False, backend="llvm")
     table = panel_table(scan)
-    return scan, table, reference_curve_from_scan(scan), setup.model
+    return scan, table, reference_curve_from_table(table), setup.model
 
 
 def _series(table, rho):
@@ -64,7 +66,7 @@ def test_ratio_correction_restores_the_reference_curve(panels):
     far = distance > 1
     ratio = correct_distance(intensity[far], distance[far], curve, mode="ratio")
     assert np.allclose(ratio, curve.reference_dn, atol=1e-6)
-    with pytest.raises(ScanError, match="correction mode"):
+    with pytest.raises(SfsError, match="correction mode"):
         correct_distance(intensity, distance, curve, mode="log")
 
 
@@ -101,7 +103,7 @@ def test_reference_curve_interpolates_its_nodes_in_ln_d():
     curve = fit_reference_curve(d, dn)
     x = np.geomspace(0.5, 8, 40)
     assert np.allclose(curve(x), 1500 + 100 * np.log(x) - 40 * np.log(x) ** 2, atol=1e-6)
-    with pytest.raises(ScanError, match="3 distinct distances"):
+    with pytest.raises(SfsError, match="3 distinct distances"):
         fit_reference_curve([1.0, 1.0, 2.0], [1, 2, 3])
 
 

@@ -29,8 +29,10 @@ each a field that can be changed per scan unless said otherwise:
   not modelled.
 - Optional effects: ``leaf_transmission``, ``bsdf`` / ``bsdf_object_types``.
 
-The calibration decisions (7.1 sign of the correction, 7.13 inversion, 7.14
-plane-fit angle) live in :mod:`tlssim.calibration`.
+The calibration decisions live with their code: 7.14 (plane-fit angle) in
+:mod:`tlssim.calibration`, which measures the tables; 7.1 (sign of the
+correction) and 7.13 (inversion) in :mod:`leafsfs.calibration`, which fits
+the inverse model.
 """
 
 from __future__ import annotations

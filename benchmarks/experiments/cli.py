@@ -10,7 +10,8 @@ from __future__ import annotations
 import importlib
 
 #: Modules of ``tlsbench experiment NAME`` (each registers one NAME).
-EXPERIMENT_MODULES: tuple[str, ...] = ("benchmarks.experiments.sfs_compare", "benchmarks.experiments.woody_experiments")
+EXPERIMENT_MODULES: tuple[str, ...] = ("benchmarks.experiments.calibration", "benchmarks.experiments.sfs_compare",
+                                        "benchmarks.experiments.woody_experiments")
 #: Modules of ``tlsbench perf NAME``.
 PERF_MODULES: tuple[str, ...] = ("benchmarks.experiments.scenes_perf", "benchmarks.experiments.simulator_perf",
                                  "benchmarks.experiments.sfs_perf", "benchmarks.experiments.woody_perf")
