@@ -233,9 +233,8 @@ def _register_prop_sfs() -> None:
 def _calibration(scan):
     """The intensity calibration of a scan's scanner model (simulated once per model and process)."""
     from benchmarks.experiments.calibration import simulated_calibration
-    from tlssim.scanner import ScannerModel
 
-    return simulated_calibration(ScannerModel.from_dict(scan.scanner_model))
+    return simulated_calibration(scan.scanner.model)
 
 
 #: How a PROP-SFS variant finds the leaf: ``auto``, its own segmentation of the scan around the leaf (as on a real

@@ -24,7 +24,6 @@ from benchmarks import metrics
 from benchmarks.errors import BenchError
 from benchmarks.registry import VariantOutput
 from tlssim.scan import GRID_KEYS, TRUTH_KEYS
-from tlssim.scanner import ScannerModel
 
 #: Pure returns (used for the range noise and the intensity) have less than this power share from other objects.
 PURE_MIXED_FRACTION = 1e-3
@@ -111,7 +110,7 @@ def _window(grid: np.ndarray, margin: int) -> tuple[slice, slice]:
 
 def grid_steps(scan) -> tuple[float, float]:
     """Angular steps ``(theta, psi)`` of a simulated scan's grid, rad."""
-    theta_deg, psi_deg = scan.meta["window"]["step_deg"]
+    theta_deg, psi_deg = scan.scanner.window.step_deg
     return math.radians(theta_deg), math.radians(psi_deg)
 
 
@@ -124,7 +123,7 @@ def crop_margin_px(scan, distance_m: float) -> int:
     method only a sliver of pure background near the scanner (about 7 pixels
     per radius at 0.8 m and 0.018 deg), where the footprint spans many pixels.
     """
-    radius_m = ScannerModel.from_dict(scan.scanner_model).beam_radius_m(distance_m)
+    radius_m = scan.scanner.model.beam_radius_m(distance_m)
     radius_px = radius_m / (distance_m * min(grid_steps(scan)))
     return CROP_MARGIN_PX + math.ceil(CROP_MARGIN_FOOTPRINTS * radius_px)
 

@@ -89,8 +89,8 @@ class LambertCalibration:
 
     Parameters
     ----------
-    model : ScannerModel or dict
-        The scanner model (a scan's ``scanner_model``).
+    model : ScannerModel
+        The scanner model (a simulated scan's ``scanner.model``).
     reflectance : float
         Assumed reflectance of the targets (pear leaf: 0.48).
     limit_deg : float
@@ -98,10 +98,6 @@ class LambertCalibration:
     """
 
     def __init__(self, model, reflectance: float, limit_deg: float = 60.0):
-        from tlssim.scanner import ScannerModel
-
-        if isinstance(model, dict):
-            model = ScannerModel.from_dict(model)
         self.model, self.reflectance, self.limit = model, float(reflectance), np.radians(limit_deg)
 
     def alpha(self, intensity_dn, range_m) -> np.ndarray:

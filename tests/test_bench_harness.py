@@ -326,7 +326,7 @@ def test_case_scanner_overrides_reach_the_window_and_the_model():
     window = {"theta_deg": [-0.1, 0.1], "psi_deg": [89.9, 90.1]}
     _, scan = simulate_case(Case("k", {"builtin": "knife-edge"}, {"window": window, "step_deg": 0.036}, 0))
     assert scan.shape == (6, 6)
-    assert scan.scanner_model["step_deg"] == 0.036
+    assert scan.scanner.model.step_deg == 0.036
     # A built-in scene whose window has its own step still takes the case's step.
     _, scan = simulate_case(Case("c", {"builtin": "cylinder-50cm"}, {"step_deg": 0.5}, 0))
     assert np.degrees(np.median(np.diff(scan.theta, axis=1))) == pytest.approx(0.5)

@@ -75,9 +75,14 @@ def test_crop_margin_covers_the_mixed_band_near_the_scanner():
     radii beyond the fixed margin; on a coarse far scan (4 m, 0.08 deg: radius 0.44 px) the margin barely grows."""
     from types import SimpleNamespace
 
+    from tlssim.pattern import ScanWindow
+    from tlssim.scan import ScannerDescription
+    from tlssim.scanner import ScannerModel
+
     def scan(step_deg):
-        return SimpleNamespace(scanner_model={"beam_waist_radius_m": 0.0015, "divergence_deg": 0.014},
-                               meta={"window": {"step_deg": [step_deg, step_deg]}})
+        window = ScanWindow((0.0, 1.0), (89.0, 91.0), step_deg)
+        return SimpleNamespace(scanner=ScannerDescription(ScannerModel(beam_waist_radius_m=0.0015, divergence_deg=0.014),
+                                                          window))
 
     assert scoring.crop_margin_px(scan(0.018), 0.8) == scoring.CROP_MARGIN_PX + 14
     assert scoring.crop_margin_px(scan(0.08), 4.0) == scoring.CROP_MARGIN_PX + 1

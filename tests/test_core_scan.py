@@ -7,6 +7,7 @@ import pytest
 import trimesh
 
 import scenes
+import tlssim
 from tlssim.cli import main as tlssim_main
 from tlssim.errors import ScanError
 from tlssim.scan import GRID_KEYS, TRUTH_KEYS, Scan
@@ -43,15 +44,34 @@ def test_npz_round_trip(knife, tmp_path):
     with np.load(path, allow_pickle=False) as data:
         keys = set(data.files)
     assert set(GRID_KEYS + TRUTH_KEYS) | {"object_names", "scanner_position", "scanner_rotation",
-                                          "scanner_model", "meta", "outlier", "truth_second_id",
+                                          "scanner", "meta", "outlier", "truth_second_id",
                                           "second_fraction"} == keys
     back = Scan.load(path)
     for key in GRID_KEYS + TRUTH_KEYS:
         assert np.array_equal(getattr(back, key), getattr(knife, key), equal_nan=True)
     assert back.object_names == knife.object_names
-    assert back.scanner_model == knife.scanner_model and back.meta == knife.meta
+    assert back.scanner == knife.scanner and back.meta == knife.meta
+    assert back.scanner.model.name == "faro-ls880" and back.scanner.window.step_deg[0] > 0
     assert np.array_equal(back.pose.rotation, knife.pose.rotation)
     assert back.layers["outlier"].shape == knife.shape
+
+
+def test_scans_written_with_the_scanner_model_dict_still_load(knife, tmp_path):
+    """Files from before the typed description: the model's parameters under ``scanner_model``, the window in meta."""
+    from tlssim.scan import write_npz
+
+    path = knife.save(tmp_path / "new.npz")
+    with np.load(path, allow_pickle=False) as data:
+        arrays = {key: data[key] for key in data.files if key != "scanner"}
+    arrays["scanner_model"] = np.array(json.dumps(knife.scanner.model.to_dict()))
+    arrays["meta"] = np.array(json.dumps({**knife.meta, "window": knife.scanner.window.to_dict()}))
+    old = Scan.load(write_npz(tmp_path / "old.npz", arrays))
+    assert old.scanner == knife.scanner and old.meta == knife.meta
+    del arrays["scanner_model"]
+    arrays["meta"] = np.array(json.dumps(knife.meta))
+    real = Scan.load(write_npz(tmp_path / "bare.npz", arrays))  # e.g. converted from a real scan
+    assert real.scanner.model is None and real.scanner.window is None
+    assert real.scanner.assumed_model == tlssim.get_preset("faro-ls880")
 
 
 def test_same_seed_same_bytes_different_seed_differs(llvm, tmp_path):
@@ -92,7 +112,7 @@ def test_scan_cli_writes_scan_and_cloud(llvm, tmp_path, capsys):
     summary = json.loads(capsys.readouterr().out)
     scan = Scan.load(out)
     assert summary["returns"] == int(scan.valid.sum()) > 0
-    assert scan.scanner_model["n_subrays"] == 7 and ply.exists()
+    assert scan.scanner.model.n_subrays == 7 and ply.exists()
 
 
 def test_scenes_cli_lists_the_library(capsys):

@@ -30,7 +30,7 @@ def _simulate(name):
 def leaf_scan():
     scene, scan = _simulate("leaf-1.5m")
     # the benchmarks' simulated panel + goniometer calibration of the scan's scanner model
-    return scene, scan, simulated_calibration(tlssim.ScannerModel.from_dict(scan.scanner_model))
+    return scene, scan, simulated_calibration(scan.scanner.model)
 
 
 @pytest.fixture(scope="module")
@@ -137,7 +137,7 @@ def test_a_wide_mask_gives_its_background_pulses_the_backgrounds_distance(leaf_s
 
 def test_leaf_cluster_segmentation_separates_the_leaves():
     _, scan = _simulate("leaf-cluster")
-    alpha, _ = scan_alpha(scan.intensity, scan.range, LambertCalibration(scan.scanner_model, 0.48))
+    alpha, _ = scan_alpha(scan.intensity, scan.range, LambertCalibration(scan.scanner.model, 0.48))
     labels = segment_leaves(scan.range, scan.theta, scan.psi, alpha)
     purity, regions = [], set()
     for index, name in enumerate(scan.object_names):
@@ -213,7 +213,7 @@ def test_fused_variant_beats_the_measurement_and_survives_a_wrong_reflectance(le
     p90 = {}
     for variant in ("buffer", "fused"):
         result = reconstruct(scan, variant=variant, params=SfsParams(inliers="replace"),
-                             calibration=LambertCalibration(scan.scanner_model, 0.58))
+                             calibration=LambertCalibration(scan.scanner.model, 0.58))
         p90[variant] = np.quantile(np.abs(result.range - scan.truth_range)[on_leaf & result.corrected], 0.9)
     assert p90["fused"] < 0.6 * p90["buffer"] and p90["fused"] < 0.01
 
@@ -222,7 +222,7 @@ def test_refine_moves_a_pure_pulse_only_within_the_outlier_threshold(leaf_scan):
     # Under a wrong reflectance (alpha ~20 deg too high) the buffer surface is centimetres off: "replace" drags
     # the pure pulses onto it, "refine" moves them only where it agrees with them within the threshold.
     _, scan, calibration = leaf_scan
-    wrong = LambertCalibration(scan.scanner_model, 0.58)
+    wrong = LambertCalibration(scan.scanner.model, 0.58)
     refine, replace = (reconstruct(scan, variant="buffer", params=SfsParams(inliers=mode), calibration=wrong)
                        for mode in ("refine", "replace"))
     (leaf,) = refine.leaves

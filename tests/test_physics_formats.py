@@ -49,7 +49,7 @@ def test_round_trip(scan, tmp_path, ext):
     if ext in ("las", "laz"):  # truth of the returned points comes along
         for key in ("truth_id", "truth_range", "mixed_fraction", "incidence", "truth_normal"):
             assert np.array_equal(getattr(back, key)[valid], getattr(scan, key)[valid], equal_nan=True)
-        assert back.object_names == scan.object_names and back.scanner_model == scan.scanner_model
+        assert back.object_names == scan.object_names and back.scanner == scan.scanner
     else:
         assert not back.has_truth  # real-scan formats: ready for reconstruction, no truth
 

@@ -14,13 +14,13 @@ import types
 
 from tlssim.errors import ScanError
 from tlssim.pattern import ScannerPose, ScanWindow
-from tlssim.scan import Scan
+from tlssim.scan import Scan, ScannerDescription
 from tlssim.scanner import ScannerModel, get_preset, preset_names, register_preset
 
 #: Names served from :mod:`tlssim.simulate`, imported on first access (PEP 562).
 _SIMULATOR_NAMES = ("ScanSetup", "setup_from_section", "simulate")
 
-__all__ = ["Scan", "ScanError", "ScanSetup", "ScannerModel", "ScannerPose", "ScanWindow", "get_preset",
+__all__ = ["Scan", "ScanError", "ScannerDescription", "ScanSetup", "ScannerModel", "ScannerPose", "ScanWindow", "get_preset",
            "preset_names", "register_preset", "setup_from_section", "simulate"]
 
 

@@ -32,7 +32,6 @@ from scipy import ndimage
 
 from tlssim.errors import ScanError
 from tlssim.scan import Scan
-from tlssim.scanner import ScannerModel
 
 #: Format tags of the table files, by kind of table.
 TABLE_FORMATS = {"panels": "tlssim-panel-table", "goniometer": "tlssim-goniometer-table"}
@@ -222,7 +221,7 @@ def save_table(table: dict, path, kind: str, scanner_model: dict | None = None) 
     kind : {"panels", "goniometer"}
         Which table it is.
     scanner_model : dict, optional
-        Parameters of the scanner that measured it (a scan's ``scanner_model``).
+        Parameters of the scanner that measured it (``scan.scanner.model.to_dict()``).
     """
     if kind not in TABLE_FORMATS:
         raise ScanError(f"table kind must be one of {sorted(TABLE_FORMATS)}, got {kind!r}")
@@ -291,7 +290,7 @@ def _interior(scan: Scan, mask: np.ndarray, distance_m: float, margin: float) ->
     Angular distances on the grid (the window's border counts as outline),
     with the beam radius of the scan's model at ``distance_m``.
     """
-    model = ScannerModel.from_dict(scan.scanner_model)
+    model = scan.scanner.assumed_model
     rows, cols = scan.shape
     d_psi = abs(float(scan.psi[-1, 0] - scan.psi[0, 0])) / max(rows - 1, 1)
     d_theta = abs(float(scan.theta[0, -1] - scan.theta[0, 0])) / max(cols - 1, 1) * float(np.sin(np.median(scan.psi)))

@@ -18,8 +18,11 @@ Files
   object), ``incidence`` (rad, on that object), ``truth_normal`` (unit normal
   facing the scanner);
 - ``object_names`` (string array, index = truth id), ``scanner_position``
-  (3,), ``scanner_rotation`` (3 x 3, scanner to world), ``scanner_model``
-  (JSON text of the model parameters), ``meta`` (JSON text);
+  (3,), ``scanner_rotation`` (3 x 3, scanner to world), ``scanner`` (JSON
+  text of the :class:`ScannerDescription`: ``{"model": parameters or null,
+  "window": window or null}``), ``meta`` (JSON text); files written before
+  the description existed carry ``scanner_model`` (the parameters) and the
+  window in ``meta`` instead, and still load;
 - any further per-pixel layer under its own name; simulated scans carry
   ``truth_second_id`` (int32, object with the next largest returned power,
   -1 = none) and ``second_fraction`` (its power share), and reconstructions
@@ -37,11 +40,60 @@ from pathlib import Path
 import numpy as np
 
 from tlssim.errors import ScanError
-from tlssim.pattern import ScannerPose, beam_frame
+from tlssim.pattern import ScannerPose, ScanWindow, beam_frame
+from tlssim.scanner import ScannerModel, get_preset
 
 GRID_KEYS = ("range", "intensity", "theta", "psi", "xyz")
 TRUTH_KEYS = ("truth_range", "truth_id", "mixed_fraction", "incidence", "truth_normal")
-_META_KEYS = ("object_names", "scanner_position", "scanner_rotation", "scanner_model", "meta")
+_META_KEYS = ("object_names", "scanner_position", "scanner_rotation", "scanner", "scanner_model", "meta")
+
+
+@dataclass(frozen=True)
+class ScannerDescription:
+    """The scanner behind a scan: its model and the window it scanned.
+
+    Attributes
+    ----------
+    model : ScannerModel or None
+        The scanner model's parameters (simulated scans); ``None`` where
+        they are unknown, as for most real scans.
+    window : ScanWindow or None
+        The scanned window (angles and steps, degrees); ``None`` where unknown.
+    """
+
+    model: ScannerModel | None = None
+    window: ScanWindow | None = None
+
+    @property
+    def assumed_model(self) -> ScannerModel:
+        """The recorded model, or the default model (the ``faro-ls880`` preset) where none is recorded.
+
+        For real scans this is an assumption: their scanner is taken to be
+        an LS880-class instrument.
+        """
+        return self.model if self.model is not None else get_preset("faro-ls880")
+
+    def to_dict(self) -> dict:
+        """JSON-ready description (:meth:`from_dict` reads it back)."""
+        return {"model": None if self.model is None else self.model.to_dict(),
+                "window": None if self.window is None else self.window.to_dict()}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "ScannerDescription":
+        """Read :meth:`to_dict` output back.
+
+        Raises
+        ------
+        ScanError
+            If the data is not a mapping with valid ``model`` and ``window`` entries.
+        """
+        if not isinstance(data, dict):
+            raise ScanError(f"a scanner description must be a mapping, got {type(data).__name__}")
+        model, window = data.get("model"), data.get("window")
+        try:
+            return cls(ScannerModel.from_dict(model) if model else None, ScanWindow(**window) if window else None)
+        except TypeError as exc:
+            raise ScanError(f"malformed scanner window ({exc})") from None
 
 
 @dataclass
@@ -60,8 +112,8 @@ class Scan:
         Measured points in the world frame, m; NaN where there is no return.
     pose : ScannerPose
         Scanner position and orientation.
-    scanner_model : dict
-        Parameters of the scanner model that produced the scan.
+    scanner : ScannerDescription
+        The scanner model and window that produced the scan (empty when unknown).
     object_names : list of str or None
         Names of the scene objects, indexed by ``truth_id``.
     truth_range, truth_id, mixed_fraction, incidence, truth_normal : ndarray or None
@@ -69,7 +121,7 @@ class Scan:
     layers : dict of str to ndarray
         Further per-pixel layers (e.g. ``outlier`` flags), saved under their names.
     meta : dict
-        JSON-ready metadata (scene, seed, window, backend...).
+        JSON-ready metadata (scene, seed, backend...).
     """
 
     range: np.ndarray
@@ -78,7 +130,7 @@ class Scan:
     psi: np.ndarray
     xyz: np.ndarray
     pose: ScannerPose = field(default_factory=ScannerPose)
-    scanner_model: dict = field(default_factory=dict)
+    scanner: ScannerDescription = field(default_factory=ScannerDescription)
     object_names: list[str] | None = None
     truth_range: np.ndarray | None = None
     truth_id: np.ndarray | None = None
@@ -108,6 +160,11 @@ class Scan:
             raise ScanError(f"extra layers may not reuse reserved scan keys: {clash}")
 
     @property
+    def scanner_model(self) -> dict:
+        """The scanner model's parameters as a dict (empty when unknown); prefer ``scanner.model``."""
+        return {} if self.scanner.model is None else self.scanner.model.to_dict()
+
+    @property
     def shape(self) -> tuple[int, int]:
         """Grid shape ``(rows, cols)``."""
         return self.range.shape
@@ -133,7 +190,7 @@ class Scan:
         arrays.update(self.layers)
         arrays["scanner_position"] = self.pose.position
         arrays["scanner_rotation"] = self.pose.rotation
-        arrays["scanner_model"] = np.array(json.dumps(self.scanner_model))
+        arrays["scanner"] = np.array(json.dumps(self.scanner.to_dict()))
         arrays["meta"] = np.array(json.dumps(self.meta))
         if self.object_names is not None:
             arrays["object_names"] = np.array(self.object_names, dtype=str)
@@ -161,12 +218,16 @@ class Scan:
         if missing:
             raise ScanError(f"{path}: missing scan arrays {missing}")
         try:
-            model = json.loads(str(arrays.pop("scanner_model", "{}")))
             meta = json.loads(str(arrays.pop("meta", "{}")))
+            legacy = json.loads(str(arrays.pop("scanner_model", "{}")))  # files written before the description
+            if "scanner" in arrays:
+                scanner = ScannerDescription.from_dict(json.loads(str(arrays.pop("scanner"))))
+            else:
+                scanner = ScannerDescription.from_dict({"model": legacy, "window": meta.pop("window", None)})
             pose = ScannerPose(arrays.pop("scanner_position", np.zeros(3)), arrays.pop("scanner_rotation", np.eye(3)))
             names = arrays.pop("object_names", None)
             fields = {key: arrays.pop(key) for key in GRID_KEYS + TRUTH_KEYS if key in arrays}
-            return cls(**fields, pose=pose, scanner_model=model, meta=meta,
+            return cls(**fields, pose=pose, scanner=scanner, meta=meta,
                        object_names=None if names is None else [str(n) for n in names], layers=arrays)
         except (json.JSONDecodeError, TypeError) as exc:
             raise ScanError(f"{path}: malformed scan metadata ({exc})") from None

@@ -30,7 +30,7 @@ from tlssim.detector import PulseReturns, detect
 from tlssim.errors import ScanError
 from tlssim.pattern import ScannerPose, ScanWindow, grid_directions, rotation_from_yaw_pitch_roll
 from tlssim.ranging import unwrap_distance
-from tlssim.scan import Scan
+from tlssim.scan import Scan, ScannerDescription
 from tlssim.scanner import ScannerModel, get_preset
 
 #: Default number of sub-rays traced per wavefront (bounds memory).
@@ -168,10 +168,9 @@ def simulate(scene: Scene, setup: ScanSetup, seed: int = 0, backend: str = "auto
         psi=psi_grid,
         xyz=pose.position + range_m[..., None] * grid_directions(theta_axis, psi_axis, pose.rotation),
         pose=pose,
-        scanner_model=model.to_dict(),
+        scanner=ScannerDescription(model, window),
         object_names=scene.object_names,
-        meta={"scene": scene.name, "seed": int(seed), "window": window.to_dict(), "backend": used_backend,
-              "frame": "world"},
+        meta={"scene": scene.name, "seed": int(seed), "backend": used_backend, "frame": "world"},
         layers=layers,
         **{key: grid(value) for key, value in truth.items()},
     )

@@ -129,9 +129,9 @@ def run(args) -> int:
     """Simulate, fit and write the calibration and its two tables."""
     if args.scan:
         scan = Scan.load(args.scan)
-        if not scan.scanner_model:
+        if scan.scanner.model is None:
             raise BenchError(f"{args.scan}: the scan records no scanner model; give --preset")
-        model = ScannerModel.from_dict(scan.scanner_model)
+        model = scan.scanner.model
     else:
         model = get_preset(args.preset)
     panels, goniometer = simulate_tables(model, args.seed)

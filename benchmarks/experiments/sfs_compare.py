@@ -70,7 +70,7 @@ def compare_leaf(seed: int = 0) -> list[dict]:
     for reflectance in REFLECTANCES:
         row = {"assumed_reflectance": reflectance}
         for variant in VARIANTS:
-            result = reconstruct(scan, variant=variant, calibration=LambertCalibration(scan.scanner_model,
+            result = reconstruct(scan, variant=variant, calibration=LambertCalibration(scan.scanner.model,
                                                                                       reflectance))
             ok = on_leaf & result.corrected
             errors = 1e3 * np.abs(result.range - scan.truth_range)

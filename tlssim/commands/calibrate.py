@@ -41,7 +41,8 @@ def run(args) -> int:
         png_path = _plot_goniometer(prefix, table)
     else:
         raise ScanError(f"{args.scan}: neither a panel-series nor a goniometer scan (no calibration objects)")
-    json_path = save_table(table, prefix.with_name(prefix.name + ".json"), kind, scan.scanner_model)
+    model = None if scan.scanner.model is None else scan.scanner.model.to_dict()
+    json_path = save_table(table, prefix.with_name(prefix.name + ".json"), kind, model)
     print(json.dumps({"table": kind, "json": str(json_path), "png": str(png_path), "rows": len(table["name"])}))
     return 0
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from tlssim.errors import ScanError
 from tlssim.pattern import ScannerPose
-from tlssim.scan import TRUTH_KEYS, Scan
+from tlssim.scan import TRUTH_KEYS, Scan, ScannerDescription
 
 #: Coordinate resolution of the written files, m.
 SCALE_M = 1e-5
@@ -36,7 +36,7 @@ def write(scan: Scan, path: Path) -> None:
     rows, cols = scan.shape
     meta = {"shape": [rows, cols], "theta_columns": np.nanmedian(scan.theta, axis=0).tolist(),
             "psi_rows": np.nanmedian(scan.psi, axis=1).tolist(), "scanner_position": scan.pose.position.tolist(),
-            "scanner_rotation": scan.pose.rotation.tolist(), "scanner_model": scan.scanner_model,
+            "scanner_rotation": scan.pose.rotation.tolist(), "scanner": scan.scanner.to_dict(),
             "meta": scan.meta, "object_names": scan.object_names}
     header.vlrs.append(laspy.VLR(user_id=VLR_USER_ID, record_id=VLR_RECORD_ID, description="tlssim scan",
                                  record_data=json.dumps(meta).encode()))
@@ -99,6 +99,12 @@ def read(path: Path) -> Scan:
         pose = ScannerPose(meta["scanner_position"], meta["scanner_rotation"])
         theta = np.broadcast_to(np.asarray(meta["theta_columns"], float)[None, :], (rows, cols)).copy()
         psi = np.broadcast_to(np.asarray(meta["psi_rows"], float)[:, None], (rows, cols)).copy()
+        scan_meta = dict(meta.get("meta") or {})
+        if "scanner" in meta:
+            scanner = ScannerDescription.from_dict(meta["scanner"])
+        else:  # files written before the description: the model's parameters, the window in the scan's meta
+            scanner = ScannerDescription.from_dict({"model": meta.get("scanner_model"),
+                                                    "window": scan_meta.pop("window", None)})
     except (KeyError, TypeError, ValueError, json.JSONDecodeError) as exc:
         raise ScanError(f"{path}: malformed tlssim metadata in the LAS/LAZ file ({exc!r})") from None
     row, col = np.asarray(points["row"], np.int64), np.asarray(points["col"], np.int64)
@@ -119,5 +125,5 @@ def read(path: Path) -> Scan:
         truth["truth_normal"][row, col] = np.stack([points[f"truth_normal_{a}"] for a in "xyz"], axis=1)
     range_m = np.linalg.norm(xyz - pose.position, axis=-1)
     return Scan(range=range_m, intensity=intensity, theta=theta, psi=psi, xyz=xyz, pose=pose,
-                scanner_model=meta.get("scanner_model") or {}, object_names=meta.get("object_names"),
-                meta={**(meta.get("meta") or {}), "source": str(path), "format": "las"}, **truth)
+                scanner=scanner, object_names=meta.get("object_names"),
+                meta={**scan_meta, "source": str(path), "format": "las"}, **truth)

@@ -25,7 +25,7 @@ HEADER_LINES = 10
 def write(scan: Scan, path: Path) -> None:
     """Write the grid as PTX (coordinates to 1 µm, intensity to 1e-6 of the full scale)."""
     rows, cols = scan.shape
-    full_scale = float(scan.scanner_model.get("intensity_max_dn", 2047))
+    full_scale = float(scan.scanner.assumed_model.intensity_max_dn)
     rotation, position = scan.pose.rotation, scan.pose.position
     local = np.where(scan.valid[..., None], local_points(scan), 0.0)
     intensity = np.where(scan.valid, scan.intensity / full_scale, 0.0)
