@@ -363,6 +363,10 @@ class Calibration:
         SfsError
             If the data is not a tlssim calibration.
         """
+        if isinstance(data, dict) and str(data.get("format", "")).startswith("tlssim-") and \
+                str(data["format"]).endswith("-table"):
+            raise SfsError(f"not a tlssim calibration but a measured table ({data['format']}): fit the panel and "
+                           "goniometer tables with 'leafsfs calibrate PANELS.json GONIOMETER.json -o calibration.json'")
         if not isinstance(data, dict) or data.get("format") != _FORMAT:
             raise SfsError(f"not a tlssim calibration (expected format {_FORMAT!r})")
         try:

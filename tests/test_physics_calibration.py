@@ -174,3 +174,5 @@ def test_calibration_workflow_from_scans_to_reconstruction(calibration, goniomet
     capsys.readouterr()
     assert leafsfs_main(["calibrate", str(tmp_path / "out" / "gonio.json"), str(tmp_path / "panels.json")]) == 2
     assert "not a panels table" in capsys.readouterr().err
+    with pytest.raises(SfsError, match="measured table.*leafsfs calibrate"):  # a table is not a calibration
+        resolve_calibration(str(tmp_path / "panels.json"))
