@@ -354,6 +354,10 @@ def ellipsoid(diameters=(30.0, 15.0, 10.0), elevation: float = math.pi / 8, roll
     With rotation ``R = Ry(-elevation) Rx(roll)`` and
     ``A = R diag(4/d²) Rᵀ``, the surface is ``{X : Xᵀ A X = 1}``; the height is
     the upper root of the quadratic in z and the normal is along ``A X``.
+
+    Returns
+    -------
+    HeightField
     """
     try:
         semi = np.array([_positive(d, "ellipsoid diameter") for d in diameters]) / 2
@@ -525,6 +529,10 @@ def multi_seed(seed: int | None = None, n_features: int = 4) -> HeightField:
         ``numpy.random.default_rng(seed)``.
     n_features : int
         Number of random features (only with ``seed``).
+
+    Returns
+    -------
+    HeightField
     """
     if seed is None:
         features = np.array(MULTI_SEED_FEATURES)
