@@ -17,6 +17,8 @@ PACKAGES = ("scenes", "tlssim", "leafsfs", "woody", "benchmarks")
 
 ENABLED = {
     "scenes": None,
+    "tlssim": ("noise.py", "radiometry.py", "detector.py", "ranging.py", "bsdf.py", "beam.py",
+               "backend.py", "preview.py"),
 }
 
 # ``name : type`` (several names may share one entry); ``*args`` and ``**kwargs`` may stand alone.
