@@ -548,7 +548,7 @@ class LeafBatch:
         model : TreeModel
             The tree in its own frame.
         pose : Pose
-            Tree frame to world (its scale is not applied to the leaf shapes).
+            Tree frame to world (rigid).
         group : str
             Group and name prefix.
         leaf_material : str or Material
