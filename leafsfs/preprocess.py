@@ -21,7 +21,7 @@ from leafsfs.calibration import Calibration
 from leafsfs.errors import SfsError
 
 
-def resolve_calibration(calibration, scan=None):
+def resolve_calibration(calibration):
     """A calibration object from an object with ``alpha`` and ``reliable`` methods, or the path of its JSON file.
 
     Raises

@@ -7,6 +7,8 @@ one at the top of a module.
 
 import ast
 import collections
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -91,6 +93,26 @@ def test_no_import_cycle_between_modules():
         if node not in index:
             visit(node)
     assert not cycles, f"modules that import each other: {cycles}"
+
+
+def test_the_contract_and_reconstruction_import_without_the_simulator():
+    """Reconstructing a real scan loads neither Mitsuba, Dr.Jit nor the scene library."""
+    script = ("import sys, leafsfs, woody, tlssim, tlssim.formats, tlssim.scan, tlssim.pattern, tlssim.scanner; "
+              "from tlssim import Scan, ScannerDescription, ScannerPose, ScanWindow, ScannerModel; "
+              "from tlssim.scan import grid_to_xyz; "
+              "print(sorted({m.split('.')[0] for m in sys.modules} & {'mitsuba', 'drjit', 'scenes'}))")
+    out = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_the_simulator_loads_on_first_use_and_keeps_its_name():
+    """``tlssim.simulate`` stays the function even after its submodule of the same name is imported."""
+    script = ("import sys, tlssim; from tlssim.simulate import setup_from_section; "
+              "module = sys.modules['tlssim.simulate']; "
+              "assert tlssim.simulate is module.simulate and tlssim.setup_from_section is setup_from_section; "
+              "assert tlssim.ScanSetup is module.ScanSetup; print('ok')")
+    out = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "ok"
 
 
 @pytest.mark.parametrize("field", ["beam_waist_radius_m", "divergence_deg"])

@@ -160,11 +160,6 @@ class Scan:
             raise ScanError(f"extra layers may not reuse reserved scan keys: {clash}")
 
     @property
-    def scanner_model(self) -> dict:
-        """The scanner model's parameters as a dict (empty when unknown); prefer ``scanner.model``."""
-        return {} if self.scanner.model is None else self.scanner.model.to_dict()
-
-    @property
     def shape(self) -> tuple[int, int]:
         """Grid shape ``(rows, cols)``."""
         return self.range.shape
