@@ -40,7 +40,22 @@ from leafsfs.segment import split_parts
 
 
 def smooth_alpha(alpha: np.ndarray, mask: np.ndarray, passes: int) -> np.ndarray:
-    """Repeated normalised 3 x 3 mean of ``alpha`` over ``mask`` (digest §3.1, A13); NaN off the mask."""
+    """Repeated normalised 3 x 3 mean of ``alpha`` over ``mask`` (digest §3.1, A13); NaN off the mask.
+
+    Parameters
+    ----------
+    alpha : ndarray, 2-D
+        Incidence angle of every pixel, rad.
+    mask : ndarray of bool, 2-D
+        Pixels averaged (and the only ones given a value).
+    passes : int
+        Number of 3 x 3 smoothing passes (0 keeps ``alpha`` on the mask).
+
+    Returns
+    -------
+    ndarray, 2-D
+        Smoothed alpha, rad.
+    """
     weight = ndimage.uniform_filter(mask.astype(float), size=3, mode="nearest")
     values = np.where(mask, alpha, 0.0)
     for _ in range(passes):
@@ -121,6 +136,23 @@ def domain_thresholds(alpha: np.ndarray, mask: np.ndarray, params: SfsParams,
 
     The shell rule measures the object ``mask``; the quantiles are those of its
     ``reliable`` pixels (default: all of them).
+
+    Parameters
+    ----------
+    alpha : ndarray, 2-D
+        Smoothed alpha image, rad.
+    mask : ndarray of bool, 2-D
+        The object's pixels.
+    params : SfsParams
+        Quantisation rule (``quantization``: fixed thresholds in degrees, the
+        shell rule or fixed area fractions) and its parameters.
+    reliable : ndarray of bool, 2-D, optional
+        Pixels whose alpha values set the quantiles (default, or when empty: ``mask``).
+
+    Returns
+    -------
+    ndarray
+        Increasing thresholds, rad.
     """
     reliable = mask if reliable is None or not reliable.any() else reliable
     if params.quantization == "fixed":

@@ -64,6 +64,20 @@ def bilinear(image: np.ndarray, valid: np.ndarray, points_px: np.ndarray) -> np.
     """Bilinear samples of ``image`` at sub-pixel positions, using only ``valid`` pixels (weights renormalised).
 
     Returns NaN where none of the four neighbours is valid.
+
+    Parameters
+    ----------
+    image : ndarray, 2-D
+        Values to sample (e.g. heights, m).
+    valid : ndarray of bool, 2-D
+        Pixels that may be used.
+    points_px : ndarray, (n, 2)
+        Sub-pixel positions (row, col), pixels.
+
+    Returns
+    -------
+    ndarray, (n,)
+        Samples, in the image's unit.
     """
     rows, cols = image.shape
     base = np.floor(points_px).astype(int)
