@@ -123,8 +123,19 @@ class Branch:
 
         Parameters
         ----------
-        n, total, outer, normal_outer
-            Running sums as in :meth:`shape_direction` (m, m^2).
+        n : int
+            Number of points.
+        total : ndarray, (3,)
+            Sum of the points, m.
+        outer : ndarray, (3, 3)
+            Sum of the points' outer products, m^2.
+        normal_outer : ndarray, (3, 3)
+            Sum of the unit normals' outer products (used in "normals" mode).
+
+        Returns
+        -------
+        ndarray, (3,) or None
+            Unit axis direction.
         """
         if n < 3:
             return None
