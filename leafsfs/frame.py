@@ -116,6 +116,10 @@ def local_frame(theta: np.ndarray, psi: np.ndarray, range_m: np.ndarray, mask: n
     margin : int
         Pixels kept around the object's bounding box.
 
+    Returns
+    -------
+    LocalFrame
+
     Raises
     ------
     SfsError

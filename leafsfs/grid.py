@@ -145,6 +145,11 @@ def local_planes(image: np.ndarray, valid: np.ndarray, grid: PixelGrid, centres:
         Neighbourhood radius, pixels.
     order : {1, 2}
         Degree of the fitted polynomial surface.
+
+    Returns
+    -------
+    LocalPlanes
+        One plane per centre (heights in the image's unit, gradients per continuous unit).
     """
     r = int(np.floor(radius_px))
     di, dj = np.mgrid[-r:r + 1, -r:r + 1]

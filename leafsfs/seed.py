@@ -114,6 +114,11 @@ def mark_toggles(sines: np.ndarray, window: int) -> np.ndarray:
         Sign runs shorter than ``window`` points are noise and take the sign
         of their neighbours; each remaining change gets one toggle, at the
         point within ``window`` points of it with the smallest ``|sines|``.
+
+    Returns
+    -------
+    ndarray of int, (n,)
+        +1 (descending direction on the left), -1 (on the right) or 0 (toggle point).
     """
     sign = np.where(sines >= 0, 1, -1)
     n = len(sign)

@@ -64,6 +64,10 @@ def sample_surface(surface, side: int, *, alpha_noise_deg: float = 0.0, alpha_bi
         Amplitude of the uniform height noise, as a fraction of ``h_max - h_min``.
     seed : int
         Seed of the noise generator.
+
+    Returns
+    -------
+    SyntheticInput
     """
     x, y, h, mask = surface.sample(side, side)
     alpha = np.where(mask, surface.alpha(x, y), np.nan)

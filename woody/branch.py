@@ -277,5 +277,9 @@ def is_significant(order: int, count: int, params) -> bool:
         Number of points of the branch.
     params : woody.cylinders.FollowParams
         Settings (``ord_min1``, ``ord_min2``, ``n_min_factor``, free-seed counts).
+
+    Returns
+    -------
+    bool
     """
     return order < params.ord_min1 or (order < params.ord_min2 and count > params.n_min_factor * params.n_s(order))

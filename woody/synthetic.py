@@ -73,6 +73,11 @@ def sample_cylinders(cylinders: list[dict], density_per_m2: float, seed=0, arc_d
     drop_inside : bool
         Drop points that lie inside another cylinder (the buried base of a
         child branch).
+
+    Returns
+    -------
+    SyntheticCloud
+        Points (m), their outward unit normals, the row of the cylinder each lies on, and the cylinders.
     """
     if not density_per_m2 > 0:
         raise WoodyError(f"density_per_m2 must be positive, got {density_per_m2}")
