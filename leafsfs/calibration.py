@@ -171,7 +171,18 @@ def correct_distance(intensity_dn, range_m, curve: ReferenceCurve, mode: str = "
 
 def panel_statistics(table: dict, curve: ReferenceCurve, mode: str = "additive",
                      min_distance_m: float = CORRECTION_VALID_FROM_M) -> dict[float, dict[str, float]]:
-    """The columns of the sources' Table 2 for every reflectance of a :func:`panel_table`.
+    """The columns of the sources' Table 2 for every reflectance of a panel table.
+
+    Parameters
+    ----------
+    table : dict of ndarray
+        :func:`tlssim.calibration.panel_table` output.
+    curve : ReferenceCurve
+        The 99 % reference curve.
+    mode : {"additive", "ratio"}
+        Distance-correction form of ``corrected_rmse_dn``.
+    min_distance_m : float
+        Distances beyond which the mean shift and the corrected spread are taken, m.
 
     Returns
     -------
@@ -337,15 +348,39 @@ class Calibration:
     scanner_model: dict = field(default_factory=dict, compare=False)
 
     def corrected(self, intensity_dn, range_m) -> np.ndarray:
-        """Distance-corrected intensity, DN."""
+        """Distance-corrected intensity, DN.
+
+        Parameters
+        ----------
+        intensity_dn : array_like
+            Raw intensity, DN.
+        range_m : array_like
+            Measured range of the same returns, m.
+        """
         return correct_distance(intensity_dn, range_m, self.curve, self.mode)
 
     def alpha(self, intensity_dn, range_m) -> np.ndarray:
-        """Incidence from raw intensity and range, rad in [0, pi/2]."""
+        """Incidence from raw intensity and range, rad in [0, pi/2].
+
+        Parameters
+        ----------
+        intensity_dn : array_like
+            Raw intensity, DN.
+        range_m : array_like
+            Measured range of the same returns, m.
+        """
         return self.incidence.alpha(self.corrected(intensity_dn, range_m))
 
     def reliable(self, intensity_dn, range_m) -> np.ndarray:
-        """Whether :meth:`alpha` lies within the validity limit (and the range within the correction's)."""
+        """Whether :meth:`alpha` lies within the validity limit (and the range within the correction's).
+
+        Parameters
+        ----------
+        intensity_dn : array_like
+            Raw intensity, DN.
+        range_m : array_like
+            Measured range of the same returns, m.
+        """
         return self.incidence.reliable(self.corrected(intensity_dn, range_m)) & (
             np.asarray(range_m) >= self.curve.valid_from_m)
 
