@@ -35,15 +35,23 @@ def test_simulated_calibration_is_cached(calibration, tmp_path, monkeypatch):
     from benchmarks.experiments import calibration as experiment
 
     model = get_preset("faro-ls880")
-    assert simulated_calibration(model) is calibration
+    assert simulated_calibration(model) is calibration  # in memory, no second simulation
+    # the disk cache, on cheap stand-in tables (a second simulation may differ in the last bit)
+    alpha = np.radians(np.arange(0, 81, 10.0))
+    panels = {"reflectance": np.full(4, 0.99), "distance_m": np.array([1.0, 2.0, 4.0, 8.0]),
+              "intensity_dn": np.array([1900.0, 1850.0, 1700.0, 1520.0])}
+    goniometer = {"name": np.array([f"s{i}" for i in range(len(alpha))]), "alpha_rad": alpha,
+                  "sample_station": np.arange(len(alpha)), "sample_range_m": np.full(len(alpha), 2.16),
+                  "sample_intensity_dn": (1800 + 263 * np.log(np.cos(alpha))).astype(np.float32)}
+    calls = []
+    monkeypatch.setattr(experiment, "simulate_tables", lambda m, seed: calls.append(seed) or (panels, goniometer))
     monkeypatch.setattr(experiment, "_MEMORY", {})
-    first = simulated_calibration(model, cache_dir=tmp_path)
-    files = list(tmp_path.glob("calibration-*.json"))
-    assert len(files) == 1
+    first = simulated_calibration(model, seed=3, cache_dir=tmp_path)
+    assert calls == [3] and len(list(tmp_path.glob("calibration-*.json"))) == 1
     monkeypatch.setattr(experiment, "_MEMORY", {})
-    monkeypatch.setattr(experiment, "simulate_tables", None)  # a second simulation would fail
-    again = simulated_calibration(model, cache_dir=tmp_path)  # read back from the file
-    assert again == first == calibration
+    again = simulated_calibration(model, seed=3, cache_dir=tmp_path)  # read back from the file
+    assert calls == [3] and again == first
+    assert simulated_calibration(model, seed=3, cache_dir=tmp_path) is again
 
 
 def test_plane_fit_incidence_follows_the_goniometer(goniometer_scan):
