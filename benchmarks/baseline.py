@@ -362,7 +362,14 @@ def timing_warnings(baseline: dict, current: dict, band: float = TIMING_BAND) ->
     -------
     list of str
         One line per variant outside the band.
+
+    Raises
+    ------
+    BenchError
+        If ``band`` is not a number above 1.
     """
+    if not band > 1 or not math.isfinite(band):
+        raise BenchError(f"the timing band must be a factor above 1, got {band}")
     old, new = baseline["timings"]["variants"], current["timings"]["variants"]
     lines = []
     for variant in new:

@@ -23,7 +23,8 @@ def rows(change=None, runtime=1.0, trace=10.0, error=None):
     for case, (before, after, area) in CASES.items():
         for variant in VARIANTS:
             leaf = {"object_type": "leaf", "visibility": 1.0, "rop_before": before,
-                    "rop_after": before if variant == "raw" else after, "area_rel_err": 0.3 if variant == "raw" else area}
+                    "rop_after": before if variant == "raw" else after,
+                    "area_rel_err": 0.3 if variant == "raw" else area}
             if change:
                 change(case, variant, leaf)
             failed = error if (case, variant) == ("leaf-b", "fused") else None
@@ -92,7 +93,8 @@ def test_one_point_rise_of_median_area_error_fails(fab, capsys):
     assert "REGRESSION: case leaf-b, variant fused: area_rel_err_median 0.03 -> 0.04" in out
     regressions = [line for line in out.splitlines() if line.startswith("REGRESSION")]
     # the suite's median over cases moves too; the bias only grows in magnitude, so it is worse as well
-    assert {line.split(":")[1] for line in regressions} == {" case leaf-b, variant fused", " case (suite), variant fused"}
+    assert {line.split(":")[1].strip() for line in regressions} == {"case leaf-b, variant fused",
+                                                                   "case (suite), variant fused"}
 
 
 def test_worse_ones_come_first(fab, capsys):
@@ -134,6 +136,9 @@ def test_timing_changes_only_warn_and_are_relative_to_the_trace_time(fab, capsys
     assert status == 0 and "timing warning: variant fused: 5.00x" in out and "slower" in out
     status, out = check(*fab, rows(runtime=5.0, trace=50.0), capsys)  # the whole machine 5x slower: no warning
     assert status == 0 and "timing warning" not in out and "passed: no regression; 0 improvement(s)" in out
+    db, path = fab
+    assert cli.main(["check", "--run", "latest", "--db", str(db), "--baseline", str(path), "--timing-band", "1"]) == 2
+    assert "timing band must be a factor above 1" in capsys.readouterr().err
 
 
 def test_missing_and_failed_results_are_regressions(fab, capsys):
