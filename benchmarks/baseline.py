@@ -88,9 +88,10 @@ RULES = {
     "volume_rel_err": Rule("lower", "fraction"),
 }
 
-#: A variant's runtime relative to the trace time may move by this factor either way before a warning: runs on
-#: a shared machine vary by more than 1.5x from one run to the next (see the README's benchmark section).
-TIMING_BAND = 2.0
+#: A variant's runtime relative to the trace time may move by this factor either way before a warning. On the
+#: 2 cores shared by six sessions, two runs of the quick suite on the same commit gave factors of 0.43-1.6:
+#: the trace of a case is a snapshot of a few seconds, a variant may run for minutes while the load changes.
+TIMING_BAND = 3.0
 
 
 def baseline_path(suite: str, path=None) -> Path:
@@ -349,7 +350,8 @@ def new_pairs(baseline: dict, current: dict) -> list[tuple[str, str]]:
 
 
 def timing_warnings(baseline: dict, current: dict, band: float = TIMING_BAND) -> list[str]:
-    """Variants whose runtime relative to the trace time moved by more than ``band`` either way.
+    """Variants whose runtime relative to the trace time moved by more than ``band`` either way (slower: a
+    warning; faster: a note).
 
     Parameters
     ----------
@@ -361,7 +363,7 @@ def timing_warnings(baseline: dict, current: dict, band: float = TIMING_BAND) ->
     Returns
     -------
     list of str
-        One line per variant outside the band.
+        One line per variant outside the band (``timing warning: ...`` or ``timing note: ...``).
 
     Raises
     ------
@@ -377,8 +379,8 @@ def timing_warnings(baseline: dict, current: dict, band: float = TIMING_BAND) ->
             continue
         factor = new[variant]["ratio"] / old[variant]["ratio"]
         if factor > band or factor < 1 / band:
-            word = "slower" if factor > 1 else "faster"
-            lines.append(f"variant {variant}: {factor:.2f}x the baseline's runtime per trace time ({word}: "
+            kind, word = ("timing warning", "slower") if factor > 1 else ("timing note", "faster")
+            lines.append(f"{kind}: variant {variant}: {factor:.2f}x the baseline's runtime per trace time ({word}: "
                          f"{old[variant]['ratio']:.3g} -> {new[variant]['ratio']:.3g}; runtime "
                          f"{old[variant]['runtime_s']:.3g} s -> {new[variant]['runtime_s']:.3g} s)")
     return lines
@@ -415,7 +417,7 @@ def format_check(baseline: dict, current: dict, changes: list[Change], band: flo
     if trace_old and trace_new:
         lines.append(f"timings: trace time {trace_new:.3g} s (baseline {trace_old:.3g} s); runtimes compared per trace "
                      f"time with a noise band of {band:g}x, warnings only")
-    lines += [f"timing warning: {line}" for line in timing_warnings(baseline, current, band)]
+    lines += timing_warnings(baseline, current, band)
     if regressions:
         worst = regressions[0]
         lines.append(f"FAILED: {len(regressions)} regression(s) beyond the tolerances; the worst: {worst.describe()}. "
