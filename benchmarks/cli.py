@@ -135,7 +135,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("check", help="run the suite and compare it with its baseline (exit 1 on a regression)")
     _add_baseline_options(p)
     p.add_argument("--timing-band", type=float, default=TIMING_BAND,
-                   help=f"factor beyond which a runtime per trace time warns (default {TIMING_BAND:g})")
+                   help=f"factor by which a runtime (per trace time and in seconds) may move before a "
+                        f"warning (default {TIMING_BAND:g})")
     p.set_defaults(func=cmd_check)
 
     p = sub.add_parser("history", help="a metric across the commits of the stored runs (table and PNG chart)")
@@ -311,7 +312,8 @@ def cmd_check(args) -> int:
     def load(suite: str) -> dict:
         return baseline.load_baseline(baseline.baseline_path(suite, args.baseline), suite)
 
-    old = None if args.run else load(load_suite(args.suite).name)  # no baseline: stop before running anything
+    baseline.valid_band(args.timing_band)  # refuse bad options and a missing baseline before running anything
+    old = None if args.run else load(load_suite(args.suite).name)
     with Store(args.db, create=not args.run) as store:
         current = baseline.run_document(store, _baseline_run(args, store))
     old = old or load(current["suite"])
