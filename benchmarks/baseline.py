@@ -365,7 +365,13 @@ def compare_to_baseline(baseline: dict, current: dict, variants=None) -> list[Ch
 
 
 def new_pairs(baseline: dict, current: dict) -> list[tuple[str, str]]:
-    """(case, variant) pairs of the run that the baseline does not hold (not guarded until it is updated)."""
+    """(case, variant) pairs of the run that the baseline does not hold (not guarded until it is updated).
+
+    Parameters
+    ----------
+    baseline, current : dict
+        Documents of :func:`run_document` (the baseline file and the run to check).
+    """
     return [(case, variant) for case, by_variant in current["accuracy"].items() for variant in by_variant
             if variant not in baseline["accuracy"].get(case, {})]
 
