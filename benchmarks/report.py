@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from benchmarks import heightfields, scoring, summary, sweeps
+from benchmarks import heightfields, metrics, scoring, summary, sweeps
 from benchmarks.registry import get_variant, unavailable
 from benchmarks.runner import simulate_case
 from benchmarks.store import Store
@@ -29,7 +29,8 @@ from benchmarks.suite import Case
 
 
 def report_document(store: Store, run_id: str) -> dict:
-    """The JSON report of a run: ``run``, ``goal``, ``rows`` (suite × variant), ``by_scene`` and ``sweeps``."""
+    """The JSON report of a run: ``run``, ``goal``, ``rows`` (suite × variant), ``by_scene``, the thesis'
+    ``validation`` table and ``rppp_groups``, ``cases`` (whole-scan reconstruction per case) and ``sweeps``."""
     info = store.run_info(run_id)
     rows = store.results(run_id)
     table = summary.summarize(rows, info["suite"])
@@ -38,6 +39,9 @@ def report_document(store: Store, run_id: str) -> dict:
         "goal": summary.goal_status(table, unavailable()),
         "rows": table,
         "by_scene": summary.summarize_by_scene(rows, info["suite"]),
+        "validation": summary.validation_table(rows),
+        "rppp_groups": summary.rppp_groups(rows),
+        "cases": summary.case_table(rows),
         "unavailable_variants": unavailable(),
         "errors": [{"case": r["case_name"], "variant": r["variant"], "error": r["error"]} for r in rows if r["error"]],
         "sweeps": [],
@@ -92,6 +96,34 @@ def plot_area_errors(leaves: list[dict]) -> Figure:
     return figure
 
 
+def plot_area_scatter(leaves: list[dict]) -> Figure:
+    """Estimated against true leaf area per variant, on the leaves whose area is scored (found leaves in
+    colour, the others in grey at their estimate), with the 1:1 line and the least-squares line."""
+    leaves = summary.visible_leaves(leaves)
+    variants = list(dict.fromkeys(leaf["variant"] for leaf in leaves))
+    columns = min(4, max(len(variants), 1))
+    figure = Figure(figsize=(3.2 * columns, 3.0 * math.ceil(len(variants) / columns)), layout="constrained")
+    for index, variant in enumerate(variants):
+        axes = figure.add_subplot(math.ceil(len(variants) / columns), columns, index + 1)
+        mine = [leaf for leaf in leaves if leaf["variant"] == variant]
+        done = [summary.succeeded(leaf) for leaf in mine]
+        truth = np.array([leaf["area_true_m2"] for leaf in mine]) * 1e4
+        estimate = np.array([leaf.get("area_m2") or 0.0 for leaf in mine]) * 1e4
+        ok = np.array(done, dtype=bool)
+        axes.scatter(truth[~ok], estimate[~ok], s=6, color="lightgrey", label="not reconstructed")
+        axes.scatter(truth[ok], estimate[ok], s=6, color="tab:blue", label="reconstructed")
+        top = max(float(truth.max()), float(np.percentile(estimate, 95)) if len(estimate) else 0.0) * 1.1
+        axes.plot([0, top], [0, top], color="black", lw=0.6)
+        fit = metrics.linear_fit(truth[ok], estimate[ok])
+        if math.isfinite(fit["slope"]):
+            axes.plot([0, top], [fit["intercept"], fit["intercept"] + fit["slope"] * top], color="tab:red", lw=0.8,
+                      label=f"y = {fit['slope']:.2f} x + {fit['intercept']:.1f}, R² {fit['r2']:.2f}")
+        axes.set(xlim=(0, top), ylim=(0, top), xlabel="true area (cm²)", ylabel="estimated area (cm²)")
+        axes.set_title(variant, fontsize=9)
+        axes.legend(fontsize=6)
+    return figure
+
+
 def plot_height_errors(rows: list[dict]) -> Figure:
     """Mean |relative height error| (thesis eq 3.2) of every height-field case, per variant."""
     cases = list(dict.fromkeys(r["case_name"] for r in rows if heightfields.is_heightfield(r["case_spec"]["scene"])))
@@ -142,7 +174,8 @@ def plot_before_after(case_spec: dict, variants: list[dict]) -> Figure:
     """
     case = Case.from_dict(case_spec)
     scene, scan = simulate_case(case)
-    leaf = scoring.prepare_leaves(scene, scan, None if case.targets is None else list(case.targets))[0]
+    leaves = scoring.prepare_leaves(scene, scan, None if case.targets is None else list(case.targets))
+    leaf = leaves[0]
     columns = min(4, len(variants))
     rows = math.ceil(len(variants) / columns)
     figure = Figure(figsize=(3.2 * columns, 3.0 * rows), layout="constrained")
@@ -150,7 +183,12 @@ def plot_before_after(case_spec: dict, variants: list[dict]) -> Figure:
     depth = np.median(measured[leaf.own, 0])
     for index, spec in enumerate(variants):
         axes = figure.add_subplot(rows, columns, index + 1)
-        output = get_variant(spec["name"]).with_params(**spec["params"])(leaf.scan, leaf.mask)
+        variant = get_variant(spec["name"]).with_params(**spec["params"])
+        if variant.scope == "scan":
+            output = scoring.leaf_outputs(leaves, variant(scan, scoring.target_labels(scan.shape, leaves)), scene,
+                                          scan)[0][0]
+        else:
+            output = variant(leaf.scan, leaf.mask)
         out, kept, distance = scoring.output_distance(leaf, output)
         good = kept & (np.abs(distance) <= leaf.taus["auto"])
         axes.scatter(measured[~kept, 1], measured[~kept, 0] - depth, s=1, color="lightgrey", label="removed")
@@ -221,6 +259,16 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
         "outliers farther than τ from the true surface of their object). Area and angle errors: medians of absolute "
         "errors over leaves. Runtime: median per case. Lengths in mm.</p>",
     ]
+    if document["validation"]:
+        parts += [f"<h2>Validation table (thesis ch.7)</h2><p>Over the leaves at least "
+                  f"{metrics.MIN_VISIBILITY:.0%} visible; regressions, BIAS (eq 2.1) and precisions (standard "
+                  "deviation of the error) over the leaves the variant reconstructed (success). Areas in cm², "
+                  "angles in degrees.</p>", _table(document["validation"], summary.VALIDATION_KEYS)]
+    if document["rppp_groups"]:
+        parts += ["<h3>Redundancy rppp by leaf group (region pixels)</h3>",
+                  _table(document["rppp_groups"], summary.RPPP_KEYS)]
+    if document["cases"]:
+        parts += ["<h3>Whole-scan reconstruction per case</h3>", _table(document["cases"], summary.CASE_KEYS)]
     if document["unavailable_variants"]:
         parts.append("<p>Not registered yet: " + "; ".join(
             f"{html.escape(k)} ({html.escape(v)})" for k, v in document["unavailable_variants"].items()) + "</p>")
@@ -229,6 +277,8 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
         figures.append(("ROP against distance", plot_rop_vs_distance(leaves)))
     if any(leaf.get("area_rel_err") is not None for leaf in leaves):
         figures.append(("Leaf area error", plot_area_errors(leaves)))
+    if summary.visible_leaves(leaves):
+        figures.append(("Estimated against true leaf area", plot_area_scatter(leaves)))
     if any(heightfields.is_heightfield(r["case_spec"]["scene"]) for r in rows):
         figures.append(("Height-field errors", plot_height_errors(rows)))
     showcase = pick_showcase(rows) if before_after else None

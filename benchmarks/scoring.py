@@ -5,7 +5,12 @@ against: for each target leaf its points (the pulses with at least 10 % of
 their power from it), the distance of each measured point to the true
 surface of the object it is attributed to, the range noise and the outlier
 thresholds. :func:`score_leaf` then scores one variant's output on one leaf
-with the definitions of :mod:`benchmarks.metrics`. Woody objects
+with the definitions of :mod:`benchmarks.metrics`. A variant that runs once
+on the whole scan and segments it into leaves itself is scored by
+:func:`score_scan`: every true leaf is matched to the output region that
+covers most of its visible pulses (the pulses it dominates), is scored on
+that match, and is *found* when the match covers at least half of them;
+regions that match no leaf are false leaves. Woody objects
 (:func:`prepare_wood`, :func:`score_wood`) are scored with the woody
 package's own :func:`woody.score`. :mod:`benchmarks.summary` aggregates the
 scores over a suite.
@@ -85,6 +90,8 @@ class LeafTruth(Target):
         Properties of the scan on this leaf (range, incidence, noise, intensity, density, visibility).
     surfaces : TruthSurfaces
         Distances to the scene's true surfaces (shared by the leaves of a scan).
+    window : tuple of slice
+        Where ``scan`` lies in the whole scan (rows, columns).
     """
 
     own: np.ndarray
@@ -93,6 +100,12 @@ class LeafTruth(Target):
     taus: dict
     scan_stats: dict
     surfaces: "TruthSurfaces"
+    window: tuple
+
+    def own_pixels(self) -> tuple[np.ndarray, np.ndarray]:
+        """Rows and columns, in the whole scan, of the pulses the leaf dominates (its visible pulses)."""
+        rows, cols = np.nonzero(self.mask)
+        return rows[self.own] + self.window[0].start, cols[self.own] + self.window[1].start
 
 
 def crop_scan(scan, rows: slice, cols: slice):
@@ -253,10 +266,12 @@ def prepare_leaves(scene, scan, targets: list[str] | None = None,
             "points_per_cm2": int(own.sum()) / (area * 1e4) if area else math.nan,
             "visibility": visibility(scan, oid, obj.truth["outline"], distance_m) if "outline" in obj.truth
             else math.nan,
+            "visible_area_m2": float(elements[own_grid].sum()),
             "visible_area_ratio": float(elements[own_grid].sum()) / area if area else math.nan,
         }
         leaves.append(LeafTruth(oid, obj.name, obj.type, obj.truth, part, mask, own, attributed, distance,
-                                {"auto": metrics.auto_tau(sigma), "1cm": metrics.TAU_TRUE_M}, stats, surfaces))
+                                {"auto": metrics.auto_tau(sigma), "1cm": metrics.TAU_TRUE_M}, stats, surfaces,
+                                window))
     return leaves
 
 
@@ -334,11 +349,9 @@ def score_leaf(leaf: LeafTruth, output: VariantOutput) -> dict:
         kept inliers; ``surface_rmse_m`` and ``completeness`` (share of the
         leaf's own pulses with an output point within τ); ``flag_precision``
         and ``flag_recall`` of the points the method flags as outliers
-        against the true outliers (τ auto); for methods that segment leaves
-        (``output.region``), ``purity`` (share of the region's pulses that
-        the leaf dominates) and ``coverage`` (share of the leaf's own pulses
-        in the region); leaf-trait errors where both the truth and the
-        method give the trait; the method's own stats.
+        against the true outliers (τ auto); leaf-trait errors where both the
+        truth and the method give the trait; the method's own stats (for
+        whole-scan variants, the match of :func:`leaf_outputs`).
     """
     _, kept, distance = output_distance(leaf, output)
     before, after = np.abs(leaf.distance), np.abs(distance)
@@ -359,17 +372,180 @@ def score_leaf(leaf: LeafTruth, output: VariantOutput) -> dict:
     scores["surface_rmse_m"] = metrics.rms(distance[kept])
     own = max(int(leaf.own.sum()), 1)
     scores["completeness"] = int((leaf.own & kept & (after <= tau)).sum()) / own
-    if output.region is not None:
-        region = np.asarray(output.region, dtype=bool)
-        scores["purity"] = float(np.mean(leaf.scan.truth_id[region] == leaf.object_id)) if region.any() else math.nan
-        scores["coverage"] = float(np.mean(region[leaf.mask][leaf.own]))
     scores.update(trait_errors(leaf.truth, output.traits))
     scores.update(output.stats)
     return json_ready(scores)
 
 
+def target_labels(shape: tuple[int, int], leaves: list[LeafTruth]) -> np.ndarray:
+    """Label image of the targets' points (``k + 1`` for ``leaves[k]``, 0 elsewhere), for variants given the targets.
+
+    A pulse in the masks of several leaves goes to the leaf that dominates it,
+    or else to the first of them.
+    """
+    labels = np.zeros(shape, dtype=np.int32)
+    for k, leaf in enumerate(leaves):
+        part = labels[leaf.window]
+        part[leaf.mask & (part == 0)] = k + 1
+    for k, leaf in enumerate(leaves):
+        labels[leaf.own_pixels()] = k + 1
+    return labels
+
+
+#: A true leaf is found when one output region covers at least this share of its visible pulses (issue 16).
+MIN_FOUND_COVERAGE = 0.5
+#: rppp counts kept per region (rppp_0 .. rppp_N, and rppp_more beyond).
+RPPP_MAX = 3
+
+
+def region_stats(output: VariantOutput, scan) -> dict:
+    """Per output region (by label): its pixels, its rppp ratios and the object that dominates most of its pulses.
+
+    Returns
+    -------
+    dict
+        ``labels`` (the regions with traits, sorted), arrays indexed like it:
+        ``pixels``, ``rppp_0`` .. ``rppp_{RPPP_MAX}``, ``rppp_more`` and
+        ``object`` (the dominant ``truth_id``, -1 for none).
+    """
+    labels = np.asarray(output.labels)
+    ids = np.array(sorted(output.regions or {}), dtype=np.int64)
+    top = int(max(labels.max(initial=0), ids.max(initial=0))) + 1
+    flat = labels.ravel()
+    pixels = np.bincount(flat, minlength=top)[ids]
+    stats = {"labels": ids, "pixels": pixels}
+    counts = np.zeros(labels.shape, int) if output.candidates is None else np.asarray(output.candidates)
+    total = np.maximum(pixels, 1)
+    for n in range(RPPP_MAX + 1):
+        stats[f"rppp_{n}"] = np.bincount(flat, weights=(counts == n).ravel(), minlength=top)[ids] / total
+    stats["rppp_more"] = np.bincount(flat, weights=(counts > RPPP_MAX).ravel(), minlength=top)[ids] / total
+    inside = flat > 0
+    pairs, n_pairs = np.unique(np.stack([flat[inside], scan.truth_id.ravel()[inside]]), axis=1, return_counts=True)
+    dominant = np.full(top, -1)
+    order = np.lexsort((n_pairs, pairs[0]))  # by label, then count: the last of each label is its dominant object
+    last = order[np.r_[pairs[0][order][1:] != pairs[0][order][:-1], True]]
+    dominant[pairs[0][last]] = pairs[1][last]
+    stats["object"] = dominant[ids]
+    return stats
+
+
+def leaf_outputs(leaves: list[LeafTruth], output: VariantOutput, scene, scan) -> tuple[list[VariantOutput], dict]:
+    """Match a whole-scan output's regions to the true leaves; each leaf's view of the output, and the case's counts.
+
+    Each leaf is matched to the output region that holds most of its
+    visible pulses (the pulses it dominates, ``truth_id``); it is scored on
+    that region's traits (none, so area 0, when no region holds any of its
+    pulses) and on the output points of its part of the scan. A region that
+    is the match of no target leaf is a false leaf, unless another leaf or
+    surface that is not a target dominates most of its pulses.
+
+    Parameters
+    ----------
+    leaves : list of LeafTruth
+        The targets (:func:`prepare_leaves` on ``scan``).
+    output : VariantOutput
+        A whole-scan output with ``labels`` and ``regions``.
+    scene : Scene
+        The scanned scene.
+    scan : tlssim.Scan
+        The whole scan (with truth).
+
+    Returns
+    -------
+    outputs : list of VariantOutput
+        Per leaf, the output on its part of the scan, with the matched
+        region's traits and the stats ``found`` (1 when the match covers at
+        least :data:`MIN_FOUND_COVERAGE` of its visible pulses),
+        ``coverage`` (that share), ``purity`` (share of the region's pulses
+        the leaf dominates), ``region_pixels`` and the region's rppp ratios.
+    counts : dict
+        ``n_regions``, ``n_false`` (regions matching no leaf),
+        ``n_false_on_leaves`` (of those, regions on a target leaf that
+        matched another region: split leaves), ``n_false_off_leaves`` (on
+        wood, walls and other objects).
+    """
+    if output.labels is None or output.regions is None:
+        raise BenchError("whole-scan scoring needs an output with region labels and their traits")
+    regions = region_stats(output, scan)
+    index = {int(label): k for k, label in enumerate(regions["labels"])}
+    matched, outputs = set(), []
+    for leaf in leaves:
+        found = np.asarray(output.labels)[leaf.own_pixels()]
+        found = found[found > 0]
+        stats = {"found": 0, "coverage": 0.0}
+        traits = {"area_m2": 0.0}
+        if len(found):
+            label = int(np.bincount(found).argmax())
+            k = index[label]
+            matched.add(label)
+            coverage = float(np.mean(np.asarray(output.labels)[leaf.own_pixels()] == label))
+            stats = {"found": int(coverage >= MIN_FOUND_COVERAGE), "coverage": coverage,
+                     "purity": int((found == label).sum()) / int(regions["pixels"][k]),
+                     "region_pixels": int(regions["pixels"][k]),
+                     **{key: float(regions[key][k]) for key in regions if key.startswith("rppp_")}}
+            traits = output.regions[label]
+        flags = None if output.flags is None else np.asarray(output.flags)[leaf.window]
+        outputs.append(VariantOutput(np.asarray(output.xyz)[leaf.window], traits, {**output.stats, **stats}, flags))
+    targets = {leaf.object_id for leaf in leaves}
+    others = {i for i, obj in enumerate(scene.objects) if obj.type in TARGET_TYPES} - targets
+    false = [k for k, label in enumerate(regions["labels"]) if int(label) not in matched
+             and regions["object"][k] not in others]
+    on_leaves = sum(1 for k in false if regions["object"][k] in targets)
+    return outputs, {"n_regions": len(regions["labels"]), "n_false": len(false), "n_false_on_leaves": on_leaves,
+                     "n_false_off_leaves": len(false) - on_leaves}
+
+
+def found_counts(scores: list[dict], min_visibility: float = metrics.MIN_VISIBILITY) -> dict:
+    """Found and missed leaves among scored leaves, all and at least ``min_visibility`` visible.
+
+    Parameters
+    ----------
+    scores : list of dict
+        Per-leaf scores with ``found`` and ``visibility``.
+    min_visibility : float
+        Share of the silhouette a leaf must show to count as visible.
+
+    Returns
+    -------
+    dict
+        ``n_leaves``, ``n_found``, ``n_missed``, ``n_visible``,
+        ``n_found_visible``, ``n_missed_visible``.
+    """
+    leaves = [s for s in scores if s.get("object_type") == "leaf" and s.get("found") is not None]
+    visible = [s for s in leaves if (s.get("visibility") or 0.0) >= min_visibility]
+    found, found_visible = sum(s["found"] for s in leaves), sum(s["found"] for s in visible)
+    return {"n_leaves": len(leaves), "n_found": found, "n_missed": len(leaves) - found, "n_visible": len(visible),
+            "n_found_visible": found_visible, "n_missed_visible": len(visible) - found_visible}
+
+
+def score_scan(leaves: list[LeafTruth], output: VariantOutput, scene, scan) -> tuple[list[dict], dict]:
+    """Scores of a whole-scan output on every target leaf (:func:`leaf_outputs`, :func:`score_leaf`) and the
+    case's counts (:func:`leaf_outputs`, :func:`found_counts`).
+
+    Parameters
+    ----------
+    leaves : list of LeafTruth
+        The targets.
+    output : VariantOutput
+        The variant's output on the whole ``scan``.
+    scene : Scene
+        The scanned scene.
+    scan : tlssim.Scan
+        The whole scan.
+    """
+    outputs, counts = leaf_outputs(leaves, output, scene, scan)
+    scores = [score_leaf(leaf, out) for leaf, out in zip(leaves, outputs)]
+    return scores, {**found_counts(scores), **counts}
+
+
 def trait_errors(truth: dict, traits: dict | None) -> dict:
-    """Area, elevation and azimuth errors where both the truth and the estimate have them."""
+    """Area, elevation and azimuth errors where both the truth and the estimate have them.
+
+    The estimated angles are stored aligned with the truth
+    (:func:`benchmarks.metrics.aligned_axis_angles`: the midrib's sense
+    flipped towards the truth, the azimuth within 180 deg of it), next to
+    the true ones, for the regressions of the validation table.
+    """
     if not traits:
         return {}
     errors = {}
@@ -379,9 +555,11 @@ def trait_errors(truth: dict, traits: dict | None) -> dict:
                        "area_rel_err": metrics.relative_error(traits["area_m2"], truth["area_m2"])})
     keys = ("elevation_deg", "azimuth_deg")
     if all(k in truth for k in keys) and all(np.isfinite(traits.get(k, math.nan)) for k in keys):
-        el, az = metrics.axis_angle_errors(traits["elevation_deg"], traits["azimuth_deg"],
-                                           truth["elevation_deg"], truth["azimuth_deg"])
-        errors.update({"elevation_err_deg": el, "azimuth_err_deg": az})
+        el, az = metrics.aligned_axis_angles(traits["elevation_deg"], traits["azimuth_deg"],
+                                             truth["elevation_deg"], truth["azimuth_deg"])
+        errors.update({"elevation_deg": el, "elevation_true_deg": truth["elevation_deg"], "azimuth_deg": az,
+                       "azimuth_true_deg": truth["azimuth_deg"], "elevation_err_deg": abs(el - truth["elevation_deg"]),
+                       "azimuth_err_deg": abs(az - truth["azimuth_deg"])})
     return errors
 
 
