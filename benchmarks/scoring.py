@@ -158,14 +158,35 @@ def area_elements(scan) -> np.ndarray:
     return scan.truth_range ** 2 * d_theta * d_psi * np.sin(scan.psi) / np.cos(scan.incidence)
 
 
+#: Share of a leaf's largest extent that another object must lie in front of the leaf's outline plane to hide it
+#: (leaves are bent and rolled: their surface leaves the plane of their outline by a fraction of their length).
+HIDING_DEPTH_FRACTION = 0.2
+
+
 def visibility(scan, object_id: int, outline, distance_m: float) -> float:
-    """Share of a leaf's silhouette that no other object hides from the scanner.
+    """Share of a leaf's silhouette that the scan sees: not hidden by another object, not outside the window.
 
     The silhouette is the leaf's outline polygon projected on the scan grid.
     A silhouette pulse is hidden when its central ray stops (``truth_range``)
-    on another object more than one leaf length in front of the leaf's
-    median distance. Edge pulses that mix the leaf with its background are
-    not hidden, so a leaf alone scores 1 at any distance and incidence.
+    on another object in front of the leaf: nearer than where the ray meets
+    the plane of the leaf's outline, by more than
+    :data:`HIDING_DEPTH_FRACTION` of the leaf's largest extent (so a leaf
+    a few centimetres in front of another hides it); silhouette pulses
+    beyond the scan's window are hidden too (leaves cut by the window's
+    border). Edge pulses that mix the leaf with its background are not
+    hidden, so a leaf alone in the window scores 1 at any distance and
+    incidence.
+
+    Parameters
+    ----------
+    scan : tlssim.Scan
+        The simulated scan (truth arrays).
+    object_id : int
+        The leaf's object id.
+    outline : ndarray, (n, 3)
+        The leaf's outline, world frame, m.
+    distance_m : float
+        The leaf's median range, m (used where its plane is seen edge-on).
     """
     outline = np.asarray(outline, dtype=float)
     local = (outline - scan.pose.position) @ scan.pose.rotation
@@ -173,12 +194,21 @@ def visibility(scan, object_id: int, outline, distance_m: float) -> float:
     theta = theta0 + np.mod(np.arctan2(local[:, 1], local[:, 0]) - theta0 + np.pi, 2 * np.pi) - np.pi
     psi = np.arccos(local[:, 2] / np.linalg.norm(local, axis=1))
     d_theta, d_psi = grid_steps(scan)
-    rows, cols = polygon((psi - psi0) / d_psi, (theta - theta0) / d_theta, scan.shape)
+    rows, cols = polygon((psi - psi0) / d_psi, (theta - theta0) / d_theta)
     if len(rows) == 0:
         return math.nan
-    extent = np.ptp(outline, axis=0).max()
-    hidden = (scan.truth_id[rows, cols] != object_id) & (scan.truth_range[rows, cols] < distance_m - extent)
-    return float(1.0 - hidden.mean())
+    inside = (rows >= 0) & (rows < scan.shape[0]) & (cols >= 0) & (cols < scan.shape[1])
+    rows, cols = rows[inside], cols[inside]
+    centre = local.mean(axis=0)
+    normal = np.linalg.svd(local - centre)[2][-1]
+    t, p = scan.theta[rows, cols], scan.psi[rows, cols]
+    ray = np.stack([np.sin(p) * np.cos(t), np.sin(p) * np.sin(t), np.cos(p)], axis=-1)
+    facing = ray @ normal
+    with np.errstate(divide="ignore", invalid="ignore"):
+        plane = np.where(np.abs(facing) > 0.1, (centre @ normal) / facing, distance_m)
+    depth = HIDING_DEPTH_FRACTION * np.ptp(outline, axis=0).max()
+    hidden = (scan.truth_id[rows, cols] != object_id) & (scan.truth_range[rows, cols] < plane - depth)
+    return float(1.0 - (hidden.sum() + (~inside).sum()) / len(inside))
 
 
 class TruthSurfaces:

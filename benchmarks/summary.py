@@ -42,6 +42,7 @@ does not estimate it) is ``None``.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 
@@ -112,8 +113,10 @@ def summarize(rows: list[dict], suite: str) -> list[dict]:
 
 
 def scene_kind(case_spec: dict) -> str:
-    """The kind of scene of a stored case: its generator, built-in scene or height-field surface name."""
+    """The kind of scene of a stored case: its generator, built-in scene, scene file name or height-field surface."""
     scene = case_spec["scene"]
+    if "file" in scene:
+        return f"file: {Path(scene['file']).name}"
     return scene.get("generator") or scene.get("builtin") or f"height field: {scene['heightfield']}"
 
 

@@ -81,3 +81,22 @@ def test_crop_margin_covers_the_mixed_band_near_the_scanner():
 
     assert scoring.crop_margin_px(scan(0.018), 0.8) == scoring.CROP_MARGIN_PX + 14
     assert scoring.crop_margin_px(scan(0.08), 4.0) == scoring.CROP_MARGIN_PX + 1
+
+
+def test_visibility_counts_close_occluders_and_the_window_border():
+    """A leaf 3 cm behind another that covers its left half (the old rule needed a whole leaf length in front), and
+    a leaf whose right half lies beyond the window's border."""
+    back = elliptic_leaf("back", (3.0, 0.0, 0.0), (-1, 0, 0), (0, 1, 0), 0.08, 0.05)
+    front = elliptic_leaf("front", (2.97, 0.04 * 2.97 / 3.0, 0.0), (-1, 0, 0), (0, 1, 0), 0.08, 0.05)
+    objects = [back, front]
+    section = scanner_window(objects)
+    scene = Scene(objects + [background_wall(objects, 3.5, 0.3)], section, "close-leaves")
+    scan = simulate(scene, setup_from_section({**section, "step_deg": 0.08}), seed=1, progress=False)
+    by_name = {leaf.name: leaf for leaf in scoring.prepare_leaves(scene, scan)}
+    assert by_name["front"].scan_stats["visibility"] == pytest.approx(1.0)
+    assert by_name["back"].scan_stats["visibility"] == pytest.approx(0.5, abs=0.12)
+    # The same scan cut at the front leaf's centre column: half its silhouette lies outside the window.
+    centre = int(np.argmin(np.abs(scan.theta[0] - np.arctan2(0.04, 3.0))))
+    half = scoring.crop_scan(scan, slice(None), slice(0, centre))
+    cut = scoring.visibility(half, 1, front.truth["outline"], 2.97)
+    assert cut == pytest.approx(0.5, abs=0.12)
