@@ -150,7 +150,7 @@ def case_rows(case: dict, variants: list[dict]):
                     scores.append(score(target, output))
                 peak = None if not peaks or any(p is None for p in peaks) else max(peaks)
                 counts = {}
-            counts = {**counts, "n_pulses": pulses, "pulses_per_s": pulses / runtime if runtime else None}
+            counts = {**counts, "n_pulses": pulses}
             yield _row(case, spec, {"targets": scores, "case": counts}, runtime, peak, simulate_s, None)
         except Exception as exc:  # noqa: BLE001 - a failing variant is recorded, the others still run
             yield _row(case, spec, {"targets": []}, None, None, simulate_s, _message(exc))

@@ -157,8 +157,7 @@ def _summary_row(mine: list[dict], labels: dict) -> dict:
         row[key] = int(sum(c[total] for c in counts)) if counts else None
     visible = sum(c["n_visible"] for c in counts)
     row["found_visible"] = sum(c["n_found_visible"] for c in counts) / visible if visible else None
-    rates = [r["metrics"]["case"]["pulses_per_s"] for r in ok if r["metrics"].get("case", {}).get("pulses_per_s")
-             and r["metrics"]["targets"]]
+    rates = [rate for r in ok if r["metrics"]["targets"] and (rate := pulses_per_s(r)) is not None]
     row["pulses_per_s"] = float(np.median(rates)) if rates else None
     row["runtime_s"] = float(np.median(runtimes)) if runtimes else None
     row["runtime_total_s"] = float(np.sum(runtimes)) if runtimes else None
@@ -313,12 +312,19 @@ CASE_KEYS = ("case", "variant", "n_pulses", "runtime_s", "pulses_per_s", "peak_m
              "n_missed", "n_false")
 
 
+def pulses_per_s(row: dict) -> float | None:
+    """Pulses a variant was given on a case (``n_pulses``) per second of its runtime (None when unknown)."""
+    pulses = row["metrics"].get("case", {}).get("n_pulses")
+    return pulses / row["runtime_s"] if pulses is not None and row["runtime_s"] else None
+
+
 def case_table(rows: list[dict]) -> list[dict]:
     """Per case, the variants that reconstruct the whole scan: pulses, runtime, throughput, peak memory and
     found / missed / false leaves."""
     return [{"case": r["case_name"], "variant": r["variant"], "runtime_s": r["runtime_s"],
-             "peak_mem_mb": r["peak_mem_mb"], **{k: r["metrics"]["case"].get(k) for k in CASE_KEYS
-                                                 if k not in ("case", "variant", "runtime_s", "peak_mem_mb")}}
+             "pulses_per_s": pulses_per_s(r), "peak_mem_mb": r["peak_mem_mb"],
+             **{k: r["metrics"]["case"].get(k) for k in CASE_KEYS
+                if k not in ("case", "variant", "runtime_s", "pulses_per_s", "peak_mem_mb")}}
             for r in rows if not r["error"] and "n_regions" in r["metrics"].get("case", {})]
 
 

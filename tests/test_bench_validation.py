@@ -60,7 +60,7 @@ def test_validation_table_over_all_scored_leaves():
          leaf(30, 0, found=0), leaf(40, 99, visibility=0.5)]
     b = [leaf(40, 38, elevation=(50, 50), azimuth=(45, 45), pixels=7000, rppp_1=0.5)]
     counts = {"n_regions": 5, "n_false": 2, "n_visible": 3, "n_found_visible": 2, "n_found": 3, "n_missed": 1,
-              "n_pulses": 1000, "pulses_per_s": 500.0}
+              "n_pulses": 1000}
     rows = [row("tree", "fused", a, counts), row("leaf", "fused", b, {**counts, "n_false": 0})]
     (table,) = summary.validation_table(rows)
     # Visible leaves: 10, 20, 30 (missed), 40 cm²; reconstructed: 10, 20, 40 -> 8, 18, 38: y = x - 2 exactly.
