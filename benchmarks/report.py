@@ -97,8 +97,9 @@ def plot_area_errors(leaves: list[dict]) -> Figure:
 
 
 def plot_area_scatter(leaves: list[dict]) -> Figure:
-    """Estimated against true leaf area per variant, on the leaves whose area is scored (found leaves in
-    colour, the others in grey at their estimate), with the 1:1 line and the least-squares line."""
+    """Estimated against true leaf area per variant, on the leaves whose area is scored (reconstructed leaves in
+    colour, the others in grey at their estimate; estimates beyond twice the largest true area on the top edge),
+    with the 1:1 line and the least-squares line of the reconstructed leaves."""
     leaves = summary.visible_leaves(leaves)
     variants = list(dict.fromkeys(leaf["variant"] for leaf in leaves))
     columns = min(4, max(len(variants), 1))
@@ -110,15 +111,21 @@ def plot_area_scatter(leaves: list[dict]) -> Figure:
         truth = np.array([leaf["area_true_m2"] for leaf in mine]) * 1e4
         estimate = np.array([leaf.get("area_m2") or 0.0 for leaf in mine]) * 1e4
         ok = np.array(done, dtype=bool)
-        axes.scatter(truth[~ok], estimate[~ok], s=6, color="lightgrey", label="not reconstructed")
-        axes.scatter(truth[ok], estimate[ok], s=6, color="tab:blue", label="reconstructed")
-        top = max(float(truth.max()), float(np.percentile(estimate, 95)) if len(estimate) else 0.0) * 1.1
-        axes.plot([0, top], [0, top], color="black", lw=0.6)
+        right = 1.1 * float(truth.max())
+        top = 2 * right  # estimates beyond (merged regions) are drawn on the top edge
+        above = estimate > top
+        shown = np.minimum(estimate, top)
+        axes.scatter(truth[~ok], shown[~ok], s=6, color="lightgrey", label="not reconstructed")
+        axes.scatter(truth[ok & ~above], shown[ok & ~above], s=6, color="tab:blue", label="reconstructed")
+        if above.any():
+            axes.scatter(truth[above], shown[above], s=12, marker="^", color="tab:orange",
+                         label=f"{int(above.sum())} above {top:.0f} cm²", clip_on=False)
+        axes.plot([0, right], [0, right], color="black", lw=0.6)
         fit = metrics.linear_fit(truth[ok], estimate[ok])
         if math.isfinite(fit["slope"]):
-            axes.plot([0, top], [fit["intercept"], fit["intercept"] + fit["slope"] * top], color="tab:red", lw=0.8,
+            axes.plot([0, right], [fit["intercept"], fit["intercept"] + fit["slope"] * right], color="tab:red", lw=0.8,
                       label=f"y = {fit['slope']:.2f} x + {fit['intercept']:.1f}, R² {fit['r2']:.2f}")
-        axes.set(xlim=(0, top), ylim=(0, top), xlabel="true area (cm²)", ylabel="estimated area (cm²)")
+        axes.set(xlim=(0, right), ylim=(0, top), xlabel="true area (cm²)", ylabel="estimated area (cm²)")
         axes.set_title(variant, fontsize=9)
         axes.legend(fontsize=6)
     return figure
