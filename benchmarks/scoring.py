@@ -23,6 +23,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 from skimage.draw import polygon
 
 from benchmarks import metrics
@@ -115,11 +116,13 @@ def crop_scan(scan, rows: slice, cols: slice):
     return dataclasses.replace(scan, **arrays, layers={k: v[window] for k, v in scan.layers.items()})
 
 
-def _window(grid: np.ndarray, margin: int) -> tuple[slice, slice]:
-    """Bounding box of the true pixels of ``grid``, widened by ``margin`` pixels."""
+def _window(grid: np.ndarray, margin: int, origin: tuple[int, int], shape: tuple[int, int]) -> tuple[slice, slice]:
+    """Bounding box of the true pixels of ``grid`` (a part of a scan starting at pixel ``origin``), widened by
+    ``margin`` pixels and kept within the scan's ``shape``, in the scan's pixels."""
     rows, cols = np.nonzero(grid)
-    return (slice(max(rows.min() - margin, 0), rows.max() + margin + 1),
-            slice(max(cols.min() - margin, 0), cols.max() + margin + 1))
+    rows, cols = rows + origin[0], cols + origin[1]
+    return (slice(max(rows.min() - margin, 0), min(rows.max() + margin + 1, shape[0])),
+            slice(max(cols.min() - margin, 0), min(cols.max() + margin + 1, shape[1])))
 
 
 def grid_steps(scan) -> tuple[float, float]:
@@ -140,6 +143,30 @@ def crop_margin_px(scan, distance_m: float) -> int:
     radius_m = ScannerModel.from_dict(scan.scanner_model).beam_radius_m(distance_m)
     radius_px = radius_m / (distance_m * min(grid_steps(scan)))
     return CROP_MARGIN_PX + math.ceil(CROP_MARGIN_FOOTPRINTS * radius_px)
+
+
+def object_boxes(scan) -> dict[int, tuple[slice, slice]]:
+    """Bounding box of every object's pulses in a simulated scan: those it dominates or comes second in (every pulse
+    with a power share from it), by object id.
+
+    Raises
+    ------
+    BenchError
+        If the scan lacks the second-object truth layers.
+    """
+    missing = [k for k in SECOND_LAYERS if k not in scan.layers]
+    if missing:
+        raise BenchError(f"the scan lacks the truth layers {missing} (simulated by an older tlssim): re-simulate it")
+    boxes: dict[int, tuple[slice, slice]] = {}
+    for ids in (scan.truth_id, scan.layers["truth_second_id"]):
+        for index, box in enumerate(ndimage.find_objects(np.where(ids >= 0, ids + 1, 0))):
+            if box is None:
+                continue
+            if index in boxes:
+                old = boxes[index]
+                box = tuple(slice(min(a.start, b.start), max(a.stop, b.stop)) for a, b in zip(old, box))
+            boxes[index] = box
+    return boxes
 
 
 def power_share(scan, object_id: int) -> np.ndarray:
@@ -272,14 +299,23 @@ def prepare_leaves(scene, scan, targets: list[str] | None = None,
     valid = scan.valid
     surfaces = TruthSurfaces(scene)
     elements = area_elements(scan)
+    boxes = object_boxes(scan)
     for oid in target_ids(scene, targets):
-        own_grid = valid & (scan.truth_id == oid)
+        if oid not in boxes:
+            continue
+        box = boxes[oid]
+        own_grid = valid[box] & (scan.truth_id[box] == oid)
         if not own_grid.any():
             continue
-        distance_m = float(np.median(scan.range[own_grid]))
-        points = valid & (power_share(scan, oid) >= min_share)
-        window = _window(points, crop_margin_px(scan, distance_m))
-        part, mask = crop_scan(scan, *window), points[window]
+        distance_m = float(np.median(scan.range[box][own_grid]))
+        points = valid[box] & (metrics.leaf_power_share(
+            scan.truth_id[box], scan.mixed_fraction[box], scan.layers["truth_second_id"][box],
+            scan.layers["second_fraction"][box], oid) >= min_share)
+        window = _window(points, crop_margin_px(scan, distance_m), (box[0].start, box[1].start), scan.shape)
+        part = crop_scan(scan, *window)
+        mask = np.zeros(part.shape, dtype=bool)
+        mask[box[0].start - window[0].start:box[0].stop - window[0].start,
+             box[1].start - window[1].start:box[1].stop - window[1].start] = points
         attributed = part.truth_id[mask]
         distance = surfaces.distance(part.xyz[mask], attributed)
         own = attributed == oid
@@ -289,15 +325,15 @@ def prepare_leaves(scene, scan, targets: list[str] | None = None,
         area = obj.truth.get("area_m2")
         stats = {
             "range_m": distance_m,
-            "incidence_deg": float(np.degrees(np.median(scan.incidence[own_grid]))),
+            "incidence_deg": float(np.degrees(np.median(scan.incidence[box][own_grid]))),
             "sigma_range_m": sigma,
             "intensity_dn": float(np.median(part.intensity[mask][pure])) if pure.any() else math.nan,
             "n_own": int(own.sum()),
             "points_per_cm2": int(own.sum()) / (area * 1e4) if area else math.nan,
             "visibility": visibility(scan, oid, obj.truth["outline"], distance_m) if "outline" in obj.truth
             else math.nan,
-            "visible_area_m2": float(elements[own_grid].sum()),
-            "visible_area_ratio": float(elements[own_grid].sum()) / area if area else math.nan,
+            "visible_area_m2": float(elements[box][own_grid].sum()),
+            "visible_area_ratio": float(elements[box][own_grid].sum()) / area if area else math.nan,
         }
         leaves.append(LeafTruth(oid, obj.name, obj.type, obj.truth, part, mask, own, attributed, distance,
                                 {"auto": metrics.auto_tau(sigma), "1cm": metrics.TAU_TRUE_M}, stats, surfaces,
@@ -450,11 +486,14 @@ def region_stats(output: VariantOutput, scan) -> dict:
         stats[f"rppp_{n}"] = np.bincount(flat, weights=(counts == n).ravel(), minlength=top)[ids] / total
     stats["rppp_more"] = np.bincount(flat, weights=(counts > RPPP_MAX).ravel(), minlength=top)[ids] / total
     inside = flat > 0
-    pairs, n_pairs = np.unique(np.stack([flat[inside], scan.truth_id.ravel()[inside]]), axis=1, return_counts=True)
+    objects = int(scan.truth_id.max(initial=-1)) + 2
+    keys, n_pairs = np.unique(flat[inside].astype(np.int64) * objects + scan.truth_id.ravel()[inside] + 1,
+                              return_counts=True)
+    label, obj = keys // objects, keys % objects - 1
     dominant = np.full(top, -1)
-    order = np.lexsort((n_pairs, pairs[0]))  # by label, then count: the last of each label is its dominant object
-    last = order[np.r_[pairs[0][order][1:] != pairs[0][order][:-1], True]]
-    dominant[pairs[0][last]] = pairs[1][last]
+    order = np.lexsort((n_pairs, label))  # by label, then count: the last of each label is its dominant object
+    last = order[np.r_[label[order][1:] != label[order][:-1], True]] if len(order) else order
+    dominant[label[last]] = obj[last]
     stats["object"] = dominant[ids]
     return stats
 
