@@ -531,13 +531,14 @@ def leaf_outputs(leaves: list[LeafTruth], output: VariantOutput, scene, scan) ->
         ``n_regions``, ``n_false`` (regions matching no leaf),
         ``n_false_on_leaves`` (of those, regions on a target leaf that
         matched another region: split leaves), ``n_false_off_leaves`` (on
-        wood, walls and other objects).
+        wood, walls and other objects), ``n_shared`` (leaves whose match
+        is also another leaf's: merged leaves).
     """
     if output.labels is None or output.regions is None:
         raise BenchError("whole-scan scoring needs an output with region labels and their traits")
     regions = region_stats(output, scan)
     index = {int(label): k for k, label in enumerate(regions["labels"])}
-    matched, outputs = set(), []
+    matches, outputs = [], []
     for leaf in leaves:
         found = np.asarray(output.labels)[leaf.own_pixels()]
         found = found[found > 0]
@@ -546,7 +547,7 @@ def leaf_outputs(leaves: list[LeafTruth], output: VariantOutput, scene, scan) ->
         if len(found):
             label = int(np.bincount(found).argmax())
             k = index[label]
-            matched.add(label)
+            matches.append(label)
             coverage = float(np.mean(np.asarray(output.labels)[leaf.own_pixels()] == label))
             stats = {"found": int(coverage >= MIN_FOUND_COVERAGE), "coverage": coverage,
                      "purity": int((found == label).sum()) / int(regions["pixels"][k]),
@@ -555,13 +556,15 @@ def leaf_outputs(leaves: list[LeafTruth], output: VariantOutput, scene, scan) ->
             traits = output.regions[label]
         flags = None if output.flags is None else np.asarray(output.flags)[leaf.window]
         outputs.append(VariantOutput(np.asarray(output.xyz)[leaf.window], traits, {**output.stats, **stats}, flags))
+    matched = set(matches)
+    shared = sum(1 for label in matches if matches.count(label) > 1)
     targets = {leaf.object_id for leaf in leaves}
     others = {i for i, obj in enumerate(scene.objects) if obj.type in TARGET_TYPES} - targets
     false = [k for k, label in enumerate(regions["labels"]) if int(label) not in matched
              and regions["object"][k] not in others]
     on_leaves = sum(1 for k in false if regions["object"][k] in targets)
     return outputs, {"n_regions": len(regions["labels"]), "n_false": len(false), "n_false_on_leaves": on_leaves,
-                     "n_false_off_leaves": len(false) - on_leaves}
+                     "n_false_off_leaves": len(false) - on_leaves, "n_shared": shared}
 
 
 def found_counts(scores: list[dict], min_visibility: float = metrics.MIN_VISIBILITY) -> dict:

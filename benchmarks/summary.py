@@ -309,7 +309,7 @@ def rppp_groups(rows: list[dict]) -> list[dict]:
 
 #: Keys of a row of :func:`case_table`.
 CASE_KEYS = ("case", "variant", "n_pulses", "runtime_s", "pulses_per_s", "peak_mem_mb", "n_leaves", "n_found",
-             "n_missed", "n_false")
+             "n_missed", "n_false", "n_shared")
 
 
 def pulses_per_s(row: dict) -> float | None:
@@ -319,8 +319,8 @@ def pulses_per_s(row: dict) -> float | None:
 
 
 def case_table(rows: list[dict]) -> list[dict]:
-    """Per case, the variants that reconstruct the whole scan: pulses, runtime, throughput, peak memory and
-    found / missed / false leaves."""
+    """Per case, the variants that reconstruct the whole scan: pulses, runtime, throughput, peak memory,
+    found / missed / false leaves and the leaves whose region is shared with another leaf (merged)."""
     return [{"case": r["case_name"], "variant": r["variant"], "runtime_s": r["runtime_s"],
              "pulses_per_s": pulses_per_s(r), "peak_mem_mb": r["peak_mem_mb"],
              **{k: r["metrics"]["case"].get(k) for k in CASE_KEYS
