@@ -526,13 +526,14 @@ def leaf_outputs(leaves: list[LeafTruth], output: VariantOutput, scene, scan) ->
         region's traits and the stats ``found`` (1 when the match covers at
         least :data:`MIN_FOUND_COVERAGE` of its visible pulses),
         ``coverage`` (that share), ``purity`` (share of the region's pulses
-        the leaf dominates), ``region_pixels`` and the region's rppp ratios.
+        the leaf dominates), ``region_pixels``, ``merged`` (1 when the
+        region is also another leaf's match) and the region's rppp ratios.
     counts : dict
         ``n_regions``, ``n_false`` (regions matching no leaf),
         ``n_false_on_leaves`` (of those, regions on a target leaf that
         matched another region: split leaves), ``n_false_off_leaves`` (on
-        wood, walls and other objects), ``n_shared`` (leaves whose match
-        is also another leaf's: merged leaves).
+        wood, walls and other objects), ``n_merged`` (leaves whose match
+        is also another leaf's: leaves merged into one region).
     """
     if output.labels is None or output.regions is None:
         raise BenchError("whole-scan scoring needs an output with region labels and their traits")
@@ -549,7 +550,7 @@ def leaf_outputs(leaves: list[LeafTruth], output: VariantOutput, scene, scan) ->
             k = index[label]
             matches.append(label)
             coverage = float(np.mean(np.asarray(output.labels)[leaf.own_pixels()] == label))
-            stats = {"found": int(coverage >= MIN_FOUND_COVERAGE), "coverage": coverage,
+            stats = {"found": int(coverage >= MIN_FOUND_COVERAGE), "coverage": coverage, "label": label,
                      "purity": int((found == label).sum()) / int(regions["pixels"][k]),
                      "region_pixels": int(regions["pixels"][k]),
                      **{key: float(regions[key][k]) for key in regions if key.startswith("rppp_")}}
@@ -557,14 +558,19 @@ def leaf_outputs(leaves: list[LeafTruth], output: VariantOutput, scene, scan) ->
         flags = None if output.flags is None else np.asarray(output.flags)[leaf.window]
         outputs.append(VariantOutput(np.asarray(output.xyz)[leaf.window], traits, {**output.stats, **stats}, flags))
     matched = set(matches)
-    shared = sum(1 for label in matches if matches.count(label) > 1)
+    counts = np.bincount(matches) if matches else np.zeros(1, int)
+    for out in outputs:
+        if "region_pixels" in out.stats:
+            out.stats["merged"] = int(counts[out.stats["label"]] > 1)
+            del out.stats["label"]
+    merged = sum(out.stats.get("merged", 0) for out in outputs)
     targets = {leaf.object_id for leaf in leaves}
     others = {i for i, obj in enumerate(scene.objects) if obj.type in TARGET_TYPES} - targets
     false = [k for k, label in enumerate(regions["labels"]) if int(label) not in matched
              and regions["object"][k] not in others]
     on_leaves = sum(1 for k in false if regions["object"][k] in targets)
     return outputs, {"n_regions": len(regions["labels"]), "n_false": len(false), "n_false_on_leaves": on_leaves,
-                     "n_false_off_leaves": len(false) - on_leaves, "n_shared": shared}
+                     "n_false_off_leaves": len(false) - on_leaves, "n_merged": merged}
 
 
 def found_counts(scores: list[dict], min_visibility: float = metrics.MIN_VISIBILITY) -> dict:

@@ -215,7 +215,7 @@ def headline_table(summary: list[dict]) -> str:
 #: Keys of a row of the thesis' validation table (:func:`validation_table`), in display order.
 VALIDATION_KEYS = ("variant", "n_leaves", "n_success", "success", "area_slope", "area_intercept_cm2", "area_r2",
                    "area_bias_cm2", "area_rel_err_median", "elevation_r2", "elevation_precision_deg", "azimuth_r2",
-                   "azimuth_precision_deg", "n_found", "n_missed", "n_false")
+                   "azimuth_precision_deg", "n_found", "n_merged", "n_missed", "n_false")
 
 
 def visible_leaves(leaves: list[dict]) -> list[dict]:
@@ -244,8 +244,9 @@ def validation_table(rows: list[dict]) -> list[dict]:
     deviation of the error, :func:`benchmarks.metrics.precision`) of the
     midrib elevation and azimuth. ``n_found`` / ``n_missed``: visible
     leaves found or missed by variants that segment the scan themselves
-    (None for the others); ``n_false``: their regions that match no leaf,
-    over all cases.
+    (None for the others), ``n_merged`` of the found ones in a region that
+    is another leaf's match too; ``n_false``: their regions that match no
+    leaf, over all cases.
 
     Returns
     -------
@@ -275,6 +276,7 @@ def validation_table(rows: list[dict]) -> list[dict]:
         segmented = any(leaf.get("found") is not None for leaf in leaves)
         row["n_found"] = sum(leaf["found"] for leaf in leaves) if segmented else None
         row["n_missed"] = len(leaves) - row["n_found"] if segmented else None
+        row["n_merged"] = sum(leaf.get("merged", 0) for leaf in leaves if leaf.get("found")) if segmented else None
         counts = [r["metrics"]["case"] for r in mine if "n_false" in r["metrics"].get("case", {})]
         row["n_false"] = sum(c["n_false"] for c in counts) if counts else None
         table.append({key: _finite(row[key]) for key in VALIDATION_KEYS})
@@ -309,7 +311,7 @@ def rppp_groups(rows: list[dict]) -> list[dict]:
 
 #: Keys of a row of :func:`case_table`.
 CASE_KEYS = ("case", "variant", "n_pulses", "runtime_s", "pulses_per_s", "peak_mem_mb", "n_leaves", "n_found",
-             "n_missed", "n_false", "n_shared")
+             "n_missed", "n_false", "n_merged")
 
 
 def pulses_per_s(row: dict) -> float | None:

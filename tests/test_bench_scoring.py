@@ -124,11 +124,12 @@ def test_whole_scan_regions_are_matched_to_true_leaves(two_leaves):
     assert front_out.stats["coverage"] == 1.0
     assert front_out.stats["purity"] == pytest.approx(1 - 1 / front_out.stats["region_pixels"])
     assert front_out.stats["rppp_1"] == 1.0 and front_out.xyz.shape == front.scan.xyz.shape
+    assert front_out.stats["merged"] == 0 and "label" not in front_out.stats
     # The back leaf's larger part (two thirds of its visible pulses) is its match: found.
     assert back_out.traits["area_m2"] == 0.003 and back_out.stats["found"] == 1
     assert back_out.stats["coverage"] == pytest.approx(2 / 3, abs=0.05)
     # Region 2 (a split-off part of the back leaf) and region 4 (on the wall) match no leaf: false leaves.
-    assert counts == {"n_regions": 4, "n_false": 2, "n_false_on_leaves": 1, "n_false_off_leaves": 1, "n_shared": 0}
+    assert counts == {"n_regions": 4, "n_false": 2, "n_false_on_leaves": 1, "n_false_off_leaves": 1, "n_merged": 0}
     scores, counts = scoring.score_scan(leaves, output, scene, scan)
     assert counts["n_leaves"] == 2 and counts["n_found"] == 2 and counts["n_visible"] == 1
     assert counts["n_found_visible"] == 1 and scores[1]["area_m2"] == 0.001
@@ -141,7 +142,8 @@ def test_whole_scan_regions_are_matched_to_true_leaves(two_leaves):
     labels[front.own_pixels()] = 3
     labels[back.own_pixels()] = 3
     (back_out, front_out), counts = scoring.leaf_outputs(leaves, output, scene, scan)
-    assert back_out.stats["found"] == front_out.stats["found"] == 1 and counts["n_shared"] == 2
+    assert back_out.stats["found"] == front_out.stats["found"] == 1 and counts["n_merged"] == 2
+    assert back_out.stats["merged"] == front_out.stats["merged"] == 1
     assert front_out.stats["purity"] < 0.75
     # Given the targets: each leaf's own pulses carry its label.
     given = scoring.target_labels(scan.shape, leaves)

@@ -56,7 +56,8 @@ def row(case, variant, leaves, counts=None, runtime=2.0):
 
 
 def test_validation_table_over_all_scored_leaves():
-    a = [leaf(10, 8, elevation=(10, 12), azimuth=(0, 5)), leaf(20, 18, elevation=(30, 28), azimuth=(90, 85)),
+    a = [leaf(10, 8, elevation=(10, 12), azimuth=(0, 5)), {**leaf(20, 18, elevation=(30, 28), azimuth=(90, 85)),
+                                                           "merged": 1},
          leaf(30, 0, found=0), leaf(40, 99, visibility=0.5)]
     b = [leaf(40, 38, elevation=(50, 50), azimuth=(45, 45), pixels=7000, rppp_1=0.5)]
     counts = {"n_regions": 5, "n_false": 2, "n_visible": 3, "n_found_visible": 2, "n_found": 3, "n_missed": 1,
@@ -73,7 +74,7 @@ def test_validation_table_over_all_scored_leaves():
     assert table["elevation_r2"] == pytest.approx(metrics.linear_fit([10, 30, 50], [12, 28, 50])["r2"])
     assert table["elevation_precision_deg"] == pytest.approx(np.std([2, -2, 0], ddof=1))
     assert table["azimuth_precision_deg"] == pytest.approx(np.std([5, -5, 0], ddof=1))
-    assert (table["n_found"], table["n_missed"], table["n_false"]) == (3, 1, 2)
+    assert (table["n_found"], table["n_merged"], table["n_missed"], table["n_false"]) == (3, 1, 1, 2)
     # rppp by leaf group: the 1000-pixel leaves in group A, the 7000-pixel one in D.
     groups = summary.rppp_groups(rows)
     assert [(g["group"], g["n_leaves"]) for g in groups] == [("A", 3), ("D", 1)]
