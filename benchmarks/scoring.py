@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
@@ -539,31 +540,25 @@ def leaf_outputs(leaves: list[LeafTruth], output: VariantOutput, scene, scan) ->
         raise BenchError("whole-scan scoring needs an output with region labels and their traits")
     regions = region_stats(output, scan)
     index = {int(label): k for k, label in enumerate(regions["labels"])}
-    matches, outputs = [], []
-    for leaf in leaves:
-        found = np.asarray(output.labels)[leaf.own_pixels()]
-        found = found[found > 0]
-        stats = {"found": 0, "coverage": 0.0}
-        traits = {"area_m2": 0.0}
-        if len(found):
-            label = int(np.bincount(found).argmax())
+    labels = np.asarray(output.labels)
+    visible = [labels[leaf.own_pixels()] for leaf in leaves]
+    matches = [int(np.bincount(own[own > 0]).argmax()) if (own > 0).any() else None for own in visible]
+    shared = Counter(label for label in matches if label is not None)
+    outputs = []
+    for leaf, own, label in zip(leaves, visible, matches):
+        stats, traits = {"found": 0, "coverage": 0.0}, {"area_m2": 0.0}
+        if label is not None:
             k = index[label]
-            matches.append(label)
-            coverage = float(np.mean(np.asarray(output.labels)[leaf.own_pixels()] == label))
-            stats = {"found": int(coverage >= MIN_FOUND_COVERAGE), "coverage": coverage, "label": label,
-                     "purity": int((found == label).sum()) / int(regions["pixels"][k]),
-                     "region_pixels": int(regions["pixels"][k]),
+            coverage = float(np.mean(own == label))
+            stats = {"found": int(coverage >= MIN_FOUND_COVERAGE), "coverage": coverage,
+                     "purity": int((own == label).sum()) / int(regions["pixels"][k]),
+                     "region_pixels": int(regions["pixels"][k]), "merged": int(shared[label] > 1),
                      **{key: float(regions[key][k]) for key in regions if key.startswith("rppp_")}}
             traits = output.regions[label]
         flags = None if output.flags is None else np.asarray(output.flags)[leaf.window]
         outputs.append(VariantOutput(np.asarray(output.xyz)[leaf.window], traits, {**output.stats, **stats}, flags))
-    matched = set(matches)
-    counts = np.bincount(matches) if matches else np.zeros(1, int)
-    for out in outputs:
-        if "region_pixels" in out.stats:
-            out.stats["merged"] = int(counts[out.stats["label"]] > 1)
-            del out.stats["label"]
-    merged = sum(out.stats.get("merged", 0) for out in outputs)
+    matched = set(shared)
+    merged = sum(count for count in shared.values() if count > 1)
     targets = {leaf.object_id for leaf in leaves}
     others = {i for i, obj in enumerate(scene.objects) if obj.type in TARGET_TYPES} - targets
     false = [k for k, label in enumerate(regions["labels"]) if int(label) not in matched
