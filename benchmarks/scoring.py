@@ -315,8 +315,8 @@ def prepare_leaves(scene, scan, targets: list[str] | None = None,
         window = _window(points, crop_margin_px(scan, distance_m), (box[0].start, box[1].start), scan.shape)
         part = crop_scan(scan, *window)
         mask = np.zeros(part.shape, dtype=bool)
-        mask[box[0].start - window[0].start:box[0].stop - window[0].start,
-             box[1].start - window[1].start:box[1].stop - window[1].start] = points
+        rows, cols = np.nonzero(points)
+        mask[rows + box[0].start - window[0].start, cols + box[1].start - window[1].start] = True
         attributed = part.truth_id[mask]
         distance = surfaces.distance(part.xyz[mask], attributed)
         own = attributed == oid

@@ -149,3 +149,18 @@ def test_whole_scan_regions_are_matched_to_true_leaves(two_leaves):
     given = scoring.target_labels(scan.shape, leaves)
     assert set(np.unique(given)) == {0, 1, 2}
     assert (given[front.own_pixels()] == 2).all() and (given[back.own_pixels()] == 1).all()
+
+
+@pytest.mark.parametrize("min_share, margin", [(0.1, None), (0.6, 0)])
+def test_leaf_points_and_windows_match_their_whole_scan_definition(two_leaves, monkeypatch, min_share, margin):
+    """Each leaf's points, found inside its object's bounding box, are the pulses of the whole scan with at least
+    ``min_share`` of their power from it (without a margin, the window is smaller than the box of all its pulses)."""
+    scene, scan, _ = two_leaves
+    if margin is not None:
+        monkeypatch.setattr(scoring, "crop_margin_px", lambda scan, distance_m: margin)
+    for leaf in scoring.prepare_leaves(scene, scan, min_share=min_share):
+        whole = scan.valid & (scoring.power_share(scan, leaf.object_id) >= min_share)
+        inside = np.zeros(scan.shape, bool)
+        inside[leaf.window] = leaf.mask
+        assert (inside == whole).all() and whole.sum() > 0
+        assert leaf.scan.shape == scan.range[leaf.window].shape
