@@ -244,7 +244,7 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
         share = shares[label]()
         frame = local_frame(scan.theta, scan.psi, scan.range, region, scan.pose, share > 0)
         box = frame.box
-        shares[label] = share[box]
+        shares[label] = share[box].copy()
         measured = frame.height(scan.range[box])
         try:
             heights = reconstruct_heights(alpha[box], measured, region[box], frame.grid, variant, params,
