@@ -449,6 +449,13 @@ def target_labels(shape: tuple[int, int], leaves: list[LeafTruth]) -> np.ndarray
 
     A pulse in the masks of several leaves goes to the leaf that dominates it,
     or else to the first of them.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        The whole scan's grid shape.
+    leaves : list of LeafTruth
+        The targets (:func:`prepare_leaves`).
     """
     labels = np.zeros(shape, dtype=np.int32)
     for k, leaf in enumerate(leaves):
@@ -467,6 +474,13 @@ RPPP_MAX = 3
 
 def region_stats(output: VariantOutput, scan) -> dict:
     """Per output region (by label): its pixels, its rppp ratios and the object that dominates most of its pulses.
+
+    Parameters
+    ----------
+    output : VariantOutput
+        A whole-scan output with ``labels``, ``regions`` and ``candidates``.
+    scan : tlssim.Scan
+        The whole scan (``truth_id``).
 
     Returns
     -------

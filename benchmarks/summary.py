@@ -335,7 +335,17 @@ def _finite(value):
 
 
 def text_table(table: list[dict], keys, formats: dict | None = None) -> str:
-    """Rows as aligned plain text: ``formats`` maps keys to format strings (default: 3 significant digits)."""
+    """Rows as aligned plain text.
+
+    Parameters
+    ----------
+    table : list of dict
+        The rows.
+    keys : sequence of str
+        The columns, in order.
+    formats : dict, optional
+        Format strings by key (default: 3 significant digits; counts as integers).
+    """
     formats = formats or {}
 
     def cell(value, key):
