@@ -195,10 +195,14 @@ def _write_reports(store: Store, run_id: str, outdir) -> tuple[Path, Path]:
 
 def _print_headline(store: Store, run_id: str) -> None:
     info = store.run_info(run_id)
-    table = summary.summarize(store.results(run_id), info["suite"])
+    rows = store.results(run_id)
+    table = summary.summarize(rows, info["suite"])
     print(f"suite {info['suite']}, run {run_id}")
     print(summary.headline_table(table))
     print(summary.goal_status(table))
+    leaves = summary.leaf_printout(rows)
+    if leaves:
+        print(leaves)
 
 
 def _failures(store: Store, run_ids: list[str]) -> int:

@@ -1,10 +1,13 @@
 """Parametric scenes for benchmark cases, built in Python.
 
 A case names its scene with a small JSON-ready description (see
-:func:`build_scene`): either a built-in scene of the :mod:`scenes` library
-(``{"builtin": "knife-edge"}``) or one of the generators registered here with
+:func:`build_scene`): a built-in scene of the :mod:`scenes` library
+(``{"builtin": "knife-edge"}``), one of the generators registered here with
 its parameters (``{"generator": "plate-leaf", "distance_m": 3,
-"incidence_deg": 60}``). Scenes are rebuilt from that description wherever
+"incidence_deg": 60}``), or a scene file of the user's
+(``{"file": "/abs/path/scene.yaml", "sha256": "..."}``: suites resolve the
+path relative to the suite file and record the file's digest, so that a
+changed file is refused rather than mixed into a resumed run). Scenes are rebuilt from that description wherever
 they are needed (the simulation and the scoring), so every generator must be
 deterministic in its parameters (random layouts take a ``seed``).
 
@@ -13,6 +16,8 @@ looks along +x, and return a scanner section whose window covers every
 target with a margin, so that no edge outlier falls outside the scan.
 
 Generators: ``single-leaf`` (a procedural pear leaf of :mod:`scenes`),
+``tree`` (a procedural tree of :mod:`scenes` with its leaves: seed,
+distance, leaf count, optional wall),
 ``plate-leaf`` (a flat elliptic leaf, an exactly known shape for controlled
 tests; it carries the leaf truth fields of the data contract),
 ``analytic-surface`` (the thesis' test surfaces at leaf size) and ``branch``
@@ -22,8 +27,11 @@ branch stand in front of a background wall that the edge pulses mix with.
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import inspect
 import math
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -83,9 +91,13 @@ def check_scene(spec: dict) -> None:
     from benchmarks.heightfields import check_heightfield, is_heightfield
 
     if not isinstance(spec, dict):
-        raise BenchError(f"a case scene must be a mapping with 'builtin', 'generator' or 'heightfield', got {spec!r}")
+        raise BenchError(f"a case scene must be a mapping with 'builtin', 'generator', 'file' or 'heightfield', "
+                         f"got {spec!r}")
     if is_heightfield(spec):
         check_heightfield(spec)
+        return
+    if "file" in spec:
+        check_scene_file(spec)
         return
     if "builtin" in spec:
         if set(spec) != {"builtin"}:
@@ -94,7 +106,7 @@ def check_scene(spec: dict) -> None:
             raise BenchError(f"unknown built-in scene {spec['builtin']!r}; available: {', '.join(scenes.names())}")
         return
     if "generator" not in spec:
-        raise BenchError(f"a case scene needs 'builtin', 'generator' or 'heightfield', got keys {sorted(spec)}")
+        raise BenchError(f"a case scene needs 'builtin', 'generator', 'file' or 'heightfield', got keys {sorted(spec)}")
     name = spec["generator"]
     if name not in _GENERATORS:
         raise BenchError(f"unknown scene generator {name!r}; available: {', '.join(generator_names())}")
@@ -134,12 +146,77 @@ def build_scene(spec: dict) -> Scene:
         raise BenchError("a height-field case has no scene to scan (see benchmarks.heightfields)")
     if "builtin" in spec:
         return scenes.build(spec["builtin"])
+    if "file" in spec:
+        try:
+            return scenes.load_scene_file(spec["file"])
+        except scenes.SceneError as exc:
+            raise BenchError(f"scene file: {exc}") from None
     try:
         scene = _GENERATORS[spec["generator"]][1](**{k: v for k, v in spec.items() if k != "generator"})
     except (scenes.SceneError, TypeError) as exc:
         raise BenchError(f"scene generator {spec['generator']!r}: {exc}") from None
     scene.name = spec["generator"]
     return scene
+
+
+def file_digest(path) -> str:
+    """SHA-256 of a file's bytes (hex)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def check_scene_file(spec: dict) -> None:
+    """Validate a scene-file description ``{"file": absolute path, "sha256": digest}`` (see :func:`resolve_scene_file`).
+
+    Raises
+    ------
+    BenchError
+        On other keys, a missing file, or a file whose bytes no longer match the digest.
+    """
+    unknown = sorted(set(spec) - {"file", "sha256"})
+    if unknown:
+        raise BenchError(f"a scene file entry takes only 'file', got {unknown}")
+    path = spec["file"]
+    if not isinstance(path, str) or not Path(path).is_file():
+        raise BenchError(f"scene file {path!r} not found")
+    if "sha256" in spec and file_digest(path) != spec["sha256"]:
+        raise BenchError(f"scene file {path!r} changed since its suite was read: start a new run")
+
+
+def resolve_scene_file(spec: dict, base_dir) -> dict:
+    """A case's ``{"file": PATH}`` made absolute (relative to ``base_dir``, the suite file's directory), with the
+    file's digest; the scene is built once to check it.
+
+    Parameters
+    ----------
+    spec : dict
+        The case's scene entry, ``{"file": PATH}``.
+    base_dir : str or Path
+        Directory relative paths are resolved against.
+
+    Raises
+    ------
+    BenchError
+        If the path is not a string, the file is missing or it is not a valid scene file (the message says why).
+    """
+    unknown = sorted(set(spec) - {"file"})
+    if unknown:
+        raise BenchError(f"a scene file entry takes only 'file' (the path, relative to the suite file), got {unknown}")
+    if not isinstance(spec["file"], str) or not spec["file"]:
+        raise BenchError(f"scene 'file' must be a path (relative to the suite file), got {spec['file']!r}")
+    path = (Path(base_dir) / spec["file"]).resolve()
+    if not path.is_file():
+        raise BenchError(f"scene file {spec['file']!r} not found (looked for {path})")
+    _load_checked(str(path), path.stat().st_mtime_ns)
+    return {"file": str(path), "sha256": file_digest(path)}
+
+
+@functools.lru_cache(maxsize=16)
+def _load_checked(path: str, mtime_ns: int) -> None:
+    """Build a scene file once per version (cases that share a file are checked once)."""
+    try:
+        scenes.load_scene_file(path)
+    except scenes.SceneError as exc:
+        raise BenchError(f"scene file {path!r} is not a valid scene: {exc}") from None
 
 
 def elliptic_leaf(name: str, center, normal, midrib, length_m: float, width_m: float,
@@ -401,3 +478,38 @@ def branch(distance_m: float = 3.0, radius_m: float = 0.05, length_m: float = 0.
                                                       "rotate": {"axis": [0, 1, 0], "angle_deg": tilt_deg}}}]}
     wood = scenes.scene_from_spec(spec, source="branch").objects[0]
     return Scene([wood], scanner_window([wood]))
+
+
+@generator("tree", "a procedural tree of the scenes package with its leaves (preset, seed, leaf count), standing "
+                   "distance_m in front of the scanner, optionally before a wall; the window covers the whole tree")
+def tree(preset: str = "conference-pear", seed: int = 1, distance_m: float = 4.0, base_below_m: float = 1.3,
+         leaf_count: int | None = None, background_gap_m: float | None = None,
+         background_reflectance: float = 0.3) -> Scene:
+    """A tree grown by :func:`scenes.tree.grow_tree` from a preset and a seed (``leafy-tree`` is preset
+    ``conference-pear``, seed 1, 4 m, base 1.3 m below the scanner, no wall).
+
+    Parameters
+    ----------
+    preset : str
+        Tree preset of :mod:`scenes.tree` (``conference-pear``, ``apple``, ...).
+    seed : int
+        Seed of the tree's growth and leaves.
+    distance_m : float
+        Distance from the scanner to the trunk's base along +x, m.
+    base_below_m : float
+        Height of the scanner above the trunk's base, m.
+    leaf_count : int, optional
+        Number of leaves (default: the preset's).
+    background_gap_m, background_reflectance : float
+        Wall behind the trunk (``None``: no wall, the tree against the sky).
+    """
+    entry = {"name": "tree", "type": "tree", "preset": preset, "seed": seed,
+             "pose": {"translate": [distance_m, 0.0, -base_below_m]}}
+    if leaf_count is not None:
+        entry["leaf_count"] = leaf_count
+    objects = scenes.scene_from_spec({"scanner": {"preset": "faro-ls880", "position": [0, 0, 0]},
+                                      "objects": [entry]}, source="tree").objects
+    window = scanner_window(objects, margin_deg=1.0)
+    if background_gap_m is not None:
+        objects = objects + [background_wall(objects, distance_m + background_gap_m, background_reflectance)]
+    return Scene(objects, window)

@@ -36,6 +36,8 @@ TAU_FLOOR_M = 0.002
 TAU_TRUE_M = 0.01
 #: Smallest footprint power share from a leaf for a point to count on that leaf (digest §7.10).
 MIN_POWER_SHARE = 0.1
+#: Leaves with at least this share of their silhouette unhidden count as visible: their area is scored (issue 16).
+MIN_VISIBILITY = 0.8
 #: Consistency factor of the median absolute deviation for a normal distribution.
 MAD_TO_SIGMA = 1.4826
 
@@ -371,27 +373,119 @@ def direction_from_angles(elevation_deg: float, azimuth_deg: float) -> np.ndarra
     return np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
 
 
-def axis_angle_errors(elevation_deg: float, azimuth_deg: float, true_elevation_deg: float,
-                      true_azimuth_deg: float) -> tuple[float, float]:
-    """Elevation and azimuth errors of an axis whose sense is unknown, degrees.
+def aligned_axis_angles(elevation_deg: float, azimuth_deg: float, true_elevation_deg: float,
+                        true_azimuth_deg: float) -> tuple[float, float]:
+    """Elevation and azimuth of an axis whose sense is unknown, expressed next to the true axis, degrees.
 
     A direction estimated from points (e.g. a principal axis) has no sense:
-    the estimate is flipped when it points away from the truth before the
-    angles are compared. The azimuth error is wrapped into [0, 180].
+    the estimate is flipped when it points away from the truth. Its azimuth
+    is then unwrapped to within 180 deg of the true azimuth, so that
+    estimated and true angles can be regressed against each other.
+
+    Parameters
+    ----------
+    elevation_deg, azimuth_deg : float
+        The estimated axis.
+    true_elevation_deg, true_azimuth_deg : float
+        The true axis.
+
+    Returns
+    -------
+    elevation_deg, azimuth_deg : float
+        The estimate, aligned.
+    """
+    estimate = direction_from_angles(elevation_deg, azimuth_deg)
+    if np.dot(estimate, direction_from_angles(true_elevation_deg, true_azimuth_deg)) < 0:
+        estimate = -estimate
+    el = math.degrees(math.asin(float(np.clip(estimate[2], -1, 1))))
+    az = math.degrees(math.atan2(estimate[1], estimate[0]))
+    return el, true_azimuth_deg + (az - true_azimuth_deg + 180.0) % 360.0 - 180.0
+
+
+def axis_angle_errors(elevation_deg: float, azimuth_deg: float, true_elevation_deg: float,
+                      true_azimuth_deg: float) -> tuple[float, float]:
+    """Absolute elevation and azimuth errors of an axis whose sense is unknown (:func:`aligned_axis_angles`), degrees.
+
+    Parameters
+    ----------
+    elevation_deg, azimuth_deg : float
+        The estimated axis.
+    true_elevation_deg, true_azimuth_deg : float
+        The true axis.
 
     Returns
     -------
     elevation_error_deg, azimuth_error_deg : float
-        Absolute errors.
+        Absolute errors (the azimuth error in [0, 180]).
     """
-    estimate = direction_from_angles(elevation_deg, azimuth_deg)
-    truth = direction_from_angles(true_elevation_deg, true_azimuth_deg)
-    if np.dot(estimate, truth) < 0:
-        estimate = -estimate
-    el = math.degrees(math.asin(float(np.clip(estimate[2], -1, 1))))
-    az = math.degrees(math.atan2(estimate[1], estimate[0]))
-    az_err = abs((az - true_azimuth_deg + 180.0) % 360.0 - 180.0)
-    return abs(el - true_elevation_deg), az_err
+    el, az = aligned_axis_angles(elevation_deg, azimuth_deg, true_elevation_deg, true_azimuth_deg)
+    return abs(el - true_elevation_deg), abs(az - true_azimuth_deg)
+
+
+def linear_fit(truth: np.ndarray, estimate: np.ndarray) -> dict:
+    """Least-squares line of estimated against true values (thesis ch.7), with its R².
+
+    Parameters
+    ----------
+    truth : ndarray, (n,)
+        True values (the regressor).
+    estimate : ndarray, (n,)
+        Estimated values.
+
+    Returns
+    -------
+    dict
+        ``slope``, ``intercept`` (in the unit of the values) and ``r2``
+        (``1 - SS_res / SS_tot`` of the estimates about the line: the share
+        of their variance the line explains); NaN with fewer than two
+        points or no spread of the truth (``r2`` NaN without spread of the
+        estimates).
+    """
+    x, y = np.asarray(truth, dtype=np.float64), np.asarray(estimate, dtype=np.float64)
+    if len(x) < 2 or np.ptp(x) == 0:
+        return {"slope": math.nan, "intercept": math.nan, "r2": math.nan}
+    slope, intercept = np.polyfit(x, y, 1)
+    total = float(np.sum((y - y.mean()) ** 2))
+    residual = float(np.sum((y - (slope * x + intercept)) ** 2))
+    return {"slope": float(slope), "intercept": float(intercept),
+            "r2": 1.0 - residual / total if total > 0 else math.nan}
+
+
+def area_bias(estimate: np.ndarray, truth: np.ndarray) -> float:
+    """The additive leaf-area BIAS of the thesis (ch.7 eq 2.1): the constant that zeroes the mean relative error.
+
+    ``MRE = (1/n) sum(((a_est + BIAS) - a_true) / a_true) = 0`` gives
+    ``BIAS = -sum((a_est - a_true) / a_true) / sum(1 / a_true)``.
+
+    Parameters
+    ----------
+    estimate : ndarray, (n,)
+        Estimated areas (any unit).
+    truth : ndarray, (n,)
+        True areas (the same unit, positive).
+
+    Returns
+    -------
+    float
+        BIAS in the unit of the areas (NaN when empty): positive when the
+        estimates are too small.
+    """
+    a_est, a_true = np.asarray(estimate, dtype=np.float64), np.asarray(truth, dtype=np.float64)
+    if len(a_true) == 0:
+        return math.nan
+    return float(-np.sum((a_est - a_true) / a_true) / np.sum(1.0 / a_true))
+
+
+def precision(estimate: np.ndarray, truth: np.ndarray) -> float:
+    """Precision of estimates: the standard deviation of their errors ``estimate - truth`` (NaN under two values).
+
+    Parameters
+    ----------
+    estimate, truth : ndarray, (n,)
+        Estimated and true values.
+    """
+    errors = np.asarray(estimate, dtype=np.float64) - np.asarray(truth, dtype=np.float64)
+    return float(np.std(errors, ddof=1)) if len(errors) > 1 else math.nan
 
 
 def rms(values: np.ndarray) -> float:

@@ -1,21 +1,23 @@
 """The registry of reconstruction variants: every method the benchmark compares, in one place.
 
 A :class:`Variant` is a named method with default parameters. Leaf variants
-take a scan and the mask of one leaf's points and return a
-:class:`VariantOutput`: the output point of every pixel (NaN where the
-method dropped it or did not reconstruct it) and, where the method estimates
-them, the leaf traits. Families:
+return a :class:`VariantOutput`: the output point of every pixel (NaN where
+the method dropped it or did not reconstruct it) and, where the method
+estimates them, leaf traits. A variant of scope ``leaf`` takes the scan
+around one target leaf and the mask of its points (and is run once per
+leaf); one of scope ``scan`` takes the whole scan and the label image of
+the targets' points, and returns its own leaf regions with their traits. Families:
 
 - ``raw``: no correction (the measured points);
 - ``filter``: the outlier-removal baselines of :mod:`leafsfs.baselines`;
 - ``prop-sfs``: the PROP-SFS variants of :func:`leafsfs.reconstruct`
   (``simple``, ``sps``, ``buffer``, ``fused`` with the shell-rule set T3, and
   ``buffer-T1``, ``buffer-T2``, ``buffer-T3*``), calibrated by simulating the
-  scan's scanner model; they segment the scan around the leaf into leaves
-  themselves (the mixed pulses a background dominates take its distance),
-  and the region holding most of the leaf's points is scored (a leaf they
-  do not find keeps its measured points and gets no area; parameter
-  ``segmentation: mask`` gives them the target's points instead);
+  scan's scanner model; they run once on the whole scan, as a user runs
+  them, segment it into leaves themselves and return their regions with
+  the traits of each (:mod:`benchmarks.scoring` matches the regions to the
+  true leaves; parameter ``segmentation: mask`` gives them the targets'
+  points as a label image instead);
 - ``woody``: ``step`` (:func:`woody.step`) and ``cylinders``
   (:func:`woody.follow_cylinders`) on the points of each woody object,
   registered once the woody package provides them with :func:`woody.score`.
@@ -39,33 +41,38 @@ from benchmarks.errors import BenchError
 
 @dataclass
 class VariantOutput:
-    """What a leaf variant returns for one leaf.
+    """What a leaf variant returns for one leaf (scope ``leaf``) or for a whole scan (scope ``scan``).
 
     Attributes
     ----------
     xyz : ndarray, (rows, cols, 3)
         Output point of every pixel, world frame, m; NaN where the pixel was
-        removed or not reconstructed. Only the leaf's masked pixels are read.
+        removed or not reconstructed. Only the leaves' masked pixels are read.
     traits : dict or None
-        Leaf traits estimated by the method: ``area_m2``, ``elevation_deg``,
-        ``azimuth_deg`` (midrib), optionally ``normal``.
+        Leaf traits estimated by a method of scope ``leaf``: ``area_m2``,
+        ``elevation_deg``, ``azimuth_deg`` (midrib), optionally ``normal``.
     stats : dict
-        Further method-specific numbers stored with the metrics (e.g.
-        ``rppp_1``), JSON-ready.
+        Further method-specific numbers stored with the metrics, JSON-ready.
     flags : ndarray of bool or None
         The measured points the method judges to be outliers (removed or
         corrected), for the detection precision and recall.
-    region : ndarray of bool or None
-        For methods that segment the scan into leaves themselves: the pixels
-        of the region they reconstructed as this leaf (for the purity and
-        coverage of the segmentation).
+    labels : ndarray of int or None
+        For methods that segment the scan into leaves themselves: the leaf
+        region of every pixel (0: none), for the regions they reconstructed.
+    regions : dict or None
+        With ``labels``: the traits of every region, by label.
+    candidates : ndarray of int or None
+        With ``labels``: the number of reconstructed values per pixel (the
+        thesis' redundancy counts rppp).
     """
 
     xyz: np.ndarray
     traits: dict | None = None
     stats: dict = field(default_factory=dict)
     flags: np.ndarray | None = None
-    region: np.ndarray | None = None
+    labels: np.ndarray | None = None
+    regions: dict | None = None
+    candidates: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -79,7 +86,9 @@ class Variant:
     family : str
         ``raw``, ``filter``, ``prop-sfs`` or ``woody``.
     run : callable
-        ``run(scan, mask, **params) -> VariantOutput``.
+        ``run(scan, mask, **params) -> VariantOutput``: ``mask`` is one
+        leaf's points (scope ``leaf``) or the label image of the targets'
+        points (scope ``scan``).
     params : dict
         Default parameters (JSON-ready).
     description : str
@@ -95,6 +104,9 @@ class Variant:
         What the method reconstructs: leaves (and analytic surfaces), or
         woody objects (``run`` then gets the mask of one woody object's
         points and returns its cylinders as ``traits["cylinders"]``).
+    scope : {"leaf", "scan"}
+        Leaf methods: run on the part of the scan around each target
+        (``leaf``), or once on the whole scan (``scan``).
     """
 
     name: str
@@ -105,6 +117,7 @@ class Variant:
     prepare: Callable | None = None
     heights: Callable | None = None
     target: str = "leaf"
+    scope: str = "leaf"
 
     def with_params(self, **changes) -> "Variant":
         """A copy with some parameters changed.
@@ -237,36 +250,32 @@ def _calibration(scan):
     return simulated_calibration(scan.scanner.model)
 
 
-#: How a PROP-SFS variant finds the leaf: ``auto``, its own segmentation of the scan around the leaf (as on a real
-#: scan), or ``mask``, the target's points given as its mask (for targets its segmentation does not take for leaves,
+#: How a PROP-SFS variant finds the leaves: ``auto``, its own segmentation of the whole scan (as on a real scan), or
+#: ``mask``, the targets' points given as a label image (for targets its segmentation does not take for leaves,
 #: such as the knife edge's plate, which reaches the window's border).
 SEGMENTATIONS = ("auto", "mask")
 
 
 def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
-    def run(scan, mask, segmentation, **params):
-        """PROP-SFS on the scan around the leaf; the region holding most of the leaf's points is scored. A leaf
-        its segmentation does not find (too few pixels, or linked to surfaces that reach the window's border)
-        keeps its measured points and gets no area."""
+    def run(scan, labels, segmentation, **params):
+        """PROP-SFS once on the whole scan: its corrected points, outlier flags, and the regions it reconstructed
+        with their traits and candidate counts (regions it skipped keep their measured points and are not leaves)."""
         import leafsfs
 
         if segmentation not in SEGMENTATIONS:
             raise BenchError(f"PROP-SFS segmentation must be one of {SEGMENTATIONS}, got {segmentation!r}")
         params = leafsfs.SfsParams(**params)
         try:
-            result = leafsfs.reconstruct(scan, mask=mask if segmentation == "mask" else None, variant=engine,
+            result = leafsfs.reconstruct(scan, mask=labels if segmentation == "mask" else None, variant=engine,
                                          params=params, calibration=_calibration(scan))
         except leafsfs.SfsError:  # with valid parameters and calibration: no leaf in the scan
-            return VariantOutput(scan.xyz, {"area_m2": 0.0}, {"found": 0}, flags=np.zeros(scan.shape, bool),
-                                 region=np.zeros(scan.shape, bool))
-        found = result.labels[mask]
-        label = int(np.bincount(found).argmax()) if len(found) else 0
-        region = (result.labels == label) if label else np.zeros(scan.shape, bool)
-        # A leaf PROP-SFS did not find or could not reconstruct gets no traits: its area estimate is zero.
-        traits = next((t for t in result.traits() if t["leaf"] == label), {"area_m2": 0.0})
-        stats = {**result.rppp(region), "skipped": len(result.skipped), "found": int(label > 0)}
-        return VariantOutput(result.corrected_scan().xyz, traits, stats, flags=result.outlier,
-                             region=region if segmentation == "auto" else None)
+            return VariantOutput(scan.xyz, stats={"skipped": 0}, flags=np.zeros(scan.shape, bool),
+                                 labels=np.zeros(scan.shape, int), regions={},
+                                 candidates=np.zeros(scan.shape, int))
+        regions = {t["leaf"]: t for t in result.traits()}
+        labels = np.where(np.isin(result.labels, list(regions)), result.labels, 0)
+        return VariantOutput(result.corrected_scan().xyz, stats={"skipped": len(result.skipped)},
+                             flags=result.outlier, labels=labels, regions=regions, candidates=result.candidates)
 
     def heights(sample, segmentation, **params):
         import leafsfs
@@ -277,7 +286,7 @@ def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
     shell = params["shell_set"]
     return Variant(name, "prop-sfs", run, params,
                    f"PROP-SFS {engine} propagation, shell-rule set {shell} (leafsfs.reconstruct, model calibration)",
-                   prepare=_calibration, heights=heights)
+                   prepare=_calibration, heights=heights, scope="scan")
 
 
 def _register_woody() -> None:

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from benchmarks import heightfields, scoring, summary, sweeps
+from benchmarks import heightfields, metrics, scoring, summary, sweeps
 from benchmarks.history import history_figures
 from benchmarks.registry import get_variant
 from benchmarks.runner import simulate_case
@@ -32,7 +32,8 @@ from benchmarks.suite import Case
 
 
 def report_document(store: Store, run_id: str) -> dict:
-    """The JSON report of a run: ``run``, ``goal``, ``rows`` (suite × variant), ``by_scene`` and ``sweeps``."""
+    """The JSON report of a run: ``run``, ``goal``, ``rows`` (suite × variant), ``by_scene``, the thesis'
+    ``validation`` table and ``rppp_groups``, ``cases`` (whole-scan reconstruction per case) and ``sweeps``."""
     info = store.run_info(run_id)
     rows = store.results(run_id)
     table = summary.summarize(rows, info["suite"])
@@ -41,6 +42,9 @@ def report_document(store: Store, run_id: str) -> dict:
         "goal": summary.goal_status(table),
         "rows": table,
         "by_scene": summary.summarize_by_scene(rows, info["suite"]),
+        "validation": summary.validation_table(rows),
+        "rppp_groups": summary.rppp_groups(rows),
+        "cases": summary.case_table(rows),
         "errors": [{"case": r["case_name"], "variant": r["variant"], "error": r["error"]} for r in rows if r["error"]],
         "sweeps": [],
     }
@@ -94,6 +98,41 @@ def plot_area_errors(leaves: list[dict]) -> Figure:
     return figure
 
 
+def plot_area_scatter(leaves: list[dict]) -> Figure:
+    """Estimated against true leaf area per variant, on the leaves whose area is scored (reconstructed leaves in
+    colour, the others in grey at their estimate; estimates beyond twice the largest true area on the top edge),
+    with the 1:1 line and the least-squares line of the reconstructed leaves."""
+    leaves = summary.visible_leaves(leaves)
+    variants = list(dict.fromkeys(leaf["variant"] for leaf in leaves))
+    columns = min(4, max(len(variants), 1))
+    figure = Figure(figsize=(3.2 * columns, 3.0 * math.ceil(len(variants) / columns)), layout="constrained")
+    for index, variant in enumerate(variants):
+        axes = figure.add_subplot(math.ceil(len(variants) / columns), columns, index + 1)
+        mine = [leaf for leaf in leaves if leaf["variant"] == variant]
+        done = [summary.succeeded(leaf) for leaf in mine]
+        truth = np.array([leaf["area_true_m2"] for leaf in mine]) * 1e4
+        estimate = np.array([leaf.get("area_m2") or 0.0 for leaf in mine]) * 1e4
+        ok = np.array(done, dtype=bool)
+        right = 1.1 * float(truth.max())
+        top = 2 * right  # estimates beyond (merged regions) are drawn on the top edge
+        above = estimate > top
+        shown = np.minimum(estimate, top)
+        axes.scatter(truth[~ok], shown[~ok], s=6, color="lightgrey", label="not reconstructed")
+        axes.scatter(truth[ok & ~above], shown[ok & ~above], s=6, color="tab:blue", label="reconstructed")
+        if above.any():
+            axes.scatter(truth[above], shown[above], s=12, marker="^", color="tab:orange",
+                         label=f"{int(above.sum())} above {top:.0f} cm²", clip_on=False)
+        axes.plot([0, right], [0, right], color="black", lw=0.6)
+        fit = metrics.linear_fit(truth[ok], estimate[ok])
+        if math.isfinite(fit["slope"]):
+            axes.plot([0, right], [fit["intercept"], fit["intercept"] + fit["slope"] * right], color="tab:red", lw=0.8,
+                      label=f"y = {fit['slope']:.2f} x + {fit['intercept']:.1f}, R² {fit['r2']:.2f}")
+        axes.set(xlim=(0, right), ylim=(0, top), xlabel="true area (cm²)", ylabel="estimated area (cm²)")
+        axes.set_title(variant, fontsize=9)
+        axes.legend(fontsize=6)
+    return figure
+
+
 def plot_height_errors(rows: list[dict]) -> Figure:
     """Mean |relative height error| (thesis eq 3.2) of every height-field case, per variant."""
     cases = list(dict.fromkeys(r["case_name"] for r in rows if heightfields.is_heightfield(r["case_spec"]["scene"])))
@@ -144,7 +183,8 @@ def plot_before_after(case_spec: dict, variants: list[dict]) -> Figure:
     """
     case = Case.from_dict(case_spec)
     scene, scan = simulate_case(case)
-    leaf = scoring.prepare_leaves(scene, scan, None if case.targets is None else list(case.targets))[0]
+    leaves = scoring.prepare_leaves(scene, scan, None if case.targets is None else list(case.targets))
+    leaf = leaves[0]
     columns = min(4, len(variants))
     rows = math.ceil(len(variants) / columns)
     figure = Figure(figsize=(3.2 * columns, 3.0 * rows), layout="constrained")
@@ -152,7 +192,12 @@ def plot_before_after(case_spec: dict, variants: list[dict]) -> Figure:
     depth = np.median(measured[leaf.own, 0])
     for index, spec in enumerate(variants):
         axes = figure.add_subplot(rows, columns, index + 1)
-        output = get_variant(spec["name"]).with_params(**spec["params"])(leaf.scan, leaf.mask)
+        variant = get_variant(spec["name"]).with_params(**spec["params"])
+        if variant.scope == "scan":
+            output = scoring.leaf_outputs(leaves, variant(scan, scoring.target_labels(scan.shape, leaves)), scene,
+                                          scan)[0][0]
+        else:
+            output = variant(leaf.scan, leaf.mask)
         out, kept, distance = scoring.output_distance(leaf, output)
         good = kept & (np.abs(distance) <= leaf.taus["auto"])
         axes.scatter(measured[~kept, 1], measured[~kept, 0] - depth, s=1, color="lightgrey", label="removed")
@@ -223,11 +268,23 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
         "outliers farther than τ from the true surface of their object). Area and angle errors: medians of absolute "
         "errors over leaves. Runtime: median per case. Lengths in mm.</p>",
     ]
+    if document["validation"]:
+        parts += [f"<h2>Validation table (thesis ch.7)</h2><p>Over the leaves at least "
+                  f"{metrics.MIN_VISIBILITY:.0%} visible; regressions, BIAS (eq 2.1) and precisions (standard "
+                  "deviation of the error) over the leaves the variant reconstructed (success). Areas in cm², "
+                  "angles in degrees.</p>", _table(document["validation"], summary.VALIDATION_KEYS)]
+    if document["rppp_groups"]:
+        parts += ["<h3>Redundancy rppp by leaf group (region pixels)</h3>",
+                  _table(document["rppp_groups"], summary.RPPP_KEYS)]
+    if document["cases"]:
+        parts += ["<h3>Whole-scan reconstruction per case</h3>", _table(document["cases"], summary.CASE_KEYS)]
     figures = []
     if any(leaf.get("object_type") == "leaf" for leaf in leaves):
         figures.append(("ROP against distance", plot_rop_vs_distance(leaves)))
     if any(leaf.get("area_rel_err") is not None for leaf in leaves):
         figures.append(("Leaf area error", plot_area_errors(leaves)))
+    if summary.visible_leaves(leaves):
+        figures.append(("Estimated against true leaf area", plot_area_scatter(leaves)))
     if any(heightfields.is_heightfield(r["case_spec"]["scene"]) for r in rows):
         figures.append(("Height-field errors", plot_height_errors(rows)))
     showcase = pick_showcase(rows) if before_after else None

@@ -2,7 +2,8 @@
 
 :func:`case_rows` is the unit of work: it rebuilds a case's scene,
 simulates the scan (deterministic from the case seed), runs each requested
-variant on every target leaf and scores it. It takes and returns JSON-ready
+variant on every target leaf (or once on the whole scan, for variants of
+scope ``scan``) and scores it. It takes and returns JSON-ready
 data, so the same function runs inline, in local worker processes or on Dask
 workers (:func:`run_case`).
 
@@ -131,17 +132,26 @@ def case_rows(case: dict, variants: list[dict]):
     for spec in variants:
         try:
             variant = case_variant(case, spec)
-            targets, score = (wood, scoring.score_wood) if variant.target == "wood" else (leaves, scoring.score_leaf)
+            targets = wood if variant.target == "wood" else leaves
             if variant.prepare is not None and targets:
                 variant.prepare(scan)
-            scores, runtime, peaks = [], 0.0, []
-            for target in targets:
-                output, elapsed, peak = measured(variant, target.scan, target.mask)
-                runtime += elapsed
-                peaks.append(peak)
-                scores.append(score(target, output))
-            peak = None if not peaks or any(p is None for p in peaks) else max(peaks)
-            yield _row(case, spec, {"targets": scores}, runtime, peak, simulate_s, None)
+            if variant.scope == "scan" and targets:
+                output, runtime, peak = measured(variant, scan, scoring.target_labels(scan.shape, leaves))
+                scores, counts = scoring.score_scan(leaves, output, scene, scan)
+                pulses = scan.shape[0] * scan.shape[1]
+            else:
+                scores, runtime, peaks, pulses = [], 0.0, [], 0
+                score = scoring.score_wood if variant.target == "wood" else scoring.score_leaf
+                for target in targets:
+                    output, elapsed, peak = measured(variant, target.scan, target.mask)
+                    runtime += elapsed
+                    peaks.append(peak)
+                    pulses += target.scan.shape[0] * target.scan.shape[1]
+                    scores.append(score(target, output))
+                peak = None if not peaks or any(p is None for p in peaks) else max(peaks)
+                counts = {}
+            counts = {**counts, "n_pulses": pulses}
+            yield _row(case, spec, {"targets": scores, "case": counts}, runtime, peak, simulate_s, None)
         except Exception as exc:  # noqa: BLE001 - a failing variant is recorded, the others still run
             yield _row(case, spec, {"targets": []}, None, None, simulate_s, _message(exc))
 

@@ -5,7 +5,12 @@ against: for each target leaf its points (the pulses with at least 10 % of
 their power from it), the distance of each measured point to the true
 surface of the object it is attributed to, the range noise and the outlier
 thresholds. :func:`score_leaf` then scores one variant's output on one leaf
-with the definitions of :mod:`benchmarks.metrics`. Woody objects
+with the definitions of :mod:`benchmarks.metrics`. A variant that runs once
+on the whole scan and segments it into leaves itself is scored by
+:func:`score_scan`: every true leaf is matched to the output region that
+covers most of its visible pulses (the pulses it dominates), is scored on
+that match, and is *found* when the match covers at least half of them;
+regions that match no leaf are false leaves. Woody objects
 (:func:`prepare_wood`, :func:`score_wood`) are scored with the woody
 package's own :func:`woody.score`. :mod:`benchmarks.summary` aggregates the
 scores over a suite.
@@ -15,9 +20,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 from skimage.draw import polygon
 
 from benchmarks import metrics
@@ -84,6 +91,8 @@ class LeafTruth(Target):
         Properties of the scan on this leaf (range, incidence, noise, intensity, density, visibility).
     surfaces : TruthSurfaces
         Distances to the scene's true surfaces (shared by the leaves of a scan).
+    window : tuple of slice
+        Where ``scan`` lies in the whole scan (rows, columns).
     """
 
     own: np.ndarray
@@ -92,6 +101,12 @@ class LeafTruth(Target):
     taus: dict
     scan_stats: dict
     surfaces: "TruthSurfaces"
+    window: tuple
+
+    def own_pixels(self) -> tuple[np.ndarray, np.ndarray]:
+        """Rows and columns, in the whole scan, of the pulses the leaf dominates (its visible pulses)."""
+        rows, cols = np.nonzero(self.mask)
+        return rows[self.own] + self.window[0].start, cols[self.own] + self.window[1].start
 
 
 def crop_scan(scan, rows: slice, cols: slice):
@@ -101,11 +116,13 @@ def crop_scan(scan, rows: slice, cols: slice):
     return dataclasses.replace(scan, **arrays, layers={k: v[window] for k, v in scan.layers.items()})
 
 
-def _window(grid: np.ndarray, margin: int) -> tuple[slice, slice]:
-    """Bounding box of the true pixels of ``grid``, widened by ``margin`` pixels."""
+def _window(grid: np.ndarray, margin: int, origin: tuple[int, int], shape: tuple[int, int]) -> tuple[slice, slice]:
+    """Bounding box of the true pixels of ``grid`` (a part of a scan starting at pixel ``origin``), widened by
+    ``margin`` pixels and kept within the scan's ``shape``, in the scan's pixels."""
     rows, cols = np.nonzero(grid)
-    return (slice(max(rows.min() - margin, 0), rows.max() + margin + 1),
-            slice(max(cols.min() - margin, 0), cols.max() + margin + 1))
+    rows, cols = rows + origin[0], cols + origin[1]
+    return (slice(max(rows.min() - margin, 0), min(rows.max() + margin + 1, shape[0])),
+            slice(max(cols.min() - margin, 0), min(cols.max() + margin + 1, shape[1])))
 
 
 def grid_steps(scan) -> tuple[float, float]:
@@ -128,6 +145,30 @@ def crop_margin_px(scan, distance_m: float) -> int:
     return CROP_MARGIN_PX + math.ceil(CROP_MARGIN_FOOTPRINTS * radius_px)
 
 
+def object_boxes(scan) -> dict[int, tuple[slice, slice]]:
+    """Bounding box of every object's pulses in a simulated scan: those it dominates or comes second in (every pulse
+    with a power share from it), by object id.
+
+    Raises
+    ------
+    BenchError
+        If the scan lacks the second-object truth layers.
+    """
+    missing = [k for k in SECOND_LAYERS if k not in scan.layers]
+    if missing:
+        raise BenchError(f"the scan lacks the truth layers {missing} (simulated by an older tlssim): re-simulate it")
+    boxes: dict[int, tuple[slice, slice]] = {}
+    for ids in (scan.truth_id, scan.layers["truth_second_id"]):
+        for index, box in enumerate(ndimage.find_objects(np.where(ids >= 0, ids + 1, 0))):
+            if box is None:
+                continue
+            if index in boxes:
+                old = boxes[index]
+                box = tuple(slice(min(a.start, b.start), max(a.stop, b.stop)) for a, b in zip(old, box))
+            boxes[index] = box
+    return boxes
+
+
 def power_share(scan, object_id: int) -> np.ndarray:
     """Power share of one object in every pulse of a simulated scan (:func:`benchmarks.metrics.leaf_power_share`)."""
     missing = [k for k in SECOND_LAYERS if k not in scan.layers]
@@ -144,14 +185,35 @@ def area_elements(scan) -> np.ndarray:
     return scan.truth_range ** 2 * d_theta * d_psi * np.sin(scan.psi) / np.cos(scan.incidence)
 
 
+#: Share of a leaf's largest extent that another object must lie in front of the leaf's outline plane to hide it
+#: (leaves are bent and rolled: their surface leaves the plane of their outline by a fraction of their length).
+HIDING_DEPTH_FRACTION = 0.2
+
+
 def visibility(scan, object_id: int, outline, distance_m: float) -> float:
-    """Share of a leaf's silhouette that no other object hides from the scanner.
+    """Share of a leaf's silhouette that the scan sees: not hidden by another object, not outside the window.
 
     The silhouette is the leaf's outline polygon projected on the scan grid.
     A silhouette pulse is hidden when its central ray stops (``truth_range``)
-    on another object more than one leaf length in front of the leaf's
-    median distance. Edge pulses that mix the leaf with its background are
-    not hidden, so a leaf alone scores 1 at any distance and incidence.
+    on another object in front of the leaf: nearer than where the ray meets
+    the plane of the leaf's outline, by more than
+    :data:`HIDING_DEPTH_FRACTION` of the leaf's largest extent (so a leaf
+    a few centimetres in front of another hides it); silhouette pulses
+    beyond the scan's window are hidden too (leaves cut by the window's
+    border). Edge pulses that mix the leaf with its background are not
+    hidden, so a leaf alone in the window scores 1 at any distance and
+    incidence.
+
+    Parameters
+    ----------
+    scan : tlssim.Scan
+        The simulated scan (truth arrays).
+    object_id : int
+        The leaf's object id.
+    outline : ndarray, (n, 3)
+        The leaf's outline, world frame, m.
+    distance_m : float
+        The leaf's median range, m (used where its plane is seen edge-on).
     """
     outline = np.asarray(outline, dtype=float)
     local = (outline - scan.pose.position) @ scan.pose.rotation
@@ -159,12 +221,21 @@ def visibility(scan, object_id: int, outline, distance_m: float) -> float:
     theta = theta0 + np.mod(np.arctan2(local[:, 1], local[:, 0]) - theta0 + np.pi, 2 * np.pi) - np.pi
     psi = np.arccos(local[:, 2] / np.linalg.norm(local, axis=1))
     d_theta, d_psi = grid_steps(scan)
-    rows, cols = polygon((psi - psi0) / d_psi, (theta - theta0) / d_theta, scan.shape)
+    rows, cols = polygon((psi - psi0) / d_psi, (theta - theta0) / d_theta)
     if len(rows) == 0:
         return math.nan
-    extent = np.ptp(outline, axis=0).max()
-    hidden = (scan.truth_id[rows, cols] != object_id) & (scan.truth_range[rows, cols] < distance_m - extent)
-    return float(1.0 - hidden.mean())
+    inside = (rows >= 0) & (rows < scan.shape[0]) & (cols >= 0) & (cols < scan.shape[1])
+    rows, cols = rows[inside], cols[inside]
+    centre = local.mean(axis=0)
+    normal = np.linalg.svd(local - centre)[2][-1]
+    t, p = scan.theta[rows, cols], scan.psi[rows, cols]
+    ray = np.stack([np.sin(p) * np.cos(t), np.sin(p) * np.sin(t), np.cos(p)], axis=-1)
+    facing = ray @ normal
+    with np.errstate(divide="ignore", invalid="ignore"):
+        plane = np.where(np.abs(facing) > 0.1, (centre @ normal) / facing, distance_m)
+    depth = HIDING_DEPTH_FRACTION * np.ptp(outline, axis=0).max()
+    hidden = (scan.truth_id[rows, cols] != object_id) & (scan.truth_range[rows, cols] < plane - depth)
+    return float(1.0 - (hidden.sum() + (~inside).sum()) / len(inside))
 
 
 class TruthSurfaces:
@@ -228,14 +299,23 @@ def prepare_leaves(scene, scan, targets: list[str] | None = None,
     valid = scan.valid
     surfaces = TruthSurfaces(scene)
     elements = area_elements(scan)
+    boxes = object_boxes(scan)
     for oid in target_ids(scene, targets):
-        own_grid = valid & (scan.truth_id == oid)
+        if oid not in boxes:
+            continue
+        box = boxes[oid]
+        own_grid = valid[box] & (scan.truth_id[box] == oid)
         if not own_grid.any():
             continue
-        distance_m = float(np.median(scan.range[own_grid]))
-        points = valid & (power_share(scan, oid) >= min_share)
-        window = _window(points, crop_margin_px(scan, distance_m))
-        part, mask = crop_scan(scan, *window), points[window]
+        distance_m = float(np.median(scan.range[box][own_grid]))
+        points = valid[box] & (metrics.leaf_power_share(
+            scan.truth_id[box], scan.mixed_fraction[box], scan.layers["truth_second_id"][box],
+            scan.layers["second_fraction"][box], oid) >= min_share)
+        window = _window(points, crop_margin_px(scan, distance_m), (box[0].start, box[1].start), scan.shape)
+        part = crop_scan(scan, *window)
+        mask = np.zeros(part.shape, dtype=bool)
+        rows, cols = np.nonzero(points)
+        mask[rows + box[0].start - window[0].start, cols + box[1].start - window[1].start] = True
         attributed = part.truth_id[mask]
         distance = surfaces.distance(part.xyz[mask], attributed)
         own = attributed == oid
@@ -245,17 +325,19 @@ def prepare_leaves(scene, scan, targets: list[str] | None = None,
         area = obj.truth.get("area_m2")
         stats = {
             "range_m": distance_m,
-            "incidence_deg": float(np.degrees(np.median(scan.incidence[own_grid]))),
+            "incidence_deg": float(np.degrees(np.median(scan.incidence[box][own_grid]))),
             "sigma_range_m": sigma,
             "intensity_dn": float(np.median(part.intensity[mask][pure])) if pure.any() else math.nan,
             "n_own": int(own.sum()),
             "points_per_cm2": int(own.sum()) / (area * 1e4) if area else math.nan,
             "visibility": visibility(scan, oid, obj.truth["outline"], distance_m) if "outline" in obj.truth
             else math.nan,
-            "visible_area_ratio": float(elements[own_grid].sum()) / area if area else math.nan,
+            "visible_area_m2": float(elements[box][own_grid].sum()),
+            "visible_area_ratio": float(elements[box][own_grid].sum()) / area if area else math.nan,
         }
         leaves.append(LeafTruth(oid, obj.name, obj.type, obj.truth, part, mask, own, attributed, distance,
-                                {"auto": metrics.auto_tau(sigma), "1cm": metrics.TAU_TRUE_M}, stats, surfaces))
+                                {"auto": metrics.auto_tau(sigma), "1cm": metrics.TAU_TRUE_M}, stats, surfaces,
+                                window))
     return leaves
 
 
@@ -333,11 +415,9 @@ def score_leaf(leaf: LeafTruth, output: VariantOutput) -> dict:
         kept inliers; ``surface_rmse_m`` and ``completeness`` (share of the
         leaf's own pulses with an output point within τ); ``flag_precision``
         and ``flag_recall`` of the points the method flags as outliers
-        against the true outliers (τ auto); for methods that segment leaves
-        (``output.region``), ``purity`` (share of the region's pulses that
-        the leaf dominates) and ``coverage`` (share of the leaf's own pulses
-        in the region); leaf-trait errors where both the truth and the
-        method give the trait; the method's own stats.
+        against the true outliers (τ auto); leaf-trait errors where both the
+        truth and the method give the trait; the method's own stats (for
+        whole-scan variants, the match of :func:`leaf_outputs`).
     """
     _, kept, distance = output_distance(leaf, output)
     before, after = np.abs(leaf.distance), np.abs(distance)
@@ -358,17 +438,200 @@ def score_leaf(leaf: LeafTruth, output: VariantOutput) -> dict:
     scores["surface_rmse_m"] = metrics.rms(distance[kept])
     own = max(int(leaf.own.sum()), 1)
     scores["completeness"] = int((leaf.own & kept & (after <= tau)).sum()) / own
-    if output.region is not None:
-        region = np.asarray(output.region, dtype=bool)
-        scores["purity"] = float(np.mean(leaf.scan.truth_id[region] == leaf.object_id)) if region.any() else math.nan
-        scores["coverage"] = float(np.mean(region[leaf.mask][leaf.own]))
     scores.update(trait_errors(leaf.truth, output.traits))
     scores.update(output.stats)
     return json_ready(scores)
 
 
+def target_labels(shape: tuple[int, int], leaves: list[LeafTruth]) -> np.ndarray:
+    """Label image of the targets' points (``k + 1`` for ``leaves[k]``, 0 elsewhere), for variants given the targets.
+
+    A pulse in the masks of several leaves goes to the leaf that dominates it,
+    or else to the first of them.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        The whole scan's grid shape.
+    leaves : list of LeafTruth
+        The targets (:func:`prepare_leaves`).
+    """
+    labels = np.zeros(shape, dtype=np.int32)
+    for k, leaf in enumerate(leaves):
+        part = labels[leaf.window]
+        part[leaf.mask & (part == 0)] = k + 1
+    for k, leaf in enumerate(leaves):
+        labels[leaf.own_pixels()] = k + 1
+    return labels
+
+
+#: A true leaf is found when one output region covers at least this share of its visible pulses (issue 16).
+MIN_FOUND_COVERAGE = 0.5
+#: rppp counts kept per region (rppp_0 .. rppp_N, and rppp_more beyond).
+RPPP_MAX = 3
+
+
+def region_stats(output: VariantOutput, scan) -> dict:
+    """Per output region (by label): its pixels, its rppp ratios and the object that dominates most of its pulses.
+
+    Parameters
+    ----------
+    output : VariantOutput
+        A whole-scan output with ``labels``, ``regions`` and ``candidates``.
+    scan : tlssim.Scan
+        The whole scan (``truth_id``).
+
+    Returns
+    -------
+    dict
+        ``labels`` (the regions with traits, sorted), arrays indexed like it:
+        ``pixels``, ``rppp_0`` .. ``rppp_{RPPP_MAX}``, ``rppp_more`` and
+        ``object`` (the dominant ``truth_id``, -1 for none).
+    """
+    labels = np.asarray(output.labels)
+    ids = np.array(sorted(output.regions or {}), dtype=np.int64)
+    top = int(max(labels.max(initial=0), ids.max(initial=0))) + 1
+    flat = labels.ravel()
+    pixels = np.bincount(flat, minlength=top)[ids]
+    stats = {"labels": ids, "pixels": pixels}
+    counts = np.zeros(labels.shape, int) if output.candidates is None else np.asarray(output.candidates)
+    total = np.maximum(pixels, 1)
+    for n in range(RPPP_MAX + 1):
+        stats[f"rppp_{n}"] = np.bincount(flat, weights=(counts == n).ravel(), minlength=top)[ids] / total
+    stats["rppp_more"] = np.bincount(flat, weights=(counts > RPPP_MAX).ravel(), minlength=top)[ids] / total
+    inside = flat > 0
+    objects = int(scan.truth_id.max(initial=-1)) + 2
+    keys, n_pairs = np.unique(flat[inside].astype(np.int64) * objects + scan.truth_id.ravel()[inside] + 1,
+                              return_counts=True)
+    label, obj = keys // objects, keys % objects - 1
+    dominant = np.full(top, -1)
+    order = np.lexsort((n_pairs, label))  # by label, then count: the last of each label is its dominant object
+    last = order[np.r_[label[order][1:] != label[order][:-1], True]] if len(order) else order
+    dominant[label[last]] = obj[last]
+    stats["object"] = dominant[ids]
+    return stats
+
+
+def leaf_outputs(leaves: list[LeafTruth], output: VariantOutput, scene, scan) -> tuple[list[VariantOutput], dict]:
+    """Match a whole-scan output's regions to the true leaves; each leaf's view of the output, and the case's counts.
+
+    Each leaf is matched to the output region that holds most of its
+    visible pulses (the pulses it dominates, ``truth_id``); it is scored on
+    that region's traits (none, so area 0, when no region holds any of its
+    pulses) and on the output points of its part of the scan. A region that
+    is the match of no target leaf is a false leaf, unless another leaf or
+    surface that is not a target dominates most of its pulses.
+
+    Parameters
+    ----------
+    leaves : list of LeafTruth
+        The targets (:func:`prepare_leaves` on ``scan``).
+    output : VariantOutput
+        A whole-scan output with ``labels`` and ``regions``.
+    scene : Scene
+        The scanned scene.
+    scan : tlssim.Scan
+        The whole scan (with truth).
+
+    Returns
+    -------
+    outputs : list of VariantOutput
+        Per leaf, the output on its part of the scan, with the matched
+        region's traits and the stats ``found`` (1 when the match covers at
+        least :data:`MIN_FOUND_COVERAGE` of its visible pulses),
+        ``coverage`` (that share), ``purity`` (share of the region's pulses
+        the leaf dominates), ``region_pixels``, ``merged`` (1 when the
+        region is also another leaf's match) and the region's rppp ratios.
+    counts : dict
+        ``n_regions``, ``n_false`` (regions matching no leaf),
+        ``n_false_on_leaves`` (of those, regions on a target leaf that
+        matched another region: split leaves), ``n_false_off_leaves`` (on
+        wood, walls and other objects), ``n_merged`` (leaves whose match
+        is also another leaf's: leaves merged into one region).
+    """
+    if output.labels is None or output.regions is None:
+        raise BenchError("whole-scan scoring needs an output with region labels and their traits")
+    regions = region_stats(output, scan)
+    index = {int(label): k for k, label in enumerate(regions["labels"])}
+    labels = np.asarray(output.labels)
+    visible = [labels[leaf.own_pixels()] for leaf in leaves]
+    matches = [int(np.bincount(own[own > 0]).argmax()) if (own > 0).any() else None for own in visible]
+    shared = Counter(label for label in matches if label is not None)
+    outputs = []
+    for leaf, own, label in zip(leaves, visible, matches):
+        stats, traits = {"found": 0, "coverage": 0.0}, {"area_m2": 0.0}
+        if label is not None:
+            k = index[label]
+            coverage = float(np.mean(own == label))
+            stats = {"found": int(coverage >= MIN_FOUND_COVERAGE), "coverage": coverage,
+                     "purity": int((own == label).sum()) / int(regions["pixels"][k]),
+                     "region_pixels": int(regions["pixels"][k]), "merged": int(shared[label] > 1),
+                     **{key: float(regions[key][k]) for key in regions if key.startswith("rppp_")}}
+            traits = output.regions[label]
+        flags = None if output.flags is None else np.asarray(output.flags)[leaf.window]
+        outputs.append(VariantOutput(np.asarray(output.xyz)[leaf.window], traits, {**output.stats, **stats}, flags))
+    matched = set(shared)
+    merged = sum(count for count in shared.values() if count > 1)
+    targets = {leaf.object_id for leaf in leaves}
+    others = {i for i, obj in enumerate(scene.objects) if obj.type in TARGET_TYPES} - targets
+    false = [k for k, label in enumerate(regions["labels"]) if int(label) not in matched
+             and regions["object"][k] not in others]
+    on_leaves = sum(1 for k in false if regions["object"][k] in targets)
+    return outputs, {"n_regions": len(regions["labels"]), "n_false": len(false), "n_false_on_leaves": on_leaves,
+                     "n_false_off_leaves": len(false) - on_leaves, "n_merged": merged}
+
+
+def found_counts(scores: list[dict], min_visibility: float = metrics.MIN_VISIBILITY) -> dict:
+    """Found and missed leaves among scored leaves, all and at least ``min_visibility`` visible.
+
+    Parameters
+    ----------
+    scores : list of dict
+        Per-leaf scores with ``found`` and ``visibility``.
+    min_visibility : float
+        Share of the silhouette a leaf must show to count as visible.
+
+    Returns
+    -------
+    dict
+        ``n_leaves``, ``n_found``, ``n_missed``, ``n_visible``,
+        ``n_found_visible``, ``n_missed_visible``.
+    """
+    leaves = [s for s in scores if s.get("object_type") == "leaf" and s.get("found") is not None]
+    visible = [s for s in leaves if (s.get("visibility") or 0.0) >= min_visibility]
+    found, found_visible = sum(s["found"] for s in leaves), sum(s["found"] for s in visible)
+    return {"n_leaves": len(leaves), "n_found": found, "n_missed": len(leaves) - found, "n_visible": len(visible),
+            "n_found_visible": found_visible, "n_missed_visible": len(visible) - found_visible}
+
+
+def score_scan(leaves: list[LeafTruth], output: VariantOutput, scene, scan) -> tuple[list[dict], dict]:
+    """Scores of a whole-scan output on every target leaf (:func:`leaf_outputs`, :func:`score_leaf`) and the
+    case's counts (:func:`leaf_outputs`, :func:`found_counts`).
+
+    Parameters
+    ----------
+    leaves : list of LeafTruth
+        The targets.
+    output : VariantOutput
+        The variant's output on the whole ``scan``.
+    scene : Scene
+        The scanned scene.
+    scan : tlssim.Scan
+        The whole scan.
+    """
+    outputs, counts = leaf_outputs(leaves, output, scene, scan)
+    scores = [score_leaf(leaf, out) for leaf, out in zip(leaves, outputs)]
+    return scores, {**found_counts(scores), **counts}
+
+
 def trait_errors(truth: dict, traits: dict | None) -> dict:
-    """Area, elevation and azimuth errors where both the truth and the estimate have them."""
+    """Area, elevation and azimuth errors where both the truth and the estimate have them.
+
+    The estimated angles are stored aligned with the truth
+    (:func:`benchmarks.metrics.aligned_axis_angles`: the midrib's sense
+    flipped towards the truth, the azimuth within 180 deg of it), next to
+    the true ones, for the regressions of the validation table.
+    """
     if not traits:
         return {}
     errors = {}
@@ -378,9 +641,11 @@ def trait_errors(truth: dict, traits: dict | None) -> dict:
                        "area_rel_err": metrics.relative_error(traits["area_m2"], truth["area_m2"])})
     keys = ("elevation_deg", "azimuth_deg")
     if all(k in truth for k in keys) and all(np.isfinite(traits.get(k, math.nan)) for k in keys):
-        el, az = metrics.axis_angle_errors(traits["elevation_deg"], traits["azimuth_deg"],
-                                           truth["elevation_deg"], truth["azimuth_deg"])
-        errors.update({"elevation_err_deg": el, "azimuth_err_deg": az})
+        el, az = metrics.aligned_axis_angles(traits["elevation_deg"], traits["azimuth_deg"],
+                                             truth["elevation_deg"], truth["azimuth_deg"])
+        errors.update({"elevation_deg": el, "elevation_true_deg": truth["elevation_deg"], "azimuth_deg": az,
+                       "azimuth_true_deg": truth["azimuth_deg"], "elevation_err_deg": abs(el - truth["elevation_deg"]),
+                       "azimuth_err_deg": abs(az - truth["azimuth_deg"])})
     return errors
 
 

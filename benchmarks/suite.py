@@ -16,6 +16,9 @@ file looks like::
         scanner: {n_subrays: 19}
         vary: {distance_m: [1.5, 3, 5], incidence_deg: [0, 60]}
 
+A case may read its scene from a scene file of the :mod:`scenes` format,
+``scene: {file: my-scene.yaml}``, the path relative to the suite file (the
+file is checked when the suite is read, and its digest kept with the case).
 ``params`` sets method parameters for the case, by variant family or name
 (``params: {prop-sfs: {n_smooth: 5}, step: {r_max_m: 0.6}}``). ``vary``
 expands an entry into the Cartesian product of its lists; a key
@@ -40,7 +43,7 @@ from pathlib import Path
 import yaml
 
 from benchmarks.errors import BenchError
-from benchmarks.generators import check_scene
+from benchmarks.generators import check_scene, resolve_scene_file
 from tlssim.errors import ScanError
 from tlssim.pattern import ScanWindow
 from tlssim.scanner import ScannerModel, get_preset
@@ -178,7 +181,7 @@ def parse_suite(data, source: str = "") -> Suite:
     for index, entry in enumerate(entries):
         label = f"case #{index + 1}" + (f" ({entry.get('name')})" if isinstance(entry, dict) else "")
         try:
-            cases.extend(_expand(entry))
+            cases.extend(_expand(entry, Path(source).parent if source else Path.cwd()))
         except BenchError as exc:
             raise BenchError(f"{label}: {exc}") from None
     names = [c.name for c in cases]
@@ -218,7 +221,7 @@ def check_scanner(overrides: dict) -> None:
         raise BenchError(f"scanner: {exc}") from None
 
 
-def _expand(entry) -> list[Case]:
+def _expand(entry, base_dir: Path) -> list[Case]:
     if not isinstance(entry, dict):
         raise BenchError(f"a case must be a mapping, got {entry!r}")
     unknown = sorted(set(entry) - _CASE_KEYS)
@@ -228,7 +231,7 @@ def _expand(entry) -> list[Case]:
         raise BenchError("every case needs a non-empty 'name'")
     scene, scanner = entry.get("scene"), entry.get("scanner") or {}
     if not isinstance(scene, dict):
-        raise BenchError("'scene' must be a mapping with 'builtin', 'generator' or 'heightfield'")
+        raise BenchError("'scene' must be a mapping with 'builtin', 'generator', 'file' or 'heightfield'")
     if not isinstance(scanner, dict):
         raise BenchError(f"'scanner' must be a mapping of scanner-model overrides, got {scanner!r}")
     targets = entry.get("targets")
@@ -261,6 +264,8 @@ def _expand(entry) -> list[Case]:
             name = entry["name"].format(**fields)
         except (KeyError, IndexError, ValueError) as exc:
             raise BenchError(f"name template {entry['name']!r} uses a field that is not varied ({exc})") from None
+        if isinstance(case_scene, dict) and "file" in case_scene and "sha256" not in case_scene:
+            case_scene = resolve_scene_file(case_scene, base_dir)
         check_scene(case_scene)
         check_scanner(case_scanner)
         cases.append(Case(name, case_scene, case_scanner, case_seed(name) if seed is None else seed,

@@ -11,6 +11,7 @@ and maps the result back to ranges and world coordinates. It needs no truth.
 from __future__ import annotations
 
 import copy
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -199,10 +200,13 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
     for label in np.unique(regions.labels[regions.labels > 0]):
         region = regions.labels == label
         try:
-            fit = _fit_leaf(scan, alpha, region, regions.shares[label], regions.unreliable, variant, params, inliers)
+            share = regions.shares[label]()
+            fit = _fit_leaf(scan, alpha, region, share, regions.unreliable, variant, params, inliers)
         except _Skipped as exc:
             skipped.append((int(label), str(exc)))
             continue
+        # Only the leaf's box of its share is kept (one full-scan image per region took 12.6 GB on a 300-leaf tree).
+        regions.shares[label] = share[fit.frame.box].copy()
         _paste_leaf(grids, fit, region)
         fits.append((int(label), fit))
     return _assemble(scan, variant, params, regions, grids, fits, skipped, reliable)
@@ -216,9 +220,11 @@ class _Regions:
     ----------
     labels : ndarray of int, 2-D
         Leaf region per pixel (0: none; only pixels with a valid return).
-    shares : dict of int to ndarray
-        Per region, its share of every pulse's footprint (1 on its pure
-        pulses, the geometric share on its mixed pulses, 0 elsewhere).
+    shares : dict of int to callable
+        Per region, a function giving its share of every pulse's footprint
+        (1 on its pure pulses, the geometric share on its mixed pulses, 0
+        elsewhere), computed when the region is reconstructed; after it, the
+        share on the leaf's box.
     background : ndarray of bool, 2-D
         Mixed pulses given to the surface that dominates them (not a leaf,
         or a thin part attached to one).
@@ -347,7 +353,7 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
     if labels is None:
         labels = segmentation.leaves
         surface_of = {k: segmentation.region_surface(k) for k in np.unique(labels[labels > 0])}
-        shares = {k: mixed.share_of(s, gain) for k, s in surface_of.items()}
+        shares = {k: functools.partial(mixed.share_of, s, gain) for k, s in surface_of.items()}
         # Mixed pulses dominated by a surface that is not a leaf (the wall behind) take its distance; so do those of
         # a thin part attached to a leaf (a petiole), at the distance where it is attached when it dominates them.
         background = unreliable & (mixed.owner > 0) & (~np.isin(mixed.owner, segmentation.leaf_surfaces) | mixed.thin)
@@ -359,7 +365,8 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
         for k in np.unique(labels[labels > 0]):
             main = _main_surface(mixed.surfaces, labels == k)
             paired = (mixed.surfaces == 0) & (mixed.pair == main).any(axis=-1)
-            shares[k] = np.where(paired, mixed.share_of(main, gain), (labels == k).astype(float))
+            shares[k] = functools.partial(np.asarray, np.where(paired, mixed.share_of(main, gain),
+                                                               (labels == k).astype(float)))
             background |= unreliable & (labels == k) & (mixed.owner > 0) & (mixed.owner != main)
         labels = np.where(background, 0, labels)
     out_range[background] = mixed.owner_range()[background]
@@ -472,7 +479,7 @@ def _assemble(scan: Scan, variant: str, params: SfsParams, regions: _Regions, gr
         box = fit.frame.box
         # The traits of the output: corrected distances of the leaf's outliers, measured ones of its inliers.
         height = fit.frame.height(np.where(region & corrected, out_range, np.nan)[box])
-        traits = {**leaf_traits(fit.frame, height, regions.shares[label][box], params.trait_smoothing_m),
+        traits = {**leaf_traits(fit.frame, height, regions.shares[label], params.trait_smoothing_m),
                   "n_points": int(region.sum()), "n_outliers": int((outlier & region).sum()),
                   "unreliable_alpha_fraction": float(np.mean(~reliable[region])),
                   "outlier_threshold_m": fit.threshold}

@@ -11,13 +11,17 @@ from tlssim.simulate import setup_from_section, simulate
 
 
 def leaf_case(distance_m: float, incidence_deg: float, seed: int):
-    """A 9 cm pear leaf (the thesis' ROP set-up) tilted about the horizontal, a wall 1 m behind; its truth."""
+    """A 9 cm pear leaf (the thesis' ROP set-up) tilted about the horizontal, a wall 1 m behind: scene, scan, truth."""
     scene = build_scene({"generator": "single-leaf", "distance_m": distance_m, "incidence_deg": incidence_deg,
                          "length_m": 0.09, "axis": "horizontal", "spin_deg": 0.0, "seed": seed,
                          "background_gap_m": 1.0})
     scan = simulate(scene, setup_from_section(scene.scanner), seed=seed, progress=False)
-    (leaf,) = scoring.prepare_leaves(scene, scan)
-    return leaf
+    return scene, scan, scoring.prepare_leaves(scene, scan)
+
+
+def whole_scan_scores(variant, scene, scan, leaves):
+    """The variant run once on the whole scan, scored on its leaves; the case's counts."""
+    return scoring.score_scan(leaves, variant(scan, scoring.target_labels(scan.shape, leaves)), scene, scan)
 
 
 @pytest.fixture(scope="module")
@@ -25,11 +29,10 @@ def scores():
     """Scores of buffer and fused on three simulated leaves (distance m, incidence deg, seed)."""
     rows = []
     for case in ((1.5, 40.0, 1), (3.0, 20.0, 2), (5.0, 40.0, 1)):
-        leaf = leaf_case(*case)
+        scene, scan, leaves = leaf_case(*case)
         for name in ("buffer", "fused"):
-            variant = get_variant(name)
-            variant.prepare(leaf.scan)
-            rows.append({"case": case, "variant": name, **scoring.score_leaf(leaf, variant(leaf.scan, leaf.mask))})
+            (scores,), counts = whole_scan_scores(get_variant(name), scene, scan, leaves)
+            rows.append({"case": case, "variant": name, **scores, **counts})
     return rows
 
 
@@ -46,7 +49,9 @@ def test_phase_shift_outliers_are_corrected_and_leaf_areas_kept(scores):
         assert row["rop_reduction"] > (0.95 if fused else 0.8), row
         assert row["rop_after_1cm"] < (0.01 if fused else 0.03) and row["good_points_damaged"] < 0.005, row
         assert abs(row["area_rel_err"]) < (0.03 if fused else 0.15), row
-        assert row["purity"] > 0.99 and row["coverage"] > 0.98, row
+        assert row["purity"] > 0.99 and row["coverage"] > 0.98 and row["found"] == 1, row
+        # The whole scan (leaf, wall, the window's margin) holds one leaf region: no false leaf.
+        assert row["n_regions"] == 1 and row["n_false"] == 0 and row["n_found_visible"] == 1, row
         assert max(row["elevation_err_deg"], row["azimuth_err_deg"]) < (3 if fused else 15), row
     for variant in ("buffer", "fused"):
         errors = [abs(r["area_rel_err"]) for r in scores if r["variant"] == variant]
@@ -62,11 +67,9 @@ def test_buffer_keeps_the_measured_inliers_and_fused_improves_them(scores):
 
 
 def test_given_the_leafs_points_as_mask_the_correction_holds():
-    leaf = leaf_case(3.0, 20.0, 2)
-    variant = get_variant("buffer").with_params(segmentation="mask")
-    variant.prepare(leaf.scan)
-    scores = scoring.score_leaf(leaf, variant(leaf.scan, leaf.mask))
-    assert scores["found"] == 1 and "purity" not in scores
+    scene, scan, leaves = leaf_case(3.0, 20.0, 2)
+    (scores,), counts = whole_scan_scores(get_variant("buffer").with_params(segmentation="mask"), scene, scan, leaves)
+    assert scores["found"] == 1 and scores["purity"] > 0.95 and counts["n_false"] == 0
     assert scores["rop_reduction"] > 0.8 and abs(scores["area_rel_err"]) < 0.06
     with pytest.raises(BenchError, match="segmentation"):
-        get_variant("buffer").with_params(segmentation="truth")(leaf.scan, leaf.mask)
+        get_variant("buffer").with_params(segmentation="truth")(scan, scoring.target_labels(scan.shape, leaves))

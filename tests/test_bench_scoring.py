@@ -86,3 +86,86 @@ def test_crop_margin_covers_the_mixed_band_near_the_scanner():
 
     assert scoring.crop_margin_px(scan(0.018), 0.8) == scoring.CROP_MARGIN_PX + 14
     assert scoring.crop_margin_px(scan(0.08), 4.0) == scoring.CROP_MARGIN_PX + 1
+
+
+def test_visibility_counts_close_occluders_and_the_window_border():
+    """A leaf 3 cm behind another that covers its left half (the old rule needed a whole leaf length in front), and
+    a leaf whose right half lies beyond the window's border."""
+    back = elliptic_leaf("back", (3.0, 0.0, 0.0), (-1, 0, 0), (0, 1, 0), 0.08, 0.05)
+    front = elliptic_leaf("front", (2.97, 0.04 * 2.97 / 3.0, 0.0), (-1, 0, 0), (0, 1, 0), 0.08, 0.05)
+    objects = [back, front]
+    section = scanner_window(objects)
+    scene = Scene(objects + [background_wall(objects, 3.5, 0.3)], section, "close-leaves")
+    scan = simulate(scene, setup_from_section({**section, "step_deg": 0.08}), seed=1, progress=False)
+    by_name = {leaf.name: leaf for leaf in scoring.prepare_leaves(scene, scan)}
+    assert by_name["front"].scan_stats["visibility"] == pytest.approx(1.0)
+    assert by_name["back"].scan_stats["visibility"] == pytest.approx(0.5, abs=0.12)
+    # The same scan cut at the front leaf's centre column: half its silhouette lies outside the window.
+    centre = int(np.argmin(np.abs(scan.theta[0] - np.arctan2(0.04, 3.0))))
+    half = scoring.crop_scan(scan, slice(None), slice(0, centre))
+    cut = scoring.visibility(half, 1, front.truth["outline"], 2.97)
+    assert cut == pytest.approx(0.5, abs=0.12)
+
+
+def test_whole_scan_regions_are_matched_to_true_leaves(two_leaves):
+    """Hand-made output regions on the two-leaf scan: the front leaf whole (region 1, with a stray wall pixel), the
+    back leaf split in a visible third (region 2) and the rest (region 3), a wall patch (region 4)."""
+    scene, scan, leaves = two_leaves
+    back, front = leaves
+    labels = np.zeros(scan.shape, int)
+    labels[front.own_pixels()] = 1
+    rows, cols = back.own_pixels()
+    third = cols < np.quantile(cols, 1 / 3)
+    labels[rows[third], cols[third]] = 2
+    labels[rows[~third], cols[~third]] = 3
+    wall = np.argwhere((scan.truth_id == 2) & (labels == 0))
+    labels[tuple(wall[:5].T)] = 4
+    labels[tuple(wall[5])] = 1
+    regions = {k: {"area_m2": 0.001 * k, "elevation_deg": 0.0, "azimuth_deg": 0.0} for k in (1, 2, 3, 4)}
+    output = VariantOutput(scan.xyz.copy(), stats={"skipped": 0}, flags=np.zeros(scan.shape, bool), labels=labels,
+                           regions=regions, candidates=np.where(labels > 0, 1, 0))
+    (back_out, front_out), counts = scoring.leaf_outputs(leaves, output, scene, scan)
+    assert front_out.traits["area_m2"] == 0.001 and front_out.stats["found"] == 1
+    assert front_out.stats["coverage"] == 1.0
+    assert front_out.stats["purity"] == pytest.approx(1 - 1 / front_out.stats["region_pixels"])
+    assert front_out.stats["rppp_1"] == 1.0 and front_out.xyz.shape == front.scan.xyz.shape
+    assert front_out.stats["merged"] == 0 and "label" not in front_out.stats
+    # The back leaf's larger part (two thirds of its visible pulses) is its match: found.
+    assert back_out.traits["area_m2"] == 0.003 and back_out.stats["found"] == 1
+    assert back_out.stats["coverage"] == pytest.approx(2 / 3, abs=0.05)
+    # Region 2 (a split-off part of the back leaf) and region 4 (on the wall) match no leaf: false leaves.
+    assert counts == {"n_regions": 4, "n_false": 2, "n_false_on_leaves": 1, "n_false_off_leaves": 1, "n_merged": 0}
+    scores, counts = scoring.score_scan(leaves, output, scene, scan)
+    assert counts["n_leaves"] == 2 and counts["n_found"] == 2 and counts["n_visible"] == 1
+    assert counts["n_found_visible"] == 1 and scores[1]["area_m2"] == 0.001
+    # A leaf no region touches is missed and gets no area; the other leaf's regions are then all false.
+    labels[front.own_pixels()] = 0
+    (_, front_out), counts = scoring.leaf_outputs(leaves, output, scene, scan)
+    assert front_out.stats == {"skipped": 0, "found": 0, "coverage": 0.0} and front_out.traits == {"area_m2": 0.0}
+    assert counts["n_false"] == 3
+    # One region over both leaves: both found, in a shared (merged) region.
+    labels[front.own_pixels()] = 3
+    labels[back.own_pixels()] = 3
+    (back_out, front_out), counts = scoring.leaf_outputs(leaves, output, scene, scan)
+    assert back_out.stats["found"] == front_out.stats["found"] == 1 and counts["n_merged"] == 2
+    assert back_out.stats["merged"] == front_out.stats["merged"] == 1
+    assert front_out.stats["purity"] < 0.75
+    # Given the targets: each leaf's own pulses carry its label.
+    given = scoring.target_labels(scan.shape, leaves)
+    assert set(np.unique(given)) == {0, 1, 2}
+    assert (given[front.own_pixels()] == 2).all() and (given[back.own_pixels()] == 1).all()
+
+
+@pytest.mark.parametrize("min_share, margin", [(0.1, None), (0.6, 0)])
+def test_leaf_points_and_windows_match_their_whole_scan_definition(two_leaves, monkeypatch, min_share, margin):
+    """Each leaf's points, found inside its object's bounding box, are the pulses of the whole scan with at least
+    ``min_share`` of their power from it (without a margin, the window is smaller than the box of all its pulses)."""
+    scene, scan, _ = two_leaves
+    if margin is not None:
+        monkeypatch.setattr(scoring, "crop_margin_px", lambda scan, distance_m: margin)
+    for leaf in scoring.prepare_leaves(scene, scan, min_share=min_share):
+        whole = scan.valid & (scoring.power_share(scan, leaf.object_id) >= min_share)
+        inside = np.zeros(scan.shape, bool)
+        inside[leaf.window] = leaf.mask
+        assert (inside == whole).all() and whole.sum() > 0
+        assert leaf.scan.shape == scan.range[leaf.window].shape

@@ -165,3 +165,78 @@ def test_a_sweep_refuses_invalid_values_before_running():
         sweep_suite("distance", values=[-1, 0])
     with pytest.raises(BenchError, match="step_deg"):
         sweep_suite("step", values=[0.0])
+
+
+CANOPY_SCENE = """
+name: three-leaves
+scanner:
+  preset: faro-ls880
+  position: [0, 0, 0]
+  window: {theta_deg: [-3.5, 3.0], psi_deg: [87.5, 92.5], step_deg: 0.08}
+objects:
+  - {name: back, type: leaf, preset: pear, seed: 1, length: 0.08, material: pear-leaf,
+     pose: {center: [2.0, 0.0, 0.0], facing: scanner}}
+  - {name: front, type: leaf, preset: pear, seed: 2, length: 0.08, material: pear-leaf,
+     pose: {center: [1.97, 0.035, 0.0], facing: scanner}}
+  - {name: apart, type: leaf, preset: pear, seed: 3, length: 0.08, material: pear-leaf,
+     pose: {center: [2.0, -0.09, 0.0], facing: scanner}}
+  - {name: wall, type: plane, size: [1.0, 1.0], material: wall, pose: {center: [3.0, 0, 0], facing: scanner}}
+"""
+
+
+def test_cases_read_scene_files_relative_to_the_suite(tmp_path):
+    (tmp_path / "scenes").mkdir()
+    scene_path = tmp_path / "scenes" / "canopy.yaml"
+    scene_path.write_text(CANOPY_SCENE)
+    path = write(tmp_path, {"name": "mine", "cases": [{"name": "canopy", "scene": {"file": "scenes/canopy.yaml"}}]})
+    (case,) = load_suite(str(path)).cases
+    assert case.scene["file"] == str(scene_path.resolve()) and len(case.scene["sha256"]) == 64
+    assert [o.name for o in build_scene(case.scene).objects] == ["back", "front", "apart", "wall"]
+    # The stored case is read back as it is (workers, resumed runs).
+    assert parse_suite({"name": "mine", "cases": [case.to_dict()]}).cases[0].scene == case.scene
+    scene_path.write_text(CANOPY_SCENE.replace("seed: 3", "seed: 4"))
+    with pytest.raises(BenchError, match="changed since its suite was read"):
+        build_scene(case.scene)
+
+
+@pytest.mark.parametrize("scene, text, message", [
+    ({"file": "missing.yaml"}, None, "scene file 'missing.yaml' not found"),
+    ({"file": "bad.yaml"}, "objects: [{type: no-such-type, name: x}]", "not a valid scene"),
+    ({"file": "bad.yaml"}, "name: [unclosed", "not a valid scene"),
+    ({"file": "bad.yaml", "scale": 2}, "objects: []", "takes only 'file'"),
+    ({"file": 3}, None, "must be a path"),
+])
+def test_scene_file_entries_are_checked_when_the_suite_is_read(tmp_path, scene, text, message):
+    if text is not None:
+        (tmp_path / "bad.yaml").write_text(text)
+    path = write(tmp_path, {"name": "mine", "cases": [{"name": "c", "scene": scene}]})
+    with pytest.raises(BenchError, match=message):
+        load_suite(str(path))
+
+
+def test_a_small_canopy_scored_on_the_whole_scan(tmp_path):
+    """Three leaves (two overlapping, 3 cm apart in depth) read from a scene file; PROP-SFS runs once on the whole
+    scan: every leaf is found or missed, the isolated one is found, and the case gives its throughput."""
+    from benchmarks.registry import get_variant
+    from benchmarks.runner import case_rows, variant_specs
+    from benchmarks.summary import leaf_printout, validation_table
+
+    (tmp_path / "canopy.yaml").write_text(CANOPY_SCENE)
+    path = write(tmp_path, {"name": "mine", "cases": [{"name": "canopy", "scene": {"file": "canopy.yaml"}}]})
+    (case,) = load_suite(str(path)).cases
+    rows = list(case_rows(case.to_dict(), variant_specs([get_variant("raw"), get_variant("fused")])))
+    raw, fused = rows
+    assert raw["error"] is None and fused["error"] is None, (raw["error"], fused["error"])
+    counts = fused["metrics"]["case"]
+    scores = {leaf["target"]: leaf for leaf in fused["metrics"]["targets"]}
+    assert set(scores) == {"back", "front", "apart"}
+    assert counts["n_leaves"] == 3 and counts["n_found"] + counts["n_missed"] == 3
+    assert scores["apart"]["found"] == 1 and scores["apart"]["purity"] > 0.9
+    assert abs(scores["apart"]["area_rel_err"]) < 0.2
+    assert scores["back"]["visibility"] < 0.8 < scores["front"]["visibility"]
+    assert counts["n_pulses"] > 0 and "n_regions" not in raw["metrics"]["case"]
+    for row in rows:
+        row["case_name"] = "canopy"
+    table = {r["variant"]: r for r in validation_table(rows)}
+    assert table["fused"]["n_leaves"] == 2 and table["raw"]["n_found"] is None
+    assert "fused" in leaf_printout(rows)
