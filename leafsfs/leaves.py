@@ -104,11 +104,16 @@ class Segmentation:
         return int(self.leaf_surfaces[label - 1])
 
 
-def angular_step(theta: np.ndarray, psi: np.ndarray) -> float:
-    """Median angle between neighbouring beams of a scan grid, rad."""
-    axis = beam_frame(theta, psi)[0]
-    steps = [np.arccos(np.clip(np.sum(axis[1:] * axis[:-1], axis=-1), -1, 1)).ravel(),
-             np.arccos(np.clip(np.sum(axis[:, 1:] * axis[:, :-1], axis=-1), -1, 1)).ravel()]
+def angular_step(theta: np.ndarray, psi: np.ndarray, samples: int = 64) -> float:
+    """Median angle between neighbouring beams of a scan grid, rad (over up to ``samples`` evenly spaced row
+    pairs and column pairs: a scan grid's steps vary smoothly)."""
+    rows = np.unique(np.linspace(0, theta.shape[0] - 2, min(samples, theta.shape[0] - 1)).astype(int))
+    cols = np.unique(np.linspace(0, theta.shape[1] - 2, min(samples, theta.shape[1] - 1)).astype(int))
+    pairs = (((rows, slice(None)), (rows + 1, slice(None))), ((slice(None), cols), (slice(None), cols + 1)))
+    steps = []
+    for first, second in pairs:
+        dot = np.sum(beam_frame(theta[first], psi[first])[0] * beam_frame(theta[second], psi[second])[0], axis=-1)
+        steps.append(np.arccos(np.clip(dot, -1, 1)).ravel())
     return float(np.median(np.concatenate(steps)))
 
 

@@ -146,3 +146,30 @@ def test_a_leaf_behind_another_is_cut_the_front_one_is_whole():
     edge = np.zeros_like(labels)
     edge[:10, :10] = 1
     assert visibility(edge, scan.range, 0.005)[1] == {"occluded_fraction": 0.0, "border": True, "cut": True}
+
+
+def test_a_pulse_straddling_two_leaves_is_shared_by_both_with_its_power_shares():
+    scan, labels = _canopy_scan("two-leaves")
+    alpha, _ = scan_alpha(scan.intensity, scan.range, resolve_calibration("model", scan))
+    segmentation = segment_scan(scan.range, scan.theta, scan.psi, alpha, intensity=scan.intensity)
+    front, behind = (scan.object_names.index(name) for name in ("front", "behind"))
+    # the surfaces of each leaf (the one behind is cut into pieces by the one in front)
+    pure = segmentation.mixed.surfaces
+    surfaces = {obj: [k for k in np.unique(pure[scan.truth_id == obj]) if k > 0
+                      and np.mean(scan.truth_id[pure == k] == obj) > 0.5] for obj in (front, behind)}
+    second, fraction = scan.layers["truth_second_id"], scan.layers["second_fraction"]
+    # the truth: pulses with 20-80 % of their power from each leaf
+    truth_front = np.where(scan.truth_id == front, 1 - scan.mixed_fraction, np.where(second == front, fraction, 0))
+    both = scan.valid & np.isin(scan.truth_id, [front, behind]) & np.isin(second, [front, behind]) \
+        & (truth_front > 0.2) & (truth_front < 0.8) & (scan.mixed_fraction - fraction < 0.02)
+    assert both.sum() > 30
+    share_front, share_behind = (sum(segmentation.mixed.share_of(k) for k in surfaces[obj])[both]
+                                 for obj in (front, behind))
+    pair = segmentation.mixed.pair[both]
+    paired = np.isin(pair, surfaces[front]).any(axis=1) & np.isin(pair, surfaces[behind]).any(axis=1)
+    assert paired.mean() > 0.85  # attributed to both leaves, not deleted nor given whole to one (0.90)
+    # those paired in the band around the leaves carry both power shares (0.59 of them, median error 0.035; the
+    # rest were paired only by the thin-part pass, which gives them to neither leaf: a shortfall)
+    shared = paired & ~segmentation.mixed.thin[both]
+    assert shared.mean() > 0.5 and np.allclose((share_front + share_behind)[shared], 1.0)
+    assert np.median(np.abs(share_front - truth_front[both])[shared]) < 0.1
