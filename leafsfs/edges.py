@@ -86,21 +86,34 @@ class MixedPulses:
         """Pulses whose range is not that of one surface: between two of them, or near none (and no-return pixels)."""
         return (self.surfaces == 0) & ((self.pair[..., 1] > 0) | (self.pair[..., 0] == 0))
 
-    def share_of(self, label: int, gain_dn: float | None = None) -> np.ndarray:
+    def share_of(self, label: int, gain_dn: float | None = None, box: tuple | None = None) -> np.ndarray:
         """Share of surface ``label`` of every pulse (1 on its pure pulses, 0 where it is absent).
 
         The power share; with the log amplifier's ``gain_dn`` the geometric
-        share of the footprint (:func:`geometric_share`).
+        share of the footprint (:func:`geometric_share`). With ``box`` (a
+        pair of slices) only the pulses of that window, in its shape.
         """
-        share = (self.surfaces == label).astype(float)
-        for member, other, fraction in ((0, 1, self.share), (1, 0, 1.0 - self.share)):
-            sel = (self.pair[..., member] == label) & ~self.thin
+        box = box or (slice(None), slice(None))
+        share = (self.surfaces[box] == label).astype(float)
+        pair, thin = self.pair[box], self.thin[box]
+        for member, other, fraction in ((0, 1, self.share[box]), (1, 0, 1.0 - self.share[box])):
+            sel = (pair[..., member] == label) & ~thin
             value = fraction[sel]
             if gain_dn is not None:
-                value = geometric_share(value, self.pair_intensity[..., member][sel],
-                                        self.pair_intensity[..., other][sel], gain_dn)
+                value = geometric_share(value, self.pair_intensity[box][..., member][sel],
+                                        self.pair_intensity[box][..., other][sel], gain_dn)
             share[sel] = value
         return share
+
+    def extents(self) -> dict[int, tuple]:
+        """Per surface label, the window (pair of slices) holding its pulses and the mixed pulses paired with it."""
+        out = {}
+        for image in (self.surfaces, self.pair[..., 0], self.pair[..., 1]):
+            for k, box in enumerate(ndimage.find_objects(image), start=1):
+                if box is not None:
+                    old = out.get(k, box)
+                    out[k] = tuple(slice(min(a.start, b.start), max(a.stop, b.stop)) for a, b in zip(old, box))
+        return out
 
     def owner_range(self) -> np.ndarray:
         """Distance of each mixed pulse's owner surface extrapolated to it, m (NaN where no pair was found)."""

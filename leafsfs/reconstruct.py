@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
+from leafsfs.canopy import visibility
 from leafsfs.engine import HeightResult, reconstruct_heights
 from leafsfs.errors import SfsError
 from leafsfs.frame import LocalFrame, local_frame
@@ -48,7 +49,11 @@ class LeafResult:
         Engine output on the frame's pixel box.
     traits : dict
         Area, normal, elevation, azimuth (:func:`leafsfs.traits.leaf_traits`)
-        plus ``n_points`` and ``n_outliers``.
+        plus ``n_points`` and ``n_outliers``; ``visible_area_m2`` (the
+        measured area: that of the visible part), ``cut`` (the leaf is only
+        partly visible: an occluder in front of it or the window's border
+        cuts it), ``cut_by_border`` and ``occluded_fraction``
+        (:func:`leafsfs.canopy.visibility`).
     """
 
     label: int
@@ -202,7 +207,8 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
     for label in np.unique(regions.labels[regions.labels > 0]):
         region = regions.labels == label
         try:
-            fit = _fit_leaf(scan, alpha, region, regions.shares[label], regions.unreliable, variant, params, inliers)
+            fit = _fit_leaf(scan, alpha, region, regions.shares.support(label), regions.unreliable, variant, params,
+                            inliers)
         except _Skipped as exc:
             skipped.append((int(label), str(exc)))
             continue
@@ -219,7 +225,7 @@ class _Regions:
     ----------
     labels : ndarray of int, 2-D
         Leaf region per pixel (0: none; only pixels with a valid return).
-    shares : dict of int to ndarray
+    shares : _Shares
         Per region, its share of every pulse's footprint (1 on its pure
         pulses, the geometric share on its mixed pulses, 0 elsewhere).
     background : ndarray of bool, 2-D
@@ -233,10 +239,49 @@ class _Regions:
     """
 
     labels: np.ndarray
-    shares: dict
+    shares: "_Shares"
     background: np.ndarray
     unreliable: np.ndarray
     range: np.ndarray
+
+
+class _Shares:
+    """Each region's share of the pulses' footprints, kept on the window where it is not zero.
+
+    A whole-scan image per region would take ``8 x pixels x regions`` bytes
+    (13 GB for the 300 leaves of a tree at 0.018 deg).
+
+    Parameters
+    ----------
+    shape : tuple of int
+        The scan grid's shape.
+    """
+
+    def __init__(self, shape: tuple):
+        self.shape = shape
+        self._parts: dict[int, tuple] = {}
+
+    def add(self, label: int, box: tuple, values: np.ndarray) -> None:
+        """Record region ``label``'s shares ``values`` on the window ``box`` (a pair of slices)."""
+        self._parts[int(label)] = (box, values)
+
+    def support(self, label: int) -> np.ndarray:
+        """Where region ``label`` has a share (whole-scan boolean image)."""
+        box, values = self._parts[int(label)]
+        out = np.zeros(self.shape, dtype=bool)
+        out[box] = values > 0
+        return out
+
+    def crop(self, label: int, box: tuple) -> np.ndarray:
+        """Region ``label``'s shares on the window ``box`` (a pair of slices), 0 outside its own window."""
+        own, values = self._parts[int(label)]
+        (b0, b1), (c0, c1) = ((sl.indices(n)[:2]) for sl, n in zip(box, self.shape))
+        (o0, o1), (p0, p1) = ((sl.indices(n)[:2]) for sl, n in zip(own, self.shape))
+        out = np.zeros((b1 - b0, c1 - c0))
+        r0, r1, q0, q1 = max(b0, o0), min(b1, o1), max(c0, p0), min(c1, p1)
+        if r0 < r1 and q0 < q1:
+            out[r0 - b0:r1 - b0, q0 - c0:q1 - c0] = values[r0 - o0:r1 - o0, q0 - p0:q1 - p0]
+        return out
 
 
 @dataclass
@@ -341,16 +386,19 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
     SfsError
         When no leaf pixel has a valid return.
     """
-    segmentation = segment_scan(scan.range, scan.theta, scan.psi, alpha, intensity=scan.intensity)
     gain = float(scan.scanner_model.get("log_gain_dn", LOG_GAIN_DN))
+    segmentation = segment_scan(scan.range, scan.theta, scan.psi, alpha, intensity=scan.intensity, gain_dn=gain)
     mixed = segmentation.mixed
     unreliable = valid & mixed.straddling
     out_range = scan.range.copy()
     background = np.zeros(scan.shape, dtype=bool)
     if labels is None:
         labels = segmentation.leaves
-        surface_of = {k: segmentation.region_surface(k) for k in np.unique(labels[labels > 0])}
-        shares = {k: mixed.share_of(s, gain) for k, s in surface_of.items()}
+        extents = mixed.extents()
+        shares = _Shares(scan.shape)
+        for k in np.unique(labels[labels > 0]):
+            surface = segmentation.region_surface(k)
+            shares.add(k, extents[surface], mixed.share_of(surface, gain, extents[surface]))
         # Mixed pulses dominated by a surface that is not a leaf (the wall behind) take its distance; so do those of
         # a thin part attached to a leaf (a petiole), at the distance where it is attached when it dominates them.
         background = unreliable & (mixed.owner > 0) & (~np.isin(mixed.owner, segmentation.leaf_surfaces) | mixed.thin)
@@ -358,11 +406,12 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
         # A given region counts its pixels whole, except the mixed pulses of its main surface, which count (inside
         # the region or just outside it) for their share of that surface; its mixed pulses that another surface
         # dominates (the wall behind) take that surface's distance and leave the region.
-        shares = {}
+        shares = _Shares(scan.shape)
+        whole = (slice(None), slice(None))
         for k in np.unique(labels[labels > 0]):
             main = _main_surface(mixed.surfaces, labels == k)
             paired = (mixed.surfaces == 0) & (mixed.pair == main).any(axis=-1)
-            shares[k] = np.where(paired, mixed.share_of(main, gain), (labels == k).astype(float))
+            shares.add(k, whole, np.where(paired, mixed.share_of(main, gain), (labels == k).astype(float)))
             background |= unreliable & (labels == k) & (mixed.owner > 0) & (mixed.owner != main)
         labels = np.where(background, 0, labels)
     out_range[background] = mixed.owner_range()[background]
@@ -470,15 +519,19 @@ def _assemble(scan: Scan, variant: str, params: SfsParams, regions: _Regions, gr
     labels, corrected, out_range = regions.labels, grids.corrected, grids.range
     outlier = corrected & (out_range != scan.range)
     leaves = []
+    seen = visibility(labels, scan.range, 3 * range_noise(scan.range)) if fits else {}
     for label, fit in fits:
         region = labels == label
         box = fit.frame.box
         # The traits of the output: corrected distances of the leaf's outliers, measured ones of its inliers.
         height = fit.frame.height(np.where(region & corrected, out_range, np.nan)[box])
-        traits = {**leaf_traits(fit.frame, height, regions.shares[label][box], params.trait_smoothing_m),
+        traits = {**leaf_traits(fit.frame, height, regions.shares.crop(label, box), params.trait_smoothing_m),
                   "n_points": int(region.sum()), "n_outliers": int((outlier & region).sum()),
                   "unreliable_alpha_fraction": float(np.mean(~reliable[region])),
                   "outlier_threshold_m": fit.threshold}
+        # The area is that of the visible part; whether that is the whole leaf (leafsfs.canopy.visibility).
+        traits.update(visible_area_m2=traits["area_m2"], cut=seen[label]["cut"], cut_by_border=seen[label]["border"],
+                      occluded_fraction=seen[label]["occluded_fraction"])
         leaves.append(LeafResult(label, fit.frame, fit.heights, traits))
     return SfsResult(scan, variant, params, labels, out_range, corrected, grids.candidates, grids.spread, outlier,
                      grids.alpha, regions.background, leaves, skipped)

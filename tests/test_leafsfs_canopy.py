@@ -8,7 +8,7 @@ import pytest
 
 import scenes
 import tlssim
-from leafsfs import SfsError
+from leafsfs import SfsError, reconstruct
 from leafsfs.canopy import edge_pulses, plane_fits, split_necks, visibility, wood_surfaces
 from leafsfs.leaves import range_noise
 from leafsfs.leaves import segment_scan
@@ -173,3 +173,22 @@ def test_a_pulse_straddling_two_leaves_is_shared_by_both_with_its_power_shares()
     shared = paired & ~segmentation.mixed.thin[both]
     assert shared.mean() > 0.5 and np.allclose((share_front + share_behind)[shared], 1.0)
     assert np.median(np.abs(share_front - truth_front[both])[shared]) < 0.1
+
+
+def test_traits_carry_the_visible_area_and_whether_the_leaf_is_cut():
+    scan, _ = _canopy_scan("two-leaves")
+    result = reconstruct(scan, variant="buffer", calibration="model")
+    names = {}
+    for leaf in result.leaves:
+        owner = np.bincount(scan.truth_id[(result.labels == leaf.label) & scan.valid]).argmax()
+        names.setdefault(scan.object_names[owner], []).append(leaf.traits)
+    (front,) = names["front"]
+    assert not front["cut"] and front["visible_area_m2"] == front["area_m2"]
+    truth = {o.name: o.truth["area_m2"] for o in scenes.scene_from_spec(
+        {"name": "x", "objects": [{**LEAF, "name": "front"}, *CANOPIES["two-leaves"]]}).objects}
+    assert abs(front["area_m2"] / truth["front"] - 1) < 0.1
+    # the leaf behind shows in pieces smaller than the leaf; the largest two border the leaf in front (cut), a
+    # sliver touching it at a corner only does not (3 % of its ring)
+    behind = sorted(names["behind"], key=lambda t: -t["visible_area_m2"])
+    assert all(t["visible_area_m2"] < 0.5 * truth["behind"] for t in behind)
+    assert behind[0]["cut"] and behind[0]["occluded_fraction"] > 0.2 and not behind[0]["cut_by_border"]
