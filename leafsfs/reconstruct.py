@@ -11,15 +11,17 @@ and maps the result back to ranges and world coordinates. It needs no truth.
 from __future__ import annotations
 
 import copy
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 import trimesh
+from scipy import ndimage
 
 from leafsfs.canopy import visibility
 from leafsfs.engine import HeightResult, reconstruct_heights
 from leafsfs.errors import SfsError
-from leafsfs.frame import LocalFrame, local_frame
+from leafsfs.frame import MARGIN_PX, LocalFrame, local_frame
 from leafsfs.leaves import range_noise, segment_scan
 from leafsfs.params import VARIANTS, SfsParams
 from leafsfs.preprocess import resolve_calibration, scan_alpha
@@ -204,11 +206,15 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
                    candidates=np.zeros(scan.shape, dtype=int), spread=np.full(scan.shape, np.nan),
                    alpha=alpha.copy())
     fits, skipped = [], []
+    boxes = ndimage.find_objects(regions.labels)
     for label in np.unique(regions.labels[regions.labels > 0]):
         region = regions.labels == label
+        # The window the leaf's frame can reach: its region and the pulses it shares, plus the frame's margin.
+        window = tuple(slice(max(min(a.start, b.start) - MARGIN_PX, 0), min(max(a.stop, b.stop) + MARGIN_PX, n))
+                       for a, b, n in zip(boxes[label - 1], regions.shares.box(label), scan.shape))
         try:
             fit = _fit_leaf(scan, alpha, region, regions.shares.support(label), regions.unreliable, variant, params,
-                            inliers)
+                            inliers, window)
         except _Skipped as exc:
             skipped.append((int(label), str(exc)))
             continue
@@ -264,6 +270,10 @@ class _Shares:
     def add(self, label: int, box: tuple, values: np.ndarray) -> None:
         """Record region ``label``'s shares ``values`` on the window ``box`` (a pair of slices)."""
         self._parts[int(label)] = (box, values)
+
+    def box(self, label: int) -> tuple:
+        """The window (pair of slices) outside which region ``label`` has no share."""
+        return tuple(slice(*sl.indices(n)[:2]) for sl, n in zip(self._parts[int(label)][0], self.shape))
 
     def support(self, label: int) -> np.ndarray:
         """Where region ``label`` has a share (whole-scan boolean image)."""
@@ -422,7 +432,7 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
 
 
 def _fit_leaf(scan: Scan, alpha: np.ndarray, region: np.ndarray, share: np.ndarray, unreliable: np.ndarray,
-              variant: str, params: SfsParams, inliers: str) -> _LeafFit:
+              variant: str, params: SfsParams, inliers: str, window: tuple | None = None) -> _LeafFit:
     """Run the engine on one leaf region in its local frame and decide which pixels take its distances.
 
     Parameters
@@ -443,6 +453,10 @@ def _fit_leaf(scan: Scan, alpha: np.ndarray, region: np.ndarray, share: np.ndarr
         Parameters.
     inliers : {"keep", "test", "refine", "replace"}
         Which measured inliers take the corrected distance (``params.inliers`` resolved).
+    window : pair of slices, optional
+        Part of the scan holding the region and its shared pulses with the
+        frame's margin around them (default: the whole scan); the frame is
+        built there only.
 
     Raises
     ------
@@ -451,7 +465,9 @@ def _fit_leaf(scan: Scan, alpha: np.ndarray, region: np.ndarray, share: np.ndarr
     """
     if region.sum() < MIN_LEAF_PIXELS:
         raise _Skipped(f"{int(region.sum())} pixels (< {MIN_LEAF_PIXELS})")
-    frame = local_frame(scan.theta, scan.psi, scan.range, region, scan.pose, share > 0)
+    w = window or (slice(0, scan.shape[0]), slice(0, scan.shape[1]))
+    frame = local_frame(scan.theta[w], scan.psi[w], scan.range[w], region[w], scan.pose, share[w] > 0)
+    frame = dataclasses.replace(frame, box=tuple(slice(b.start + o.start, b.stop + o.start) for b, o in zip(frame.box, w)))
     box = frame.box
     measured = frame.height(scan.range[box])
     try:
