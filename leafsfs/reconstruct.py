@@ -537,13 +537,13 @@ def _assemble(scan: Scan, variant: str, params: SfsParams, regions: _Regions, gr
     leaves = []
     seen = visibility(labels, scan.range, 3 * range_noise(scan.range)) if fits else {}
     for label, fit in fits:
-        region = labels == label
         box = fit.frame.box
+        region = labels[box] == label  # the frame's box holds the whole region
         # The traits of the output: corrected distances of the leaf's outliers, measured ones of its inliers.
-        height = fit.frame.height(np.where(region & corrected, out_range, np.nan)[box])
+        height = fit.frame.height(np.where(region & corrected[box], out_range[box], np.nan))
         traits = {**leaf_traits(fit.frame, height, regions.shares.crop(label, box), params.trait_smoothing_m),
-                  "n_points": int(region.sum()), "n_outliers": int((outlier & region).sum()),
-                  "unreliable_alpha_fraction": float(np.mean(~reliable[region])),
+                  "n_points": int(region.sum()), "n_outliers": int((outlier[box] & region).sum()),
+                  "unreliable_alpha_fraction": float(np.mean(~reliable[box][region])),
                   "outlier_threshold_m": fit.threshold}
         # The area is that of the visible part; whether that is the whole leaf (leafsfs.canopy.visibility).
         traits.update(visible_area_m2=traits["area_m2"], cut=seen[label]["cut"], cut_by_border=seen[label]["border"],
