@@ -86,21 +86,34 @@ class MixedPulses:
         """Pulses whose range is not that of one surface: between two of them, or near none (and no-return pixels)."""
         return (self.surfaces == 0) & ((self.pair[..., 1] > 0) | (self.pair[..., 0] == 0))
 
-    def share_of(self, label: int, gain_dn: float | None = None) -> np.ndarray:
+    def share_of(self, label: int, gain_dn: float | None = None, box: tuple | None = None) -> np.ndarray:
         """Share of surface ``label`` of every pulse (1 on its pure pulses, 0 where it is absent).
 
         The power share; with the log amplifier's ``gain_dn`` the geometric
-        share of the footprint (:func:`geometric_share`).
+        share of the footprint (:func:`geometric_share`). With ``box`` (a
+        pair of slices) only the pulses of that window, in its shape.
         """
-        share = (self.surfaces == label).astype(float)
-        for member, other, fraction in ((0, 1, self.share), (1, 0, 1.0 - self.share)):
-            sel = (self.pair[..., member] == label) & ~self.thin
+        box = box or (slice(None), slice(None))
+        share = (self.surfaces[box] == label).astype(float)
+        pair, thin = self.pair[box], self.thin[box]
+        for member, other, fraction in ((0, 1, self.share[box]), (1, 0, 1.0 - self.share[box])):
+            sel = (pair[..., member] == label) & ~thin
             value = fraction[sel]
             if gain_dn is not None:
-                value = geometric_share(value, self.pair_intensity[..., member][sel],
-                                        self.pair_intensity[..., other][sel], gain_dn)
+                value = geometric_share(value, self.pair_intensity[box][..., member][sel],
+                                        self.pair_intensity[box][..., other][sel], gain_dn)
             share[sel] = value
         return share
+
+    def extents(self) -> dict[int, tuple]:
+        """Per surface label, the window (pair of slices) holding its pulses and the mixed pulses paired with it."""
+        out = {}
+        for image in (self.surfaces, self.pair[..., 0], self.pair[..., 1]):
+            for k, box in enumerate(ndimage.find_objects(image), start=1):
+                if box is not None:
+                    old = out.get(k, box)
+                    out[k] = tuple(slice(min(a.start, b.start), max(a.stop, b.stop)) for a, b in zip(old, box))
+        return out
 
     def owner_range(self) -> np.ndarray:
         """Distance of each mixed pulse's owner surface extrapolated to it, m (NaN where no pair was found)."""
@@ -295,13 +308,14 @@ def _attribute(images: _Images, targets: np.ndarray, *, reach_px: int, band_px: 
                       np.zeros(0, int))
     pixel, label, gap, source = map(np.concatenate, (pixel, label, gap, source))
     extrapolated = np.full((len(pixel), 2), np.nan)  # range, intensity
-    for column, image in enumerate((range_m, images.intensity)):
-        if image is None:
-            continue
-        for k in np.unique(label):
-            sel = label == k
-            value = _extrapolate(image, cores == k, source[sel], pixel[sel], radius_px)
-            extrapolated[sel, column] = np.where(gap[sel] <= band_px, value, image.ravel()[source[sel]])
+    by_label = np.argsort(label, kind="stable")
+    bounds = np.flatnonzero(np.r_[True, np.diff(label[by_label]) != 0, True])
+    for start, stop in zip(bounds[:-1], bounds[1:]):
+        sel = by_label[start:stop]
+        for column, image in enumerate((range_m, images.intensity)):
+            if image is not None:
+                value = _extrapolate(image, cores, int(label[sel[0]]), source[sel], pixel[sel], radius_px)
+                extrapolated[sel, column] = np.where(gap[sel] <= band_px, value, image.ravel()[source[sel]])
     keep = np.isfinite(extrapolated[:, 0])
     order = np.lexsort((gap[keep], pixel[keep]))
     pixel, label, gap, extrapolated = (a[keep][order] for a in (pixel, label, gap, extrapolated))
@@ -354,17 +368,22 @@ def _empty(surfaces: np.ndarray) -> MixedPulses:
                        np.zeros(shape, bool))
 
 
-def _extrapolate(range_m: np.ndarray, mask: np.ndarray, source: np.ndarray, target: np.ndarray,
+def _extrapolate(image: np.ndarray, cores: np.ndarray, label: int, source: np.ndarray, target: np.ndarray,
                  radius_px: float) -> np.ndarray:
-    """Ranges at ``target`` pixels from the local planes of ``mask`` around their ``source`` pixels (flat indices)."""
-    cols = range_m.shape[1]
+    """Values at ``target`` pixels from the local planes of the core pulses of surface ``label`` around their
+    ``source`` pixels (flat indices); only the window around the sources is read."""
+    cols = image.shape[1]
     unique, inverse = np.unique(source, return_inverse=True)
     centres = np.stack(np.divmod(unique, cols), axis=1)
-    planes = local_planes(range_m, mask, PixelGrid(), centres, radius_px)
+    r = int(np.ceil(radius_px))
+    low = np.maximum(centres.min(axis=0) - r, 0)
+    high = np.minimum(centres.max(axis=0) + r + 1, image.shape)
+    window = (slice(low[0], high[0]), slice(low[1], high[1]))
+    planes = local_planes(image[window], cores[window] == label, PixelGrid(), centres - low, radius_px)
     offset = np.stack(np.divmod(target, cols), axis=1) - centres[inverse]
     value = planes.height[inverse] + np.sum(planes.gradient[inverse] * offset, axis=1)
-    # Too few pixels for a plane (a sliver): the nearest pixel's range.
-    return np.where(np.isfinite(value), value, range_m.ravel()[source])
+    # Too few pixels for a plane (a sliver): the nearest pixel's value.
+    return np.where(np.isfinite(value), value, image.ravel()[source])
 
 
 def band_pixels(band_m: float, range_m: np.ndarray, surfaces: np.ndarray, step_rad: float) -> int:
@@ -377,7 +396,15 @@ def band_pixels(band_m: float, range_m: np.ndarray, surfaces: np.ndarray, step_r
     """
     if not surfaces.any():
         return 2
-    nearest = float(np.min(ndimage.median(range_m, surfaces, np.unique(surfaces[surfaces > 0]))))
+    # Per-surface medians from one sort by (surface, range) (the lower middle value for an even count).
+    inside = surfaces > 0
+    label, value = surfaces[inside], range_m[inside]
+    order = np.lexsort((value, label))
+    label, value = label[order], value[order]
+    starts = np.flatnonzero(np.r_[True, label[1:] != label[:-1]])
+    counts = np.diff(np.r_[starts, len(label)])
+    upper, lower = value[starts + counts // 2], value[starts + (counts - 1) // 2]
+    nearest = float(np.min(0.5 * (upper + lower)))
     return max(2, int(math.ceil(band_m / (nearest * step_rad))))
 
 

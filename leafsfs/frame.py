@@ -33,6 +33,10 @@ from leafsfs.grid import PixelGrid
 from tlssim.pattern import ScannerPose, beam_frame
 
 
+#: Pixels a leaf's frame keeps around its bounding box (:func:`local_frame`).
+MARGIN_PX = 8
+
+
 @dataclass
 class LocalFrame:
     """Metric frame of one object.
@@ -98,7 +102,7 @@ class LocalFrame:
 
 
 def local_frame(theta: np.ndarray, psi: np.ndarray, range_m: np.ndarray, mask: np.ndarray,
-                pose: ScannerPose | None = None, extent: np.ndarray | None = None, margin: int = 8) -> LocalFrame:
+                pose: ScannerPose | None = None, extent: np.ndarray | None = None, margin: int = MARGIN_PX) -> LocalFrame:
     """The metric frame of the object ``mask`` of a scan grid.
 
     Parameters

@@ -28,10 +28,14 @@ import numpy as np
 from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 
+from leafsfs.canopy import edge_pulses, pulse_noise, split_necks, wood_surfaces
 from leafsfs.edges import MixedPulses, attribute_mixed, band_pixels
 from leafsfs.errors import SfsError
 from tlssim.pattern import beam_frame
 
+#: Smallest neighbourhood radius of the edge test, pixels (a 5 x 5 disc: a plane in fewer pixels turns a step
+#: between two surfaces into a ramp).
+MIN_EDGE_RADIUS_PX = 2.5
 #: Range noise assumed when a scan has too few consecutive returns to measure it, m.
 NOISE_FLOOR_M = 0.001
 
@@ -100,11 +104,16 @@ class Segmentation:
         return int(self.leaf_surfaces[label - 1])
 
 
-def angular_step(theta: np.ndarray, psi: np.ndarray) -> float:
-    """Median angle between neighbouring beams of a scan grid, rad."""
-    axis = beam_frame(theta, psi)[0]
-    steps = [np.arccos(np.clip(np.sum(axis[1:] * axis[:-1], axis=-1), -1, 1)).ravel(),
-             np.arccos(np.clip(np.sum(axis[:, 1:] * axis[:, :-1], axis=-1), -1, 1)).ravel()]
+def angular_step(theta: np.ndarray, psi: np.ndarray, samples: int = 64) -> float:
+    """Median angle between neighbouring beams of a scan grid, rad (over up to ``samples`` evenly spaced row
+    pairs and column pairs: a scan grid's steps vary smoothly)."""
+    rows = np.unique(np.linspace(0, theta.shape[0] - 2, min(samples, theta.shape[0] - 1)).astype(int))
+    cols = np.unique(np.linspace(0, theta.shape[1] - 2, min(samples, theta.shape[1] - 1)).astype(int))
+    pairs = (((rows, slice(None)), (rows + 1, slice(None))), ((slice(None), cols), (slice(None), cols + 1)))
+    steps = []
+    for first, second in pairs:
+        dot = np.sum(beam_frame(theta[first], psi[first])[0] * beam_frame(theta[second], psi[second])[0], axis=-1)
+        steps.append(np.arccos(np.clip(dot, -1, 1)).ravel())
     return float(np.median(np.concatenate(steps)))
 
 
@@ -123,10 +132,12 @@ def range_noise(range_m: np.ndarray) -> float:
 
 
 def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha: np.ndarray | None = None, *,
-                 min_pixels: int = 100, max_slope_deg: float = 80.0, alpha_margin_deg: float = 25.0,
+                 min_pixels: int = 9, max_slope_deg: float = 80.0, alpha_margin_deg: float = 25.0,
                  noise_m: float | None = None, drop_border: bool = True, band_m: float = 0.01,
                  min_width_m: float = 0.004, reach_m: float = 0.05,
-                 intensity: np.ndarray | None = None) -> Segmentation:
+                 intensity: np.ndarray | None = None, min_area_m2: float = 1e-4, edge_radius_m: float = 0.0025,
+                 edge_factor: float = 2.5, neck_ratio: float = 0.3, max_aspect: float = 4.0,
+                 min_fill: float = 0.5, gain_dn: float | None = None) -> Segmentation:
     """Surfaces, mixed pulses and leaf regions of a scan.
 
     Parameters
@@ -137,7 +148,12 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         Intensity-derived incidence, rad; sets the steepest plausible slope
         per pixel to ``alpha + alpha_margin_deg`` (capped at ``max_slope_deg``).
     min_pixels : int
-        Smallest linked region kept as a surface of its own.
+        Fewest pulses of a linked region kept as a surface of its own.
+    min_area_m2 : float
+        Smallest area (beam-normal, ``r^2`` times the pixel's solid angle)
+        of a linked region kept as a surface, m^2 (assumption: 1 cm^2, a
+        fifth of the smallest pear leaves; the same physical size at any
+        step and distance).
     max_slope_deg : float
         Steepest plausible slope without (or beyond) alpha, degrees.
     alpha_margin_deg : float
@@ -167,32 +183,73 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     intensity : ndarray, 2-D, optional
         Intensities, DN, for the geometric shares of the mixed pulses
         (:meth:`leafsfs.edges.MixedPulses.share_of`).
+    edge_radius_m : float
+        Neighbourhood of the edge test (:func:`leafsfs.canopy.edge_pulses`),
+        m at the scan's median range, at least :data:`MIN_EDGE_RADIUS_PX` (assumption:
+        2.5 mm, a FARO-class footprint radius at 4 m).
+    edge_factor : float
+        Residual RMS of an edge pulse's neighbourhood, in range-noise
+        standard deviations (0: no edge test).
+    neck_ratio : float
+        Surfaces are cut where they narrow below this fraction of their
+        widest part (:func:`leafsfs.canopy.split_necks`; 0: not cut).
+    gain_dn : float, optional
+        Log-amplifier gain of the scanner, DN per e-fold: with ``intensity``,
+        the edge test allows each pulse the noise of its received power
+        (:func:`leafsfs.canopy.pulse_noise`).
+    max_aspect, min_fill : float
+        Surfaces more elongated or sparser than a leaf are wood
+        (:func:`leafsfs.canopy.wood_surfaces`; ``max_aspect=inf`` and
+        ``min_fill=0``: none).
     """
     valid = np.isfinite(range_m)
     if not valid.any():
         raise SfsError("the scan has no valid pixels (no returns) to segment")
     sigma = range_noise(range_m) if noise_m is None else noise_m
     sigma = sigma if np.isfinite(sigma) and sigma > 0 else NOISE_FLOOR_M
-    component = link_components(range_m, theta, psi, alpha, max_slope_deg=max_slope_deg,
+    step = angular_step(theta, psi)
+    linked = range_m
+    if edge_factor > 0:
+        radius = max(MIN_EDGE_RADIUS_PX, edge_radius_m / (float(np.nanmedian(range_m)) * step))
+        limit = math.radians(max_slope_deg)
+        slope = np.tan(limit if alpha is None else
+                       np.minimum(np.nan_to_num(alpha, nan=limit) + math.radians(alpha_margin_deg), limit))
+        noise = pulse_noise(sigma, intensity, gain_dn)
+        edges = edge_pulses(range_m, radius, noise, edge_factor, max_slope=slope, spacing_m=range_m * step)
+        linked = np.where(edges, np.nan, range_m)
+    component = link_components(linked, theta, psi, alpha, max_slope_deg=max_slope_deg,
                                 alpha_margin_deg=alpha_margin_deg, noise_m=3 * math.sqrt(2) * sigma)
     sizes = np.bincount(component.ravel())
-    large = sizes >= min_pixels
+    areas = np.bincount(component.ravel(), np.nan_to_num(range_m.ravel()) ** 2 * step ** 2)
+    large = (sizes >= min_pixels) & (areas >= min_area_m2)
     large[0] = False
     lookup = np.zeros(len(sizes), dtype=int)
     lookup[large] = np.arange(1, large.sum() + 1)
-    step = angular_step(theta, psi)
-    surfaces = split_thin_parts(lookup[component], range_m, step, min_width_m, min_pixels)
+    # Pieces split off are surfaces when they hold min_area_m2 at the scan's median range.
+    piece_px = max(min_pixels, int(round(min_area_m2 / (float(np.nanmedian(range_m)) * step) ** 2)))
+    surfaces = split_thin_parts(lookup[component], range_m, step, min_width_m, piece_px)
+    if neck_ratio > 0:
+        surfaces = split_necks(surfaces, neck_ratio, piece_px, keep=_border_labels(surfaces) if drop_border else None)
     band = band_pixels(band_m, range_m, surfaces, step)
     mixed = attribute_mixed(range_m, surfaces, band, intensity, tolerance_m=3 * sigma,
                             reach_px=band_pixels(reach_m, range_m, surfaces, step) if reach_m > 0 else 0)
-    leaf = surface_widths(surfaces, range_m, step) >= min_width_m
+    leaf = (surface_widths(surfaces, range_m, step) >= min_width_m) & \
+        ~wood_surfaces(surfaces, range_m, theta, psi, step, alpha, max_aspect=max_aspect, min_fill=min_fill)
     leaf[0] = False
     if drop_border:
-        leaf[np.unique(np.concatenate([surfaces[0], surfaces[-1], surfaces[:, 0], surfaces[:, -1]]))] = False
+        leaf &= ~_border_labels(surfaces)
     leaf_surfaces = np.nonzero(leaf)[0]
     relabel = np.zeros(len(leaf), dtype=int)
     relabel[leaf_surfaces] = np.arange(1, len(leaf_surfaces) + 1)
     return Segmentation(np.where(mixed.thin, 0, relabel[mixed.owner]), leaf_surfaces, mixed)
+
+
+def _border_labels(surfaces: np.ndarray) -> np.ndarray:
+    """Which surfaces touch the scan window's border (index = label)."""
+    border = np.zeros(int(surfaces.max()) + 1, dtype=bool)
+    border[np.unique(np.concatenate([surfaces[0], surfaces[-1], surfaces[:, 0], surfaces[:, -1]]))] = True
+    border[0] = False
+    return border
 
 
 def split_thin_parts(surfaces: np.ndarray, range_m: np.ndarray, step_rad: float, min_width_m: float,

@@ -11,15 +11,17 @@ and maps the result back to ranges and world coordinates. It needs no truth.
 from __future__ import annotations
 
 import copy
-import functools
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 import trimesh
+from scipy import ndimage
 
+from leafsfs.canopy import visibility
 from leafsfs.engine import HeightResult, reconstruct_heights
 from leafsfs.errors import SfsError
-from leafsfs.frame import LocalFrame, local_frame
+from leafsfs.frame import MARGIN_PX, LocalFrame, local_frame
 from leafsfs.leaves import range_noise, segment_scan
 from leafsfs.params import VARIANTS, SfsParams
 from leafsfs.preprocess import resolve_calibration, scan_alpha
@@ -46,7 +48,11 @@ class LeafResult:
         Engine output on the frame's pixel box.
     traits : dict
         Area, normal, elevation, azimuth (:func:`leafsfs.traits.leaf_traits`)
-        plus ``n_points`` and ``n_outliers``.
+        plus ``n_points`` and ``n_outliers``; ``visible_area_m2`` (the
+        measured area: that of the visible part), ``cut`` (the leaf is only
+        partly visible: an occluder in front of it or the window's border
+        cuts it), ``cut_by_border`` and ``occluded_fraction``
+        (:func:`leafsfs.canopy.visibility`).
     """
 
     label: int
@@ -197,11 +203,15 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
                    candidates=np.zeros(scan.shape, dtype=int), spread=np.full(scan.shape, np.nan),
                    alpha=alpha.copy())
     fits, skipped = [], []
+    boxes = ndimage.find_objects(regions.labels)
     for label in np.unique(regions.labels[regions.labels > 0]):
         region = regions.labels == label
+        # The window the leaf's frame can reach: its region and the pulses it shares, plus the frame's margin.
+        window = tuple(slice(max(min(a.start, b.start) - MARGIN_PX, 0), min(max(a.stop, b.stop) + MARGIN_PX, n))
+                       for a, b, n in zip(boxes[label - 1], regions.shares.box(label), scan.shape))
         try:
-            share = regions.shares[label]()
-            fit = _fit_leaf(scan, alpha, region, share, regions.unreliable, variant, params, inliers)
+            fit = _fit_leaf(scan, alpha, region, regions.shares.support(label), regions.unreliable, variant, params,
+                            inliers, window)
         except _Skipped as exc:
             skipped.append((int(label), str(exc)))
             continue
@@ -220,11 +230,9 @@ class _Regions:
     ----------
     labels : ndarray of int, 2-D
         Leaf region per pixel (0: none; only pixels with a valid return).
-    shares : dict of int to callable
-        Per region, a function giving its share of every pulse's footprint
-        (1 on its pure pulses, the geometric share on its mixed pulses, 0
-        elsewhere), computed when the region is reconstructed; after it, the
-        share on the leaf's box.
+    shares : _Shares
+        Per region, its share of every pulse's footprint (1 on its pure
+        pulses, the geometric share on its mixed pulses, 0 elsewhere).
     background : ndarray of bool, 2-D
         Mixed pulses given to the surface that dominates them (not a leaf,
         or a thin part attached to one).
@@ -236,10 +244,53 @@ class _Regions:
     """
 
     labels: np.ndarray
-    shares: dict
+    shares: "_Shares"
     background: np.ndarray
     unreliable: np.ndarray
     range: np.ndarray
+
+
+class _Shares:
+    """Each region's share of the pulses' footprints, kept on the window where it is not zero.
+
+    A whole-scan image per region would take ``8 x pixels x regions`` bytes
+    (13 GB for the 300 leaves of a tree at 0.018 deg).
+
+    Parameters
+    ----------
+    shape : tuple of int
+        The scan grid's shape.
+    """
+
+    def __init__(self, shape: tuple):
+        self.shape = shape
+        self._parts: dict[int, tuple] = {}
+
+    def add(self, label: int, box: tuple, values: np.ndarray) -> None:
+        """Record region ``label``'s shares ``values`` on the window ``box`` (a pair of slices)."""
+        self._parts[int(label)] = (box, values)
+
+    def box(self, label: int) -> tuple:
+        """The window (pair of slices) outside which region ``label`` has no share."""
+        return tuple(slice(*sl.indices(n)[:2]) for sl, n in zip(self._parts[int(label)][0], self.shape))
+
+    def support(self, label: int) -> np.ndarray:
+        """Where region ``label`` has a share (whole-scan boolean image)."""
+        box, values = self._parts[int(label)]
+        out = np.zeros(self.shape, dtype=bool)
+        out[box] = values > 0
+        return out
+
+    def crop(self, label: int, box: tuple) -> np.ndarray:
+        """Region ``label``'s shares on the window ``box`` (a pair of slices), 0 outside its own window."""
+        own, values = self._parts[int(label)]
+        (b0, b1), (c0, c1) = ((sl.indices(n)[:2]) for sl, n in zip(box, self.shape))
+        (o0, o1), (p0, p1) = ((sl.indices(n)[:2]) for sl, n in zip(own, self.shape))
+        out = np.zeros((b1 - b0, c1 - c0))
+        r0, r1, q0, q1 = max(b0, o0), min(b1, o1), max(c0, p0), min(c1, p1)
+        if r0 < r1 and q0 < q1:
+            out[r0 - b0:r1 - b0, q0 - c0:q1 - c0] = values[r0 - o0:r1 - o0, q0 - p0:q1 - p0]
+        return out
 
 
 @dataclass
@@ -344,16 +395,19 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
     SfsError
         When no leaf pixel has a valid return.
     """
-    segmentation = segment_scan(scan.range, scan.theta, scan.psi, alpha, intensity=scan.intensity)
     gain = float(scan.scanner.assumed_model.log_gain_dn)  # the recorded model's, else the default preset's
+    segmentation = segment_scan(scan.range, scan.theta, scan.psi, alpha, intensity=scan.intensity, gain_dn=gain)
     mixed = segmentation.mixed
     unreliable = valid & mixed.straddling
     out_range = scan.range.copy()
     background = np.zeros(scan.shape, dtype=bool)
     if labels is None:
         labels = segmentation.leaves
-        surface_of = {k: segmentation.region_surface(k) for k in np.unique(labels[labels > 0])}
-        shares = {k: functools.partial(mixed.share_of, s, gain) for k, s in surface_of.items()}
+        extents = mixed.extents()
+        shares = _Shares(scan.shape)
+        for k in np.unique(labels[labels > 0]):
+            surface = segmentation.region_surface(k)
+            shares.add(k, extents[surface], mixed.share_of(surface, gain, extents[surface]))
         # Mixed pulses dominated by a surface that is not a leaf (the wall behind) take its distance; so do those of
         # a thin part attached to a leaf (a petiole), at the distance where it is attached when it dominates them.
         background = unreliable & (mixed.owner > 0) & (~np.isin(mixed.owner, segmentation.leaf_surfaces) | mixed.thin)
@@ -361,12 +415,12 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
         # A given region counts its pixels whole, except the mixed pulses of its main surface, which count (inside
         # the region or just outside it) for their share of that surface; its mixed pulses that another surface
         # dominates (the wall behind) take that surface's distance and leave the region.
-        shares = {}
+        shares = _Shares(scan.shape)
+        whole = (slice(None), slice(None))
         for k in np.unique(labels[labels > 0]):
             main = _main_surface(mixed.surfaces, labels == k)
             paired = (mixed.surfaces == 0) & (mixed.pair == main).any(axis=-1)
-            shares[k] = functools.partial(np.asarray, np.where(paired, mixed.share_of(main, gain),
-                                                               (labels == k).astype(float)))
+            shares.add(k, whole, np.where(paired, mixed.share_of(main, gain), (labels == k).astype(float)))
             background |= unreliable & (labels == k) & (mixed.owner > 0) & (mixed.owner != main)
         labels = np.where(background, 0, labels)
     out_range[background] = mixed.owner_range()[background]
@@ -377,7 +431,7 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
 
 
 def _fit_leaf(scan: Scan, alpha: np.ndarray, region: np.ndarray, share: np.ndarray, unreliable: np.ndarray,
-              variant: str, params: SfsParams, inliers: str) -> _LeafFit:
+              variant: str, params: SfsParams, inliers: str, window: tuple | None = None) -> _LeafFit:
     """Run the engine on one leaf region in its local frame and decide which pixels take its distances.
 
     Parameters
@@ -398,6 +452,10 @@ def _fit_leaf(scan: Scan, alpha: np.ndarray, region: np.ndarray, share: np.ndarr
         Parameters.
     inliers : {"keep", "test", "refine", "replace"}
         Which measured inliers take the corrected distance (``params.inliers`` resolved).
+    window : pair of slices, optional
+        Part of the scan holding the region and its shared pulses with the
+        frame's margin around them (default: the whole scan); the frame is
+        built there only.
 
     Raises
     ------
@@ -406,7 +464,9 @@ def _fit_leaf(scan: Scan, alpha: np.ndarray, region: np.ndarray, share: np.ndarr
     """
     if region.sum() < MIN_LEAF_PIXELS:
         raise _Skipped(f"{int(region.sum())} pixels (< {MIN_LEAF_PIXELS})")
-    frame = local_frame(scan.theta, scan.psi, scan.range, region, scan.pose, share > 0)
+    w = window or (slice(0, scan.shape[0]), slice(0, scan.shape[1]))
+    frame = local_frame(scan.theta[w], scan.psi[w], scan.range[w], region[w], scan.pose, share[w] > 0)
+    frame = dataclasses.replace(frame, box=tuple(slice(b.start + o.start, b.stop + o.start) for b, o in zip(frame.box, w)))
     box = frame.box
     measured = frame.height(scan.range[box])
     try:
@@ -474,15 +534,19 @@ def _assemble(scan: Scan, variant: str, params: SfsParams, regions: _Regions, gr
     labels, corrected, out_range = regions.labels, grids.corrected, grids.range
     outlier = corrected & (out_range != scan.range)
     leaves = []
+    seen = visibility(labels, scan.range, 3 * range_noise(scan.range)) if fits else {}
     for label, fit in fits:
-        region = labels == label
         box = fit.frame.box
+        region = labels[box] == label  # the frame's box holds the whole region
         # The traits of the output: corrected distances of the leaf's outliers, measured ones of its inliers.
-        height = fit.frame.height(np.where(region & corrected, out_range, np.nan)[box])
-        traits = {**leaf_traits(fit.frame, height, regions.shares[label], params.trait_smoothing_m),
-                  "n_points": int(region.sum()), "n_outliers": int((outlier & region).sum()),
-                  "unreliable_alpha_fraction": float(np.mean(~reliable[region])),
+        height = fit.frame.height(np.where(region & corrected[box], out_range[box], np.nan))
+        traits = {**leaf_traits(fit.frame, height, regions.shares.crop(label, box), params.trait_smoothing_m),
+                  "n_points": int(region.sum()), "n_outliers": int((outlier[box] & region).sum()),
+                  "unreliable_alpha_fraction": float(np.mean(~reliable[box][region])),
                   "outlier_threshold_m": fit.threshold}
+        # The area is that of the visible part; whether that is the whole leaf (leafsfs.canopy.visibility).
+        traits.update(visible_area_m2=traits["area_m2"], cut=seen[label]["cut"], cut_by_border=seen[label]["border"],
+                      occluded_fraction=seen[label]["occluded_fraction"])
         leaves.append(LeafResult(label, fit.frame, fit.heights, traits))
     return SfsResult(scan, variant, params, labels, out_range, corrected, grids.candidates, grids.spread, outlier,
                      grids.alpha, regions.background, leaves, skipped)

@@ -1,0 +1,368 @@
+"""Leaves among leaves and wood: edge pulses, necks and wood-shaped surfaces of a canopy scan.
+
+In a canopy the surfaces that :func:`leafsfs.leaves.link_components` joins
+are not yet leaves: a leaf lies a few centimetres in front of another one,
+its petiole runs into a twig, twigs and branches are surfaces too. Three
+steps, all from range and the scan grid (no truth), separate them:
+
+* :func:`edge_pulses`: pulses whose neighbourhood (about a footprint) is not
+  one plane within the range noise. A footprint across the edge between two
+  leaves a few centimetres apart returns a chain of intermediate ranges
+  whose pulse-to-pulse steps stay within the noise, so such pulses would
+  join the two leaves; left out of the linking they go to the surfaces
+  they straddle by their power shares (:mod:`leafsfs.edges`).
+* :func:`split_necks`: a surface is cut where it narrows below a fraction
+  of its own widest part (a petiole or twig attached to a leaf blade, a
+  branch leaving the trunk); the test is relative to the surface's own
+  width, so it holds at any distance and angular step.
+* :func:`wood_surfaces`: surfaces elongated in 3-D (their points' second
+  principal axis much shorter than the first) are twigs, branches and
+  trunks. Points in 3-D are free of the foreshortening that makes a leaf
+  seen edge-on look thin in the scan image.
+
+Where it fails: a leaf touching another at the same distance (no range
+step, only a crease of the normal) stays merged with it; a leaf narrower
+than ``1 / max_aspect`` of its length (grass, willow) is taken for wood; a
+short twig piece seen between two leaves (shorter than ``max_aspect`` times
+its diameter) is taken for a leaf.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import ndimage
+
+from leafsfs.errors import SfsError
+from tlssim.pattern import beam_frame
+
+#: Incidence at which the area of a pulse stops growing as 1 / cos(alpha), deg (the intensity is unreliable
+#: beyond about 60 deg, thesis ch.6).
+MAX_AREA_INCIDENCE_DEG = 75.0
+#: Share of the ring around a leaf region nearer than the leaf above which the leaf is cut by an occluder
+#: (assumption: a twig 1/20 of the leaf's outline long crossing it).
+OCCLUDED_RING_SHARE = 0.05
+#: Exponent of the range noise against received power (tls-physics §7.11 and §A.3: 0.336).
+NOISE_POWER_EXPONENT = 0.336
+#: Pixels fitted at once by :func:`plane_residuals` (memory bound: about 0.5 kB per pixel at a 3 px radius).
+CHUNK = 65536
+
+
+def pulse_noise(noise_m: float, intensity: np.ndarray | None, gain_dn: float | None) -> np.ndarray | float:
+    """Range noise of every pulse from the scan's typical noise and the pulse's intensity, m.
+
+    Range noise grows as the received power falls, ``sigma ~ P^-gamma``
+    (tls-physics §7.11, gamma = :data:`NOISE_POWER_EXPONENT` from the
+    LS880 specification points); a log amplifier of gain ``gain_dn`` DN per
+    e-fold turns that into ``sigma = noise_m exp(-gamma (I - I_median) /
+    gain_dn)``, ``noise_m`` being the noise at the median intensity. Without
+    an intensity or a gain, ``noise_m`` for every pulse.
+
+    Parameters
+    ----------
+    noise_m : float
+        Range noise at the median intensity, m.
+    intensity : ndarray, 2-D, optional
+        Intensities, DN.
+    gain_dn : float, optional
+        Log-amplifier gain, DN per e-fold.
+    """
+    if intensity is None or gain_dn is None:
+        return noise_m
+    level = np.nan_to_num(intensity - np.nanmedian(intensity), nan=0.0)
+    return noise_m * np.exp(-NOISE_POWER_EXPONENT * np.clip(level, -3 * gain_dn, 3 * gain_dn) / gain_dn)
+
+
+def plane_fits(range_m: np.ndarray, radius_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares plane fitted to the ranges within ``radius_px`` of every pulse.
+
+    Parameters
+    ----------
+    range_m : ndarray, 2-D
+        Ranges, m (NaN: no return).
+    radius_px : float
+        Neighbourhood radius, pixels (at least 1).
+
+    Returns
+    -------
+    rms : ndarray, 2-D
+        Residual RMS (``n - 3`` degrees of freedom), m.
+    slope : ndarray, 2-D
+        Magnitude of the plane's range gradient, m per pixel.
+    slope_noise : ndarray, 2-D
+        Standard deviation of that gradient per metre of range noise
+        (``sqrt`` of the larger diagonal term of the inverse normal matrix),
+        1 / pixel.
+
+    All NaN where fewer than 5 neighbours returned.
+    """
+    if radius_px < 1:
+        raise SfsError(f"radius_px must be at least 1, got {radius_px!r}")
+    r = int(math.floor(radius_px))
+    di, dj = np.mgrid[-r:r + 1, -r:r + 1]
+    keep = di ** 2 + dj ** 2 <= radius_px ** 2 + 1e-9
+    offsets = np.stack([di[keep], dj[keep]], axis=1)
+    design = np.stack([np.ones(len(offsets)), offsets[:, 0], offsets[:, 1]], axis=1).astype(float)
+    padded = np.pad(range_m, r, constant_values=np.nan)
+    centres = np.argwhere(np.isfinite(range_m))
+    out = np.full((3, *range_m.shape), np.nan)
+    for start in range(0, len(centres), CHUNK):
+        c = centres[start:start + CHUNK]
+        h = padded[c[:, None, 0] + r + offsets[None, :, 0], c[:, None, 1] + r + offsets[None, :, 1]]
+        w = np.isfinite(h)
+        h = np.where(w, h - range_m[c[:, 0], c[:, 1]][:, None], 0.0)  # relative ranges: no cancellation
+        w = w.astype(float)
+        n = w.sum(axis=1)
+        ok = n >= 5
+        normal = np.einsum("nk,ka,kb->nab", w[ok], design, design) + 1e-9 * np.eye(3)
+        inverse = np.linalg.inv(normal)
+        beta = np.einsum("nab,nb->na", inverse, np.einsum("nk,ka,nk->na", w[ok], design, h[ok]))
+        rss = np.sum(w[ok] * (h[ok] - beta @ design.T) ** 2, axis=1)
+        rows, cols = c[ok, 0], c[ok, 1]
+        out[0, rows, cols] = np.sqrt(rss / np.maximum(n[ok] - 3, 1))
+        out[1, rows, cols] = np.hypot(beta[:, 1], beta[:, 2])
+        out[2, rows, cols] = np.sqrt(np.maximum(inverse[:, 1, 1], inverse[:, 2, 2]))
+    return out[0], out[1], out[2]
+
+
+def edge_pulses(range_m: np.ndarray, radius_px: float, noise_m: np.ndarray | float, factor: float = 2.5,
+                max_slope: np.ndarray | float = math.inf, spacing_m: np.ndarray | float = 1.0) -> np.ndarray:
+    """Pulses whose neighbourhood is not one plausible plane within the range noise (edges, mixed pulses).
+
+    A neighbourhood is implausible when its plane leaves residuals above
+    ``factor`` noise standard deviations (two surfaces in it), or when the
+    plane is steeper than the surface can be (``max_slope``) by more than
+    ``factor`` standard deviations of the fitted slope: in a neighbourhood
+    hardly wider than the edge a plane turns the step between two surfaces
+    into a steep ramp instead of leaving residuals.
+
+    Parameters
+    ----------
+    range_m : ndarray, 2-D
+        Ranges, m (NaN: no return).
+    radius_px : float
+        Neighbourhood radius, pixels (about a footprint radius: the mixed
+        pulses of an edge lie within it).
+    noise_m : ndarray or float
+        Standard deviation of the range noise (per pulse or one for all), m.
+    factor : float
+        Tolerance, in standard deviations.
+    max_slope : ndarray or float
+        Steepest plausible slope (``tan`` of the incidence) per pulse.
+    spacing_m : ndarray or float
+        Distance between neighbouring pulses on a surface facing the beam
+        (range times the angular step), m.
+
+    Returns
+    -------
+    ndarray of bool, 2-D
+    """
+    if not np.all(np.asarray(noise_m) > 0) or not factor > 0:
+        raise SfsError(f"noise_m and factor must be positive, got {noise_m!r} and {factor!r}")
+    rms, slope, slope_noise = plane_fits(range_m, radius_px)
+    with np.errstate(invalid="ignore"):
+        plausible = (rms <= factor * noise_m) & (slope <= spacing_m * max_slope + factor * noise_m * slope_noise)
+    return np.isfinite(range_m) & ~plausible
+
+
+def split_necks(surfaces: np.ndarray, ratio: float = 0.3, min_pixels: int = 30,
+                keep: np.ndarray | None = None) -> np.ndarray:
+    """Surfaces cut where they narrow below ``ratio`` of their widest part.
+
+    The opening of a surface by a disc of radius ``ratio`` times its largest
+    inscribed radius keeps its wide parts (a leaf blade) and removes what is
+    narrower than the disc (a twig or petiole running into it, a branch
+    leaving the trunk, and the blade's own tips and rim). Each connected
+    piece of the opening becomes a surface; each removed piece becomes one
+    too when it is larger than twice the disc's area and ``min_pixels``
+    (an appendage), and otherwise goes back to the piece it touches most (a
+    tip). Labels are renumbered from 1 (0 stays 0).
+
+    Parameters
+    ----------
+    surfaces : ndarray of int, 2-D
+        Surface labels (0: none).
+    ratio : float
+        Neck width relative to the widest part, in ]0, 1[.
+    min_pixels : int
+        Smallest piece split off, pixels.
+    keep : ndarray of bool, optional
+        Surfaces not to cut (index = label), e.g. the background touching
+        the window's border, whose pieces between the leaves in front of it
+        are no leaves.
+    """
+    if not 0 < ratio < 1:
+        raise SfsError(f"ratio must lie in ]0, 1[, got {ratio!r}")
+    out = np.zeros_like(surfaces)
+    count = 0
+    for k, box in enumerate(ndimage.find_objects(surfaces), start=1):
+        if box is None:
+            continue
+        box = tuple(slice(max(s.start - 1, 0), s.stop + 1) for s in box)
+        inside = surfaces[box] == k
+        depth = ndimage.distance_transform_edt(np.pad(inside, 1))[1:-1, 1:-1]
+        radius = ratio * float(depth.max())
+        if radius < 1.5 or (keep is not None and keep[k]):
+            count += 1
+            out[box][inside] = count
+            continue
+        size = int(math.ceil(radius))
+        disc = np.hypot(*np.mgrid[-size:size + 1, -size:size + 1]) <= radius
+        core = ndimage.binary_opening(inside, disc) & inside
+        pieces, n_core = ndimage.label(core, structure=np.ones((3, 3), bool))
+        rest, n_rest = ndimage.label(inside & ~core, structure=np.ones((3, 3), bool))
+        if n_core == 0:
+            count += 1
+            out[box][inside] = count
+            continue
+        labels = pieces.copy()
+        big = max(2 * disc.sum(), min_pixels)
+        sizes = np.bincount(rest.ravel(), minlength=n_rest + 1)
+        grown = ndimage.grey_dilation(pieces, footprint=np.ones((3, 3), bool))
+        for part in range(1, n_rest + 1):
+            sel = rest == part
+            if sizes[part] >= big:
+                n_core += 1
+                labels[sel] = n_core
+                continue
+            touching = grown[sel]
+            touching = touching[touching > 0]
+            labels[sel] = np.bincount(touching).argmax() if len(touching) else 0
+        # Pieces given to no core (a sliver touching none) stay with the first one.
+        labels[inside & (labels == 0)] = 1
+        out[box][inside] = labels[inside] + count
+        count += n_core
+    return out
+
+
+def principal_spreads(surfaces: np.ndarray, range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray) -> np.ndarray:
+    """Standard deviations of each surface's points along its three principal axes, m, largest first.
+
+    Parameters
+    ----------
+    surfaces : ndarray of int, 2-D
+        Surface labels (0: none).
+    range_m, theta, psi : ndarray, 2-D
+        Scan grids (m, rad).
+
+    Returns
+    -------
+    ndarray, (K + 1, 3)
+        Row ``k`` for surface ``k`` (row 0 and missing labels: NaN).
+    """
+    count = int(surfaces.max())
+    out = np.full((count + 1, 3), np.nan)
+    sel = (surfaces > 0) & np.isfinite(range_m)
+    if not sel.any():
+        return out
+    label = surfaces[sel]
+    xyz = beam_frame(theta[sel], psi[sel])[0] * range_m[sel][:, None]
+    n = np.bincount(label, minlength=count + 1).astype(float)
+    mean = np.stack([np.bincount(label, xyz[:, a], minlength=count + 1) for a in range(3)], axis=1)
+    mean = mean / np.maximum(n, 1)[:, None]
+    d = xyz - mean[label]
+    cov = np.zeros((count + 1, 3, 3))
+    for a in range(3):
+        for b in range(a, 3):
+            cov[:, a, b] = cov[:, b, a] = np.bincount(label, d[:, a] * d[:, b], minlength=count + 1)
+    cov /= np.maximum(n, 1)[:, None, None]
+    present = n >= 3
+    out[present] = np.sqrt(np.clip(np.linalg.eigvalsh(cov[present])[:, ::-1], 0, None))
+    return out
+
+
+def wood_surfaces(surfaces: np.ndarray, range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, step_rad: float,
+                  alpha: np.ndarray | None = None, *, max_aspect: float = 4.0, min_fill: float = 0.5) -> np.ndarray:
+    """Which surfaces are shaped like wood (index = label; False for 0).
+
+    Two scale-free tests on a surface's points in 3-D:
+
+    * elongated: the spread along the first principal axis exceeds
+      ``max_aspect`` times that along the second (for a rectangle or an
+      ellipse the ratio is its length over its width, whatever its size,
+      distance or orientation to the beam): a twig, branch or trunk piece;
+    * sparse: its area (pixel footprints divided by ``cos(alpha)``, the
+      intensity-derived incidence capped at 75 deg) covers less than
+      ``min_fill`` of the ellipse its two principal spreads span (``4 pi s1
+      s2``; a filled ellipse or rectangle gives about 1): a fork or a
+      network of branches.
+
+    Parameters
+    ----------
+    surfaces : ndarray of int, 2-D
+        Surface labels (0: none).
+    range_m, theta, psi : ndarray, 2-D
+        Scan grids (m, rad).
+    step_rad : float
+        Angle between neighbouring beams, rad.
+    alpha : ndarray, 2-D, optional
+        Intensity-derived incidence, rad (without it, 60 deg everywhere).
+    max_aspect : float
+        Longest length-to-width ratio of a leaf (assumption: 4; broad
+        leaves such as pear, apple or vine have 1-2.5).
+    min_fill : float
+        Smallest fill of a leaf (assumption: 0.5; a leaf cut by occluders
+        or cupped stays above it on the tree it was checked on).
+    """
+    if not max_aspect > 1 or not 0 <= min_fill < 1:
+        raise SfsError(f"max_aspect must exceed 1 and min_fill lie in [0, 1[, got {max_aspect!r} and {min_fill!r}")
+    spread = principal_spreads(surfaces, range_m, theta, psi)
+    incidence = np.full(range_m.shape, math.radians(60.0)) if alpha is None else \
+        np.minimum(np.nan_to_num(alpha, nan=math.radians(60.0)), math.radians(MAX_AREA_INCIDENCE_DEG))
+    sel = (surfaces > 0) & np.isfinite(range_m)
+    area = np.bincount(surfaces[sel], range_m[sel] ** 2 * step_rad ** 2 / np.cos(incidence[sel]),
+                       minlength=len(spread))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        wood = (spread[:, 0] > max_aspect * spread[:, 1]) | (area < min_fill * 4 * math.pi * spread[:, 0] * spread[:, 1])
+    wood[0] = False
+    return wood
+
+
+
+def visibility(labels: np.ndarray, range_m: np.ndarray, tolerance_m: float, ring_px: int = 2) -> dict[int, dict]:
+    """How each leaf region is cut: by something in front of it, or by the scan window's border.
+
+    The ring of pixels up to ``ring_px`` outside a region is where its
+    outline lies: an occluder in front of the leaf shows there as pulses
+    nearer than the leaf's nearest pulse by more than ``tolerance_m``; the
+    leaf's own edge shows as what lies behind it or no return.
+
+    Parameters
+    ----------
+    labels : ndarray of int, 2-D
+        Leaf regions (0: none).
+    range_m : ndarray, 2-D
+        Measured ranges, m (NaN: no return).
+    tolerance_m : float
+        Range noise margin, m.
+    ring_px : int
+        Width of the ring, pixels (about a footprint, where the mixed pulses of the outline lie).
+
+    Returns
+    -------
+    dict
+        Per label: ``occluded_fraction`` (share of the ring nearer than the
+        leaf), ``border`` (the region touches the window's border) and
+        ``cut`` (either: the measured area is only a part of the leaf's,
+        assumption: an occluded ring share of at least
+        :data:`OCCLUDED_RING_SHARE`).
+    """
+    out = {}
+    shape = labels.shape
+    size = 2 * int(ring_px) + 1
+    for k, box in enumerate(ndimage.find_objects(labels), start=1):
+        if box is None:
+            continue
+        border = any(s.start == 0 or s.stop == n for s, n in zip(box, shape))
+        box = tuple(slice(max(s.start - ring_px, 0), min(s.stop + ring_px, n)) for s, n in zip(box, shape))
+        inside = labels[box] == k
+        ring = ndimage.binary_dilation(inside, np.ones((size, size), bool)) & ~inside
+        ii, jj = ndimage.distance_transform_edt(~inside, return_distances=False, return_indices=True)
+        own = range_m[box][ii, jj]  # the range of the region's nearest pulse
+        with np.errstate(invalid="ignore"):
+            nearer = ring & (range_m[box] < own - tolerance_m)
+        fraction = float(nearer.sum() / max(ring.sum(), 1))
+        out[k] = {"occluded_fraction": fraction, "border": bool(border),
+                  "cut": bool(border or fraction >= OCCLUDED_RING_SHARE)}
+    return out

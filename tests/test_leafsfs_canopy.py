@@ -1,0 +1,195 @@
+"""Leaf segmentation in a canopy: edge pulses, necks, wood shapes, and small simulated canopies with known answers."""
+
+import functools
+import math
+
+import numpy as np
+import pytest
+
+import scenes
+import tlssim
+from leafsfs import SfsError, reconstruct
+from leafsfs.canopy import edge_pulses, plane_fits, split_necks, visibility, wood_surfaces
+from leafsfs.leaves import range_noise
+from leafsfs.leaves import segment_scan
+from leafsfs.preprocess import scan_alpha
+from benchmarks.experiments.calibration import simulated_calibration
+
+STEP = math.radians(0.036)
+
+
+def _grid(rows, cols):
+    theta, psi = np.meshgrid(STEP * (np.arange(cols) - cols / 2), np.pi / 2 + STEP * (np.arange(rows) - rows / 2))
+    return theta, psi
+
+
+def test_plane_fits_recover_slope_and_noise():
+    rng = np.random.default_rng(0)
+    rows, cols = np.mgrid[0:60, 0:60]
+    range_m = 2.0 + 0.003 * rows - 0.004 * cols + 0.001 * rng.standard_normal(rows.shape)
+    rms, slope, slope_noise = plane_fits(range_m, 3.0)
+    inner = (slice(5, -5), slice(5, -5))
+    assert abs(np.median(rms[inner]) - 0.001) < 0.0001
+    assert abs(np.median(slope[inner]) - 0.005) < 0.0003
+    # a 29-pixel disc: the slope's standard deviation is sigma / sqrt(sum of squared row offsets) = sigma / sqrt(68)
+    assert np.isclose(slope_noise[30, 30], 1 / math.sqrt(68))
+    with pytest.raises(SfsError):
+        plane_fits(range_m, 0.5)
+
+
+def test_a_step_between_two_surfaces_is_an_edge_a_steep_plane_is_not():
+    rng = np.random.default_rng(1)
+    rows, cols = np.mgrid[0:40, 0:80]
+    spacing = 2.0 * STEP
+    # left: a leaf 2 m away facing the beam, 3 cm in front of another one; the footprint mixes them over 3 pulses
+    share = np.clip((40 - cols) / 3.0, 0, 1)
+    range_m = share * 2.0 + (1 - share) * 2.03 + 0.0015 * rng.standard_normal(rows.shape)
+    max_slope = np.full(range_m.shape, math.tan(math.radians(35)))  # the intensity says: nearly facing the beam
+    edges = edge_pulses(range_m, 2.5, 0.0015, 2.5, max_slope=max_slope, spacing_m=spacing)
+    assert edges[:, 38:42].mean() > 0.9  # every row flags the step
+    assert edges[:, 5:30].mean() < 0.01 and edges[:, 50:75].mean() < 0.01
+    # a plane at 75 deg incidence: steep, but the intensity says so
+    steep = 2.0 + math.tan(math.radians(75)) * spacing * cols + 0.0015 * rng.standard_normal(rows.shape)
+    flags = edge_pulses(steep, 2.5, 0.0015, 2.5, max_slope=math.tan(math.radians(85)), spacing_m=spacing)
+    assert flags[3:-3, 3:-3].mean() < 0.01
+
+
+def test_split_necks_cuts_an_appendage_off_a_blade_and_keeps_a_leaf_whole():
+    rows, cols = np.mgrid[0:80, 0:120]
+    blade = ((rows - 40) / 20.0) ** 2 + ((cols - 40) / 30.0) ** 2 <= 1
+    twig = (np.abs(rows - 40) <= 2) & (cols >= 60)
+    labels = split_necks((blade | twig).astype(int), 0.3, 30)
+    assert labels.max() == 2
+    assert len(np.unique(labels[blade & (cols < 60)])) == 1 and len(np.unique(labels[twig & (cols > 75)])) == 1
+    assert labels[40, 40] != labels[40, 100]
+    # an ellipse alone (its tips narrower than the disc) stays one surface; labels are renumbered from 1
+    alone = split_necks(np.where(blade, 7, 0), 0.3, 30)
+    assert np.array_equal(alone, blade.astype(int))
+
+
+def test_wood_surfaces_are_elongated_or_sparse_whatever_their_scale():
+    for distance in (1.0, 4.0):
+        rows, cols = np.mgrid[0:150, 0:150]
+        theta, psi = _grid(150, 150)
+        range_m = np.full(rows.shape, distance)
+        labels = np.zeros(rows.shape, int)
+        labels[((rows - 30) / 20.0) ** 2 + ((cols - 35) / 30.0) ** 2 <= 1] = 1  # a leaf, 1.5 : 1
+        labels[(np.abs(rows - 75) <= 3) & (cols > 10) & (cols < 140)] = 2  # a branch, 18 : 1
+        fork = (np.abs(cols - 110 - (rows - 100)) <= 2) | (np.abs(cols - 110 + (rows - 100)) <= 2)
+        labels[fork & (rows > 95) & (rows < 145)] = 3  # a fork of two twigs: not elongated, but sparse
+        wood = wood_surfaces(labels, range_m, theta, psi, STEP)
+        assert wood.tolist() == [False, False, True, True]
+    with pytest.raises(SfsError):
+        wood_surfaces(labels, range_m, theta, psi, STEP, max_aspect=0.5)
+
+
+# --- small simulated canopies (0.036 deg, 2 m: a 9 cm leaf spans about 70 pulses) ------------------------------
+
+LEAF = {"type": "leaf", "preset": "pear", "seed": 7, "length": 0.09, "material": "pear-leaf"}
+WOOD = {"type": "cylinder", "length": 0.3, "material": {"reflectance": 0.4}}
+CANOPIES = {
+    # a second leaf 3 cm behind the first, half hidden by it
+    "two-leaves": [{**LEAF, "name": "behind", "seed": 8,
+                    "pose": {"center": [2.03, 0.035, 0.01], "facing": "scanner", "incidence_deg": 10}}],
+    # a vertical branch (2.4 cm across) 5 cm behind the leaf
+    "branch": [{**WOOD, "name": "branch", "radius": 0.012, "pose": {"translate": [2.05, 0.02, 0.0]}}],
+    # a twig (6 mm across) 3 cm in front of the leaf, crossing it at 30 deg from vertical
+    "twig": [{**WOOD, "name": "twig", "radius": 0.003,
+              "pose": {"translate": [1.97, 0.01, 0.0], "rotate": {"axis": [1, 0, 0], "angle_deg": 60}}}],
+}
+
+
+@functools.lru_cache(maxsize=None)
+def _canopy_scan(kind):
+    objects = [{**LEAF, "name": "front", "pose": {"center": [2.0, 0, 0], "facing": "scanner", "incidence_deg": 10}},
+               *CANOPIES[kind]]
+    spec = {"name": kind, "scanner": {"preset": "faro-ls880", "position": [0, 0, 0],
+                                      "window": {"theta_deg": [-3.5, 3.5], "psi_deg": [87, 93], "step_deg": 0.036}},
+            "objects": objects}
+    scene = scenes.scene_from_spec(spec)
+    scan = tlssim.simulate(scene, tlssim.setup_from_section(scene.scanner), seed=0, progress=False)
+    alpha, _ = scan_alpha(scan.intensity, scan.range, simulated_calibration(scan.scanner.model))
+    return scan, segment_scan(scan.range, scan.theta, scan.psi, alpha, intensity=scan.intensity).leaves
+
+
+def _best_region(labels, pixels):
+    values, counts = np.unique(labels[pixels], return_counts=True)
+    counts = np.where(values > 0, counts, 0)
+    return int(values[np.argmax(counts)]), counts.max() / pixels.sum()
+
+
+@pytest.mark.parametrize("kind", sorted(CANOPIES))
+def test_each_leaf_is_its_own_region_and_wood_is_none(kind):
+    scan, labels = _canopy_scan(kind)
+    regions = []
+    for index, obj in enumerate(scan.object_names):
+        pixels = scan.valid & (scan.truth_id == index)
+        if obj in ("front", "behind"):
+            region, cover = _best_region(labels, pixels)
+            # found: one region covers at least half of its visible pulses (the front one nearly all of them)
+            assert region > 0 and cover >= (0.9 if obj == "front" and kind != "twig" else 0.5)
+            # and that region is that leaf's: at most 5 % of it from other objects
+            assert np.mean(scan.truth_id[labels == region] == index) > 0.95
+            regions.append(region)
+        else:  # wood keeps its measured points: (almost) none of them in a leaf region
+            assert np.mean(labels[pixels] > 0) < 0.02
+    assert len(set(regions)) == len(regions)
+
+
+def test_a_leaf_behind_another_is_cut_the_front_one_is_whole():
+    scan, labels = _canopy_scan("two-leaves")
+    seen = visibility(labels, scan.range, 3 * range_noise(scan.range))
+    front, _ = _best_region(labels, scan.valid & (scan.truth_id == scan.object_names.index("front")))
+    behind, _ = _best_region(labels, scan.valid & (scan.truth_id == scan.object_names.index("behind")))
+    assert not seen[front]["cut"] and seen[front]["occluded_fraction"] < 0.01
+    assert seen[behind]["cut"] and not seen[behind]["border"] and seen[behind]["occluded_fraction"] > 0.1
+    # a region touching the window's border is cut
+    edge = np.zeros_like(labels)
+    edge[:10, :10] = 1
+    assert visibility(edge, scan.range, 0.005)[1] == {"occluded_fraction": 0.0, "border": True, "cut": True}
+
+
+def test_a_pulse_straddling_two_leaves_is_shared_by_both_with_its_power_shares():
+    scan, labels = _canopy_scan("two-leaves")
+    alpha, _ = scan_alpha(scan.intensity, scan.range, simulated_calibration(scan.scanner.model))
+    segmentation = segment_scan(scan.range, scan.theta, scan.psi, alpha, intensity=scan.intensity)
+    front, behind = (scan.object_names.index(name) for name in ("front", "behind"))
+    # the surfaces of each leaf (the one behind is cut into pieces by the one in front)
+    pure = segmentation.mixed.surfaces
+    surfaces = {obj: [k for k in np.unique(pure[scan.truth_id == obj]) if k > 0
+                      and np.mean(scan.truth_id[pure == k] == obj) > 0.5] for obj in (front, behind)}
+    second, fraction = scan.layers["truth_second_id"], scan.layers["second_fraction"]
+    # the truth: pulses with 20-80 % of their power from each leaf
+    truth_front = np.where(scan.truth_id == front, 1 - scan.mixed_fraction, np.where(second == front, fraction, 0))
+    both = scan.valid & np.isin(scan.truth_id, [front, behind]) & np.isin(second, [front, behind]) \
+        & (truth_front > 0.2) & (truth_front < 0.8) & (scan.mixed_fraction - fraction < 0.02)
+    assert both.sum() > 30
+    share_front, share_behind = (sum(segmentation.mixed.share_of(k) for k in surfaces[obj])[both]
+                                 for obj in (front, behind))
+    pair = segmentation.mixed.pair[both]
+    paired = np.isin(pair, surfaces[front]).any(axis=1) & np.isin(pair, surfaces[behind]).any(axis=1)
+    assert paired.mean() > 0.85  # attributed to both leaves, not deleted nor given whole to one (0.90)
+    # those paired in the band around the leaves carry both power shares (0.59 of them, median error 0.035; the
+    # rest were paired only by the thin-part pass, which gives them to neither leaf: a shortfall)
+    shared = paired & ~segmentation.mixed.thin[both]
+    assert shared.mean() > 0.5 and np.allclose((share_front + share_behind)[shared], 1.0)
+    assert np.median(np.abs(share_front - truth_front[both])[shared]) < 0.1
+
+
+def test_traits_carry_the_visible_area_and_whether_the_leaf_is_cut():
+    scan, _ = _canopy_scan("two-leaves")
+    result = reconstruct(scan, variant="buffer", calibration=simulated_calibration(scan.scanner.model))
+    names = {}
+    for leaf in result.leaves:
+        owner = np.bincount(scan.truth_id[(result.labels == leaf.label) & scan.valid]).argmax()
+        names.setdefault(scan.object_names[owner], []).append(leaf.traits)
+    (front,) = names["front"]
+    assert not front["cut"] and front["visible_area_m2"] == front["area_m2"]
+    truth = {o.name: o.truth["area_m2"] for o in scenes.scene_from_spec(
+        {"name": "x", "objects": [{**LEAF, "name": "front"}, *CANOPIES["two-leaves"]]}).objects}
+    assert abs(front["area_m2"] / truth["front"] - 1) < 0.1
+    # the leaf behind shows in pieces smaller than the leaf; the largest two border the leaf in front (cut), a
+    # sliver touching it at a corner only does not (3 % of its ring)
+    behind = sorted(names["behind"], key=lambda t: -t["visible_area_m2"])
+    assert all(t["visible_area_m2"] < 0.5 * truth["behind"] for t in behind)
+    assert behind[0]["cut"] and behind[0]["occluded_fraction"] > 0.2 and not behind[0]["cut_by_border"]
