@@ -2,9 +2,11 @@
 
 - ``woody reconstruct CLOUD --method step|cylinders -o OUTDIR``: reconstruct
   the woody structure of a point cloud (NPZ, PLY, LAS, E57) and write
-  ``cylinders.json`` (cylinder list, volume, run statistics), ``mesh.ply``
+  ``cylinders.json`` (cylinder list, volume, DBH, run statistics),
+  ``qsm_cylinders.csv`` (the TreeQSM-style cylinder table), ``mesh.ply``
   and the method's own output (``tuboids.json`` for STEP; ``branches.json``
-  with the skeleton and ``point_labels.npy`` for cylinder following);
+  with the skeleton and ``point_labels.npy`` for cylinder following; the
+  other method's files left by an earlier run are removed);
 - ``woody dbh CLOUD``: diameter at breast height of every stem, with its
   arc coverage, fit residual and quality flag (``--json`` for one object);
 - ``woody experiments -o DIR``: the experiments of the woody spec (Part C),
@@ -83,6 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
 def run_reconstruct(args) -> int:
     from woody.cloud import read_cloud
     from woody.dbh import dbh_summary
+    from woody.qsm import write_qsm_csv
     from woody.errors import WoodyError
 
     cloud = read_cloud(args.cloud)
@@ -107,11 +110,15 @@ def run_reconstruct(args) -> int:
         (out / "branches.json").write_text(json.dumps({"branches": result.branches, "skeleton": {
             "nodes": nodes.tolist(), "edges": edges.tolist()}}))
         np.save(out / "point_labels.npy", result.labels)
+    own = {"step": ("tuboids.json",), "cylinders": ("branches.json", "point_labels.npy")}
+    for name in own["cylinders" if args.method == "step" else "step"]:
+        (out / name).unlink(missing_ok=True)  # an earlier run's files of the other method
     cylinders = result.cylinders()
     dbh = dbh_summary(cloud.points, cylinders, ground_z=args.ground_z)
     summary = {"method": args.method, "cloud": str(args.cloud), "volume_m3": result.volume, "dbh": dbh,
                "stats": result.stats, "cylinders": cylinders}
     (out / "cylinders.json").write_text(json.dumps(summary, default=float))
+    write_qsm_csv(cylinders, out / "qsm_cylinders.csv")
     result.mesh().export(out / "mesh.ply")
     kind = "tuboids" if args.method == "step" else "branches"
     count = len(result.tuboids) if args.method == "step" else len(result.branches)
