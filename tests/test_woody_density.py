@@ -1,11 +1,12 @@
-"""Point spacing, voxel subsampling, and STEP at a scan density far above its Hough cells."""
+"""Point spacing, voxel subsampling, STEP at a scan density far above its Hough cells, normals without a viewpoint."""
 
 import numpy as np
 import pytest
 
 from woody import WoodyError, step
 from woody.density import point_spacing, voxel_subsample
-from woody.synthetic import sample_cylinders, straight_cylinder
+from woody.normals import orient_outward, pca_normals
+from woody.synthetic import add_noise, sample_cylinders, straight_cylinder
 
 
 @pytest.mark.parametrize("per_cm2", [0.75, 3.0, 30.0])
@@ -42,3 +43,12 @@ def test_step_subsamples_a_dense_cloud_and_keeps_the_radius():
     assert len(result.normals) == result.stats["points_used"]
     assert len(result.tuboids) == 1 and np.abs(result.tuboids[0].radii - 0.15).max() < 0.002
     assert step(cloud.points[:2000], cloud.normals[:2000], subsample_m=0, **cells).stats["points_used"] == 2000
+
+
+@pytest.mark.parametrize("radius, arc_deg", [(0.02, 360), (0.15, 180), (0.5, 90)])
+def test_normals_are_oriented_outwards_without_a_viewpoint(radius, arc_deg):
+    cloud = sample_cylinders(straight_cylinder(radius, 1.0), 3e4, seed=1, arc_deg=arc_deg)
+    points = add_noise(cloud.points, 0.003, seed=2)
+    normals = pca_normals(points, 16) * np.where(np.arange(len(points)) % 2, 1.0, -1.0)[:, None]  # random signs
+    outward = np.einsum("ij,ij->i", orient_outward(points, normals), cloud.normals) > 0
+    assert outward.mean() > 0.95
