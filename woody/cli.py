@@ -50,7 +50,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sections", type=float, default=4.0,
                    help="cylinders: output cylinder length in branch radii; 0 = one per branch (default 4)")
     p.add_argument("--ground-z", type=float, default=None,
-                   help="ground height for the DBH, m (default: found from the lowest points)")
+                   help="ground height for the DBH and the trunk, m (default: found from the lowest points)")
+    p.add_argument("--no-trunk", action="store_true",
+                   help="cylinders: plain cylinder following (default: the trunk is followed first from the ground "
+                        "up by circle fits, the ground left out)")
     p.set_defaults(func=run_reconstruct)
 
     p = sub.add_parser("dbh", help="diameter at breast height of the stems of a point cloud",
@@ -103,9 +106,11 @@ def run_reconstruct(args) -> int:
         (out / "tuboids.json").write_text(json.dumps([t.to_dict() for t in result.tuboids]))
     else:
         from woody.cylinders import follow_cylinders
+        from woody.trunk import follow_tree
 
-        result = follow_cylinders(cloud.points, precision_m=args.precision_m, section_radii=args.sections,
-                                  progress=True)
+        settings = {"precision_m": args.precision_m, "section_radii": args.sections, "progress": True}
+        result = follow_cylinders(cloud.points, **settings) if args.no_trunk else \
+            follow_tree(cloud.points, ground_z=args.ground_z, **settings)
         nodes, edges = result.skeleton()
         (out / "branches.json").write_text(json.dumps({"branches": result.branches, "skeleton": {
             "nodes": nodes.tolist(), "edges": edges.tolist()}}))

@@ -35,6 +35,11 @@ GROUND_RANK = 2
 MAX_RISE_M = 0.5
 
 
+#: Cells more than this above the local ground plane are not ground, m (assumption: rougher than a forest floor
+#: within a cell, lower than the lowest branches).
+ENVELOPE_M = 0.2
+
+
 @dataclass(frozen=True)
 class GroundGrid:
     """Ground heights on a regular x, y grid.
@@ -127,7 +132,11 @@ def ground_grid(points, cell_m: float = 0.5, max_rise_m: float = MAX_RISE_M) -> 
 
 
 def local_ground_z(grid: GroundGrid, xy, radius_m: float = 1.5) -> float:
-    """Ground height at one place: a robust plane through the seen cells around it.
+    """Ground height at one place: a robust plane through the lowest seen cells around it.
+
+    The plane is fitted again without the cells more than 0.2 m above it
+    until none is left out, so that cells which saw only branches (a crown
+    over a cloud without ground points) do not lift it.
 
     Parameters
     ----------
@@ -158,6 +167,13 @@ def local_ground_z(grid: GroundGrid, xy, radius_m: float = 1.5) -> float:
     if near.sum() < 3:
         return float(grid.at(xy)[0])
     design = np.column_stack([np.ones(near.sum()), centres[near] - xy])
-    start = np.linalg.lstsq(design, values[near], rcond=None)[0]
-    fit = least_squares(lambda p: design @ p - values[near], start, loss="soft_l1", f_scale=0.05)
+    values = values[near]
+    kept = np.ones(len(values), bool)
+    for _ in range(20):  # lower envelope: cells well above the plane (branches, no ground seen) are left out
+        start = np.linalg.lstsq(design[kept], values[kept], rcond=None)[0]
+        below = values - design @ start <= ENVELOPE_M
+        if (below == kept).all() or below.sum() < 3:
+            break
+        kept = below
+    fit = least_squares(lambda p: design[kept] @ p - values[kept], start, loss="soft_l1", f_scale=0.05)
     return float(fit.x[0] + 0.5 * grid.cell_m * np.abs(fit.x[1:]).sum())

@@ -3,7 +3,9 @@
 One row per cylinder, with TreeQSM's conventions: rows numbered from 1,
 ``parent`` and ``extension`` are row numbers (0: none; the extension is the
 next cylinder of the same branch), ``branch`` numbers the branches from 1
-and ``order`` is the branching order (0 for the trunk). A frustum of the
+and ``order`` is the branching order (0 for the trunk; a list that counts
+the trunk as order 1, as cylinder following does, is shifted; -1 where a
+method gives no order). A frustum of the
 cylinder list (two radii) becomes the straight cylinder of the same length
 and volume, ``radius = sqrt((r0² + r0 r1 + r1²) / 3)``, so that the table's
 volume equals the model's.
@@ -76,8 +78,15 @@ def qsm_table(cylinders: list[dict]) -> dict[str, np.ndarray]:
     return {"radius": np.sqrt((r0 * r0 + r0 * r1 + r1 * r1) / 3.0), "length": length[keep],
             **{f"start_{a}": arr["start"][keep, i] for i, a in enumerate("xyz")},
             **{f"axis_{a}": axis[keep, i] / length[keep] for i, a in enumerate("xyz")},
-            "parent": parent, "extension": extension, "branch": branch, "order": arr["order"][keep],
+            "parent": parent, "extension": extension, "branch": branch, "order": _orders(arr["order"][keep]),
             "position_in_branch": position}
+
+
+def _orders(order: np.ndarray) -> np.ndarray:
+    """Branching orders from 0 for the trunk (lists that count the trunk as order 1 are shifted; -1: unknown)."""
+    if len(order) and (order >= 0).all():
+        return order - order.min()
+    return order
 
 
 def write_qsm_csv(cylinders: list[dict], path) -> Path:

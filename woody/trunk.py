@@ -1,11 +1,13 @@
 """The trunk of a tree followed from the ground up by stacked circle fits (robust on stems seen from one side).
 
-Starting from the main stem at breast height (:func:`woody.dbh.measure_dbh`),
+Starting from the main stem at breast height (:func:`woody.dbh.measure_dbh`;
+at 0.9 or 0.5 m when no stem fits well there: a tree forking lower),
 slabs of the stem perpendicular to its axis are fitted with circles
 (:func:`woody.circles.fit_circle`), stepping down to the ground and up
 until a fit fails twice in a row (a fork, the crown, the top of the stem):
 a fit fails when its quality flag is ``unreliable`` or ``high-residual``,
-or its radius or centre jumps from the previous slab's. The axis follows
+its radius or centre jumps from the previous slab's, or, above breast
+height, its radius exceeds the breast-height radius by a quarter. The axis follows
 the centres of the last slabs, so a leaning or curved stem is followed.
 
 The trunk is returned as a cylinder list (frusta between consecutive
@@ -32,6 +34,11 @@ MAX_RADIUS_JUMP, MAX_CENTRE_JUMP = 0.25, 0.5
 MAX_MISSES = 2
 #: Centres of this many last slabs give the axis.
 AXIS_SLABS = 5
+#: Heights above the ground where the trunk is looked for, in turn, m (breast height first; lower for a tree
+#: that forks below it).
+START_HEIGHTS_M = (1.3, 0.9, 0.5)
+#: A trunk of fewer circles is no trunk (a short piece of a leader): cylinder following alone is used.
+MIN_TRUNK_CIRCLES = 4
 
 
 @dataclass
@@ -90,29 +97,50 @@ def follow_trunk(points, ground_z: float | None = None, slab_m: float | None = N
     Raises
     ------
     WoodyError
-        If no stem crosses breast height.
+        If no stem crosses 1.3, 0.9 or 0.5 m above the ground with a fit
+        flagged ``ok`` or ``partial-arc``.
     """
     points = check_points(points)
-    stem = measure_dbh(points, ground_z=ground_z)[0]
+    stem = _start(points, ground_z)
     radius = stem.dbh_m / 2
     slab = float(np.clip(radius, 0.05, 0.3)) if slab_m is None else float(slab_m)
     if not (np.isfinite(slab) and slab > 0):
         raise WoodyError(f"slab_m must be a positive length in metres, got {slab_m}")
     tree = cKDTree(points)
     members = np.zeros(len(points), bool)
-    start = {"centre": stem.centre, "axis": stem.axis, "radius": radius}
+    start = {"centre": stem.centre, "axis": stem.axis, "radius": radius, "breast_radius": radius}
     down = _walk(points, tree, start, -slab, stem.ground_z_m, members, member_tolerance_m)
     up = _walk(points, tree, start, slab, None, members, member_tolerance_m)
     rings = down[::-1] + [(stem.centre, radius)] + up
     centres = np.array([c for c, _ in rings])
     radii = np.array([r for _, r in rings])
-    if centres[0, 2] > stem.ground_z_m:  # extend the lowest circle to the ground along the axis
+    if 0 < centres[0, 2] - stem.ground_z_m <= 1.5 * slab:  # the lowest circle down to the ground, along the axis
         axis = stem.axis if len(centres) < 2 else centres[1] - centres[0]
         axis = axis / np.linalg.norm(axis)
         base = centres[0] - (centres[0, 2] - stem.ground_z_m) / axis[2] * axis
         centres, radii = np.vstack([base, centres]), np.concatenate([[radii[0]], radii])
     _claim(points, tree, centres, radii, members, member_tolerance_m, residual=0.0)
+    if len(centres) >= 2 and members.any():  # the top circle at the highest trunk point, not past it
+        axis = centres[-1] - centres[-2]
+        length = np.linalg.norm(axis)
+        reach = float(((points[members] - centres[-2]) @ axis).max()) / length
+        if 0 < reach < length:
+            centres[-1] = centres[-2] + reach / length * axis
     return Trunk(centres=centres, radii=radii, members=members, ground_z_m=stem.ground_z_m)
+
+
+def _start(points: np.ndarray, ground_z: float | None):
+    """The main stem at breast height, or lower on a tree that forks below it (the best-fitted, most points)."""
+    for height in START_HEIGHTS_M:
+        try:
+            stems = [s for s in measure_dbh(points, ground_z=ground_z, height_m=height)
+                     if s.flag in ("ok", "partial-arc")]
+        except WoodyError:
+            continue
+        if stems:
+            return stems[0]
+    raise WoodyError(f"no stem fits a circle well at {', '.join(map(str, START_HEIGHTS_M))} m above the ground "
+                     "(arcs under 40 deg or residuals too high)")
 
 
 def _walk(points, tree, start: dict, step: float, floor: float | None, members, tolerance) -> list:
@@ -125,6 +153,8 @@ def _walk(points, tree, start: dict, step: float, floor: float | None, members, 
         if floor is not None and target[2] - abs(step) / 2 < floor:
             break
         fit = _slab_fit(points, tree, target, axis, radius, abs(step))
+        if fit is not None and step > 0 and fit[1] > (1.0 + MAX_RADIUS_JUMP) * start["breast_radius"]:
+            fit = None  # a trunk does not thicken upwards: two branches side by side
         if fit is None:
             misses += 1
             centre = target
@@ -195,8 +225,9 @@ def follow_tree(points, ground_z: float | None = None, ground_clearance_m: float
     trunk does not explain, less the ground (points within
     ``ground_clearance_m`` of it), and each of its root branches that
     starts within two trunk radii of the trunk's surface becomes a child of
-    the trunk. A cloud without a stem at breast height is reconstructed by
-    cylinder following alone.
+    the trunk. A cloud without a stem (fitted over at least four slabs, from
+    1.3, 0.9 or 0.5 m above the ground) is reconstructed by cylinder
+    following alone.
 
     Parameters
     ----------
@@ -225,6 +256,8 @@ def follow_tree(points, ground_z: float | None = None, ground_clearance_m: float
     try:
         trunk = follow_trunk(points, ground_z=ground_z)
     except WoodyError:
+        trunk = None
+    if trunk is None or len(trunk.radii) < MIN_TRUNK_CIRCLES:
         return follow_cylinders(points, progress=progress, **follow)
     heights = points[:, 2] - ground_z if ground_z is not None else ground_grid(points).heights(points)
     rest = np.flatnonzero(~trunk.members & (heights > ground_clearance_m))
