@@ -151,9 +151,8 @@ def attribute_mixed(range_m: np.ndarray, surfaces: np.ndarray, band_px: int, int
         return out
     # Surfaces are extrapolated from their pulses at least `margin` pixels inside: their outermost pulses can
     # still hold a little of the other surface's power (steps within the noise link them).
-    cores = _cores(surfaces, band, max(1, band // 3))
-    sources = (range_m, intensity)
-    _attribute(out, sources, surfaces, cores, mixed, band, band, radius_px, tolerance_m)
+    images = _Images(range_m, intensity, surfaces, _cores(surfaces, band, max(1, band // 3)))
+    _store(out, _attribute(images, mixed, reach_px=band, band_px=band, radius_px=radius_px, tolerance_m=tolerance_m))
     if reach_px > band:
         unresolved = mixed & (out.pair[..., 0] == 0)
         runs, _ = ndimage.label(mixed, structure=np.ones((3, 3), bool))
@@ -161,10 +160,10 @@ def attribute_mixed(range_m: np.ndarray, surfaces: np.ndarray, band_px: int, int
         grown = ndimage.grey_dilation(runs, size=(3, 3))
         touching = np.unique(grown[surfaces > 0].astype(np.int64) * (surfaces.max() + 1) + surfaces[surfaces > 0])
         keys = runs.astype(np.int64) * (surfaces.max() + 1)
-        before = out.pair.copy()
-        _attribute(out, sources, surfaces, cores, unresolved, int(reach_px), band, radius_px, tolerance_m,
-                   allowed=lambda pixel, k: np.isin(keys.ravel()[pixel] + k, touching))
-        out.thin = unresolved & (out.pair[..., 0] > 0) & (before[..., 0] == 0)
+        _store(out, _attribute(images, unresolved, reach_px=int(reach_px), band_px=band, radius_px=radius_px,
+                               tolerance_m=tolerance_m,
+                               allowed=lambda pixel, k: np.isin(keys.ravel()[pixel] + k, touching)))
+        out.thin = unresolved & (out.pair[..., 0] > 0)  # the pulses that only the second pass paired
     return out
 
 
@@ -182,23 +181,105 @@ def _cores(surfaces: np.ndarray, band: int, margin: int) -> np.ndarray:
     return cores
 
 
-def _attribute(out: MixedPulses, sources: tuple, surfaces: np.ndarray, cores: np.ndarray, targets: np.ndarray,
-               reach: int, band: int, radius_px: float, tolerance_m: float, allowed=None) -> None:
-    """Pair the ``targets`` pulses with surfaces up to ``reach`` pixels away and write the pairs found into ``out``.
+@dataclass
+class _Images:
+    """The images :func:`_attribute` reads.
+
+    Attributes
+    ----------
+    range_m : ndarray, 2-D
+        Measured ranges, m (NaN = no return).
+    intensity : ndarray, 2-D, or None
+        Intensities, DN.
+    surfaces : ndarray of int, 2-D
+        Pure pulses labelled by surface (0 = mixed or none).
+    cores : ndarray of int, 2-D
+        Surface labels of the pulses well inside their surface (:func:`_cores`).
+    """
+
+    range_m: np.ndarray
+    intensity: np.ndarray | None
+    surfaces: np.ndarray
+    cores: np.ndarray
+
+
+@dataclass
+class _Pairs:
+    """The pairs of surfaces found for some pulses (one row per pulse).
+
+    Attributes
+    ----------
+    pixel : ndarray of int, (n,)
+        Flat pixel indices of the pulses.
+    pair : ndarray of int, (n, 2)
+        The two surfaces (``(label, 0)`` for a pulse of one surface).
+    pair_range : ndarray, (n, 2)
+        The surfaces' distances extrapolated to the pulse, m.
+    pair_intensity : ndarray, (n, 2)
+        The surfaces' intensities extrapolated to the pulse, DN.
+    share : ndarray, (n,)
+        Power share of ``pair[:, 0]``.
+    owner : ndarray of int, (n,)
+        The member that returned most of the power.
+    """
+
+    pixel: np.ndarray
+    pair: np.ndarray
+    pair_range: np.ndarray
+    pair_intensity: np.ndarray
+    share: np.ndarray
+    owner: np.ndarray
+
+
+def _store(out: MixedPulses, pairs: _Pairs) -> None:
+    """Enter ``pairs`` into the per-pulse images of ``out`` (at their pixels; the rest is left as it is)."""
+    rows, cols = np.divmod(pairs.pixel, out.share.shape[1])
+    out.pair[rows, cols] = pairs.pair
+    out.pair_range[rows, cols] = pairs.pair_range
+    out.pair_intensity[rows, cols] = pairs.pair_intensity
+    out.share[rows, cols] = pairs.share
+    out.owner[rows, cols] = pairs.owner
+
+
+def _attribute(images: _Images, targets: np.ndarray, *, reach_px: int, band_px: int, radius_px: float,
+               tolerance_m: float, allowed=None) -> _Pairs:
+    """Pair the ``targets`` pulses with surfaces up to ``reach_px`` pixels away.
 
     A surface's distance (and intensity) at a pulse is the local plane around
-    its nearest core pulse up to ``band`` pixels away, that pulse's own value
-    beyond. ``allowed(pixels, k)`` may veto candidates (flat pixel indices).
+    its nearest core pulse up to ``band_px`` pixels away, that pulse's own value
+    beyond.
+
+    Parameters
+    ----------
+    images : _Images
+        Ranges (m), intensities (DN), surfaces and their cores.
+    targets : ndarray of bool, 2-D
+        The pulses to pair.
+    reach_px : int
+        How far from a surface its candidate pulses may lie, pixels.
+    band_px : int
+        Up to how far (pixels) a surface's distance is extrapolated by its local plane.
+    radius_px : float
+        Radius of the local planes, pixels.
+    tolerance_m : float
+        How far outside the two surfaces' distances a measured range may lie, m.
+    allowed : callable, optional
+        ``allowed(pixels, k)`` (flat pixel indices, surface label) vetoes candidates.
+
+    Returns
+    -------
+    _Pairs
+        The pulses for which a pair was found.
     """
-    range_m, intensity = sources
+    range_m, surfaces, cores = images.range_m, images.surfaces, images.cores
     shape = range_m.shape
     pixel, label, gap, source = [], [], [], []
     for k, box in enumerate(ndimage.find_objects(surfaces), start=1):
         if box is None:
             continue
-        box = tuple(slice(max(s.start - reach, 0), min(s.stop + reach, n)) for s, n in zip(box, shape))
+        box = tuple(slice(max(s.start - reach_px, 0), min(s.stop + reach_px, n)) for s, n in zip(box, shape))
         distance = ndimage.distance_transform_edt(surfaces[box] != k)
-        near = targets[box] & (distance <= reach)
+        near = targets[box] & (distance <= reach_px)
         if not near.any():
             continue
         ii, jj = ndimage.distance_transform_edt(cores[box] != k, return_distances=False, return_indices=True)
@@ -210,16 +291,17 @@ def _attribute(out: MixedPulses, sources: tuple, surfaces: np.ndarray, cores: np
         label.append(np.full(keep.sum(), k))
         gap.append(distance[near][keep])
     if not sum(len(p) for p in pixel):
-        return
+        return _Pairs(np.zeros(0, int), np.zeros((0, 2), int), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0),
+                      np.zeros(0, int))
     pixel, label, gap, source = map(np.concatenate, (pixel, label, gap, source))
     extrapolated = np.full((len(pixel), 2), np.nan)  # range, intensity
-    for column, image in enumerate(sources):
+    for column, image in enumerate((range_m, images.intensity)):
         if image is None:
             continue
         for k in np.unique(label):
             sel = label == k
             value = _extrapolate(image, cores == k, source[sel], pixel[sel], radius_px)
-            extrapolated[sel, column] = np.where(gap[sel] <= band, value, image.ravel()[source[sel]])
+            extrapolated[sel, column] = np.where(gap[sel] <= band_px, value, image.ravel()[source[sel]])
     keep = np.isfinite(extrapolated[:, 0])
     order = np.lexsort((gap[keep], pixel[keep]))
     pixel, label, gap, extrapolated = (a[keep][order] for a in (pixel, label, gap, extrapolated))
@@ -262,11 +344,7 @@ def _attribute(out: MixedPulses, sources: tuple, surfaces: np.ndarray, cores: np
         share = np.where(pair[:, 1] > 0, (measured - picked[:, 1, 0]) / (picked[:, 0, 0] - picked[:, 1, 0]), 1.0)
     share = np.clip(share, 0.0, 1.0)
     unique, pair, picked, share = unique[found], pair[found], picked[found], share[found]
-    out.pair.reshape(-1, 2)[unique] = pair
-    out.pair_range.reshape(-1, 2)[unique] = picked[..., 0]
-    out.pair_intensity.reshape(-1, 2)[unique] = picked[..., 1]
-    out.share.ravel()[unique] = share
-    out.owner.ravel()[unique] = np.where(share >= 0.5, pair[:, 0], pair[:, 1])
+    return _Pairs(unique, pair, picked[..., 0], picked[..., 1], share, np.where(share >= 0.5, pair[:, 0], pair[:, 1]))
 
 
 def _empty(surfaces: np.ndarray) -> MixedPulses:

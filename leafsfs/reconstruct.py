@@ -155,15 +155,17 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
                 calibration=None) -> SfsResult:
     """Re-estimate the distances of the leaves of a scan from its intensity (PROP-SFS).
 
-    Steps: intensity to incidence (the calibration); surfaces and mixed
-    pulses (:func:`leafsfs.leaves.segment_scan`): every mixed pulse goes to
-    the surface that returned most of its power, and those dominated by a
-    surface that is not a leaf (the wall behind) take that surface's
-    distance (also those inside a given ``mask``); per leaf the
-    engine on its local frame; the leaf's mixed pulses, and the inliers as
-    ``params.inliers`` says, take the corrected distance (they are the
-    outliers); traits of that surface with every pulse weighted by the
-    leaf's share of its footprint.
+    Stages: check the inputs and convert intensity to incidence with the
+    calibration; find the leaf regions and the mixed pulses
+    (:func:`_leaf_regions`: every mixed pulse goes to the surface that
+    returned most of its power, and those dominated by a surface that is
+    not a leaf, the wall behind, take that surface's distance, also those
+    inside a given ``mask``); per leaf the engine on its local frame
+    (:func:`_fit_leaf`), whose corrected distances the leaf's mixed pulses,
+    and the inliers as ``params.inliers`` says, take (they are the
+    outliers; :func:`_paste_leaf`); finally the traits of each leaf's
+    surface with every pulse weighted by the leaf's share of its footprint
+    (:func:`_assemble`).
 
     Parameters
     ----------
@@ -187,6 +189,127 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
         a missing or unreadable calibration, an unknown variant or
         parameters out of range.
     """
+    params, valid = _check_inputs(scan, variant, params)
+    labels = None if mask is None else _labels_from_mask(mask, scan.shape)
+    calibration = resolve_calibration(calibration, scan)
+    alpha, reliable = scan_alpha(scan.intensity, scan.range, calibration)
+    regions = _leaf_regions(scan, alpha, labels, valid)
+    inliers = params.inliers if params.inliers != "auto" else ("refine" if variant == "fused" else "keep")
+    grids = _Grids(range=regions.range, corrected=regions.background.copy(),
+                   candidates=np.zeros(scan.shape, dtype=int), spread=np.full(scan.shape, np.nan),
+                   alpha=alpha.copy())
+    fits, skipped = [], []
+    for label in np.unique(regions.labels[regions.labels > 0]):
+        region = regions.labels == label
+        try:
+            fit = _fit_leaf(scan, alpha, region, regions.shares[label], regions.unreliable, variant, params, inliers)
+        except _Skipped as exc:
+            skipped.append((int(label), str(exc)))
+            continue
+        _paste_leaf(grids, fit, region)
+        fits.append((int(label), fit))
+    return _assemble(scan, variant, params, regions, grids, fits, skipped, reliable)
+
+
+@dataclass
+class _Regions:
+    """The leaf regions of a scan and what the mixed pulses tell about them (stage 2 of :func:`reconstruct`).
+
+    Attributes
+    ----------
+    labels : ndarray of int, 2-D
+        Leaf region per pixel (0: none; only pixels with a valid return).
+    shares : dict of int to ndarray
+        Per region, its share of every pulse's footprint (1 on its pure
+        pulses, the geometric share on its mixed pulses, 0 elsewhere).
+    background : ndarray of bool, 2-D
+        Mixed pulses given to the surface that dominates them (not a leaf,
+        or a thin part attached to one).
+    unreliable : ndarray of bool, 2-D
+        Valid pulses whose range straddles two surfaces (or none).
+    range : ndarray, 2-D
+        Measured ranges with the background pulses moved to their owner
+        surface's distance, m.
+    """
+
+    labels: np.ndarray
+    shares: dict
+    background: np.ndarray
+    unreliable: np.ndarray
+    range: np.ndarray
+
+
+@dataclass
+class _Grids:
+    """Per-pixel outputs that the leaves of :func:`reconstruct` are pasted into (see :class:`SfsResult`).
+
+    Attributes
+    ----------
+    range : ndarray
+        Corrected range per pixel, m.
+    corrected : ndarray of bool
+        Pixels whose range was re-estimated.
+    candidates : ndarray of int
+        Number of candidate distances per pixel.
+    spread : ndarray
+        Range of the candidate distances per pixel, m.
+    alpha : ndarray
+        Incidence per pixel, rad (smoothed on leaves).
+    """
+
+    range: np.ndarray
+    corrected: np.ndarray
+    candidates: np.ndarray
+    spread: np.ndarray
+    alpha: np.ndarray
+
+
+@dataclass
+class _LeafFit:
+    """The engine's result on one leaf region (stage 3 of :func:`reconstruct`).
+
+    Attributes
+    ----------
+    frame : LocalFrame
+        The leaf's metric frame.
+    heights : HeightResult
+        Engine output on ``frame.box`` (implausible heights set to NaN).
+    threshold : float
+        Outlier threshold, m.
+    done : ndarray of bool
+        Pixels of the box that belong to the region and have a height.
+    moved : ndarray of bool
+        Pixels of the box that take the corrected distance (where ``done``).
+    """
+
+    frame: LocalFrame
+    heights: HeightResult
+    threshold: float
+    done: np.ndarray
+    moved: np.ndarray
+
+
+class _Skipped(Exception):
+    """A leaf region that cannot be reconstructed; the message says why."""
+
+
+def _check_inputs(scan: Scan, variant: str, params: SfsParams | None) -> tuple[SfsParams, np.ndarray]:
+    """The parameters to use (default :class:`SfsParams`) and the pixels with a range and an intensity.
+
+    Parameters
+    ----------
+    scan : tlssim.Scan
+        The scan to reconstruct.
+    variant : str
+        PROP-SFS variant name.
+    params : SfsParams or None
+        Parameters given by the caller.
+
+    Raises
+    ------
+    SfsError
+        For parameters of the wrong type, an unknown variant or a scan without valid pixels.
+    """
     params = params or SfsParams()
     if not isinstance(params, SfsParams):
         raise SfsError(f"params must be an SfsParams, got {type(params).__name__}")
@@ -195,9 +318,29 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
     valid = scan.valid & np.isfinite(scan.intensity)
     if not valid.any():
         raise SfsError("the scan has no valid pixels (no returns with range and intensity)")
-    labels = None if mask is None else _labels_from_mask(mask, scan.shape)
-    calibration = resolve_calibration(calibration, scan)
-    alpha, reliable = scan_alpha(scan.intensity, scan.range, calibration)
+    return params, valid
+
+
+def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, valid: np.ndarray) -> _Regions:
+    """Leaf regions, their footprint shares and the background pulses of a scan.
+
+    Parameters
+    ----------
+    scan : tlssim.Scan
+        The scan (ranges in m, intensities in DN).
+    alpha : ndarray, 2-D
+        Intensity-derived incidence, rad.
+    labels : ndarray of int or None
+        Given leaf regions (0 = none), or None to take those of
+        :func:`leafsfs.leaves.segment_scan`.
+    valid : ndarray of bool
+        Pixels with a range and an intensity.
+
+    Raises
+    ------
+    SfsError
+        When no leaf pixel has a valid return.
+    """
     segmentation = segment_scan(scan.range, scan.theta, scan.psi, alpha, intensity=scan.intensity)
     gain = float(scan.scanner_model.get("log_gain_dn", LOG_GAIN_DN))
     mixed = segmentation.mixed
@@ -226,56 +369,119 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
     labels = np.where(valid, labels, 0)
     if not labels.any():
         raise SfsError("no leaf pixel with a valid return: the mask (or the leaf segmentation) selects none")
-    inliers = params.inliers if params.inliers != "auto" else ("refine" if variant == "fused" else "keep")
-    corrected = background.copy()
-    candidates = np.zeros(scan.shape, dtype=int)
-    spread = np.full(scan.shape, np.nan)
-    smoothed = alpha.copy()
-    leaves, skipped = [], []
-    for label in np.unique(labels[labels > 0]):
-        region = labels == label
-        if region.sum() < MIN_LEAF_PIXELS:
-            skipped.append((int(label), f"{int(region.sum())} pixels (< {MIN_LEAF_PIXELS})"))
-            continue
-        frame = local_frame(scan.theta, scan.psi, scan.range, region, scan.pose, shares[label] > 0)
-        box = frame.box
-        measured = frame.height(scan.range[box])
-        try:
-            heights = reconstruct_heights(alpha[box], measured, region[box], frame.grid, variant, params,
-                                          unreliable=unreliable[box])
-        except SfsError as exc:
-            skipped.append((int(label), str(exc)))
-            continue
-        if not heights.count.any():
-            skipped.append((int(label), "no seed curve could be initialised (seed regions too small or unmeasured)"))
-            continue
-        heights.height[~plausible(heights.height, measured, region[box] & ~unreliable[box], frame)] = np.nan
-        done = region[box] & np.isfinite(heights.height)
-        threshold = params.outlier_threshold_m or outlier_threshold(scan.range[box], region[box] & ~unreliable[box])
-        with np.errstate(invalid="ignore"):
-            disagree = np.abs(measured - heights.height) > threshold
-        moved = unreliable[box] | {"keep": False, "test": disagree, "refine": ~disagree, "replace": True}[inliers]
-        sub = out_range[box]
-        sub[done & moved] = frame.range(heights.height[done & moved])
-        corrected[box] |= done
-        candidates[box] = np.where(region[box], heights.count, candidates[box])
-        r_hi = frame.range(heights.height + 0.5 * heights.spread)
-        r_lo = frame.range(heights.height - 0.5 * heights.spread)
-        spread[box] = np.where(region[box], r_hi - r_lo, spread[box])
-        smoothed[box] = np.where(region[box], heights.alpha, smoothed[box])
-        leaves.append(LeafResult(int(label), frame, heights, {"outlier_threshold_m": float(threshold)}))
+    return _Regions(labels, shares, background, unreliable, out_range)
+
+
+def _fit_leaf(scan: Scan, alpha: np.ndarray, region: np.ndarray, share: np.ndarray, unreliable: np.ndarray,
+              variant: str, params: SfsParams, inliers: str) -> _LeafFit:
+    """Run the engine on one leaf region in its local frame and decide which pixels take its distances.
+
+    Parameters
+    ----------
+    scan : tlssim.Scan
+        The scan (ranges in m).
+    alpha : ndarray, 2-D
+        Intensity-derived incidence, rad.
+    region : ndarray of bool, 2-D
+        The leaf's pixels.
+    share : ndarray, 2-D
+        The leaf's share of every pulse's footprint (> 0 where it is present).
+    unreliable : ndarray of bool, 2-D
+        Pulses whose range straddles two surfaces.
+    variant : str
+        PROP-SFS variant.
+    params : SfsParams
+        Parameters.
+    inliers : {"keep", "test", "refine", "replace"}
+        Which measured inliers take the corrected distance (``params.inliers`` resolved).
+
+    Raises
+    ------
+    _Skipped
+        For a region too small, one the engine rejects or one without a seed curve.
+    """
+    if region.sum() < MIN_LEAF_PIXELS:
+        raise _Skipped(f"{int(region.sum())} pixels (< {MIN_LEAF_PIXELS})")
+    frame = local_frame(scan.theta, scan.psi, scan.range, region, scan.pose, share > 0)
+    box = frame.box
+    measured = frame.height(scan.range[box])
+    try:
+        heights = reconstruct_heights(alpha[box], measured, region[box], frame.grid, variant, params,
+                                      unreliable=unreliable[box])
+    except SfsError as exc:
+        raise _Skipped(str(exc)) from None
+    if not heights.count.any():
+        raise _Skipped("no seed curve could be initialised (seed regions too small or unmeasured)")
+    heights.height[~plausible(heights.height, measured, region[box] & ~unreliable[box], frame)] = np.nan
+    done = region[box] & np.isfinite(heights.height)
+    threshold = params.outlier_threshold_m or outlier_threshold(scan.range[box], region[box] & ~unreliable[box])
+    with np.errstate(invalid="ignore"):
+        disagree = np.abs(measured - heights.height) > threshold
+    moved = unreliable[box] | {"keep": False, "test": disagree, "refine": ~disagree, "replace": True}[inliers]
+    return _LeafFit(frame, heights, float(threshold), done, moved)
+
+
+def _paste_leaf(grids: _Grids, fit: _LeafFit, region: np.ndarray) -> None:
+    """Write a leaf's corrected ranges (m), candidate counts, spreads (m) and smoothed incidences (rad) into ``grids``.
+
+    Parameters
+    ----------
+    grids : _Grids
+        The per-pixel outputs, changed in place on the leaf's box.
+    fit : _LeafFit
+        The leaf's reconstruction.
+    region : ndarray of bool, 2-D
+        The leaf's pixels.
+    """
+    box, heights, inside = fit.frame.box, fit.heights, region[fit.frame.box]
+    sub = grids.range[box]
+    sub[fit.done & fit.moved] = fit.frame.range(heights.height[fit.done & fit.moved])
+    grids.corrected[box] |= fit.done
+    grids.candidates[box] = np.where(inside, heights.count, grids.candidates[box])
+    r_hi = fit.frame.range(heights.height + 0.5 * heights.spread)
+    r_lo = fit.frame.range(heights.height - 0.5 * heights.spread)
+    grids.spread[box] = np.where(inside, r_hi - r_lo, grids.spread[box])
+    grids.alpha[box] = np.where(inside, heights.alpha, grids.alpha[box])
+
+
+def _assemble(scan: Scan, variant: str, params: SfsParams, regions: _Regions, grids: _Grids, fits: list,
+              skipped: list, reliable: np.ndarray) -> SfsResult:
+    """The result of :func:`reconstruct`: outliers, and each leaf with its traits (area m^2, angles rad).
+
+    Parameters
+    ----------
+    scan : tlssim.Scan
+        The input scan.
+    variant : str
+        PROP-SFS variant.
+    params : SfsParams
+        Parameters.
+    regions : _Regions
+        Leaf regions and footprint shares.
+    grids : _Grids
+        Per-pixel outputs with every leaf pasted in.
+    fits : list of (int, _LeafFit)
+        The reconstructed leaves, by region label.
+    skipped : list of (int, str)
+        Regions not reconstructed, and why.
+    reliable : ndarray of bool
+        Pixels whose intensity-derived incidence is reliable.
+    """
+    labels, corrected, out_range = regions.labels, grids.corrected, grids.range
     outlier = corrected & (out_range != scan.range)
-    result = SfsResult(scan, variant, params, labels, out_range, corrected, candidates, spread, outlier, smoothed,
-                       background, leaves, skipped)
-    for leaf in leaves:
-        region = labels == leaf.label
-        box = leaf.frame.box
+    leaves = []
+    for label, fit in fits:
+        region = labels == label
+        box = fit.frame.box
         # The traits of the output: corrected distances of the leaf's outliers, measured ones of its inliers.
-        height = leaf.frame.height(np.where(region & corrected, out_range, np.nan)[box])
-        leaf.traits = {**leaf_traits(leaf.frame, height, shares[leaf.label][box], params.trait_smoothing_m),
-                       "n_points": int(region.sum()), "n_outliers": int((outlier & region).sum()),
-                       "unreliable_alpha_fraction": float(np.mean(~reliable[region])), **leaf.traits}
-    return result
+        height = fit.frame.height(np.where(region & corrected, out_range, np.nan)[box])
+        traits = {**leaf_traits(fit.frame, height, regions.shares[label][box], params.trait_smoothing_m),
+                  "n_points": int(region.sum()), "n_outliers": int((outlier & region).sum()),
+                  "unreliable_alpha_fraction": float(np.mean(~reliable[region])),
+                  "outlier_threshold_m": fit.threshold}
+        leaves.append(LeafResult(label, fit.frame, fit.heights, traits))
+    return SfsResult(scan, variant, params, labels, out_range, corrected, grids.candidates, grids.spread, outlier,
+                     grids.alpha, regions.background, leaves, skipped)
 
 
 def plausible(height: np.ndarray, measured: np.ndarray, pure: np.ndarray, frame: LocalFrame) -> np.ndarray:

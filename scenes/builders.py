@@ -75,6 +75,22 @@ def _single(f: Fields, name: str, kind: str, vertices, faces, pose: Pose, truth:
 
 
 def build_plane(f: Fields, name: str, ctx: Context):
+    """A flat rectangle centred on its pose, normal along the pose's +z.
+
+    Parameters
+    ----------
+    f : Fields
+        The entry's fields: ``size`` [width, height] (m), ``pose``, ``material``.
+    name : str
+        Name of the entry.
+    ctx : Context
+        Scanner description, scanner position and base directory of the scene file.
+
+    Returns
+    -------
+    list of SceneObject
+        One object in world coordinates (m), with its ground truth (``center``, ``normal``, ``area_m2``).
+    """
     width, height = f.vector("size", 2, positive=True, unit="m")
     vertices, faces = rectangle((0, 0, 0), (0, 0, 1), (width, height))
     pose = _pose(f, ctx)
@@ -82,6 +98,22 @@ def build_plane(f: Fields, name: str, ctx: Context):
 
 
 def build_disk(f: Fields, name: str, ctx: Context):
+    """A flat round disk centred on its pose, normal along the pose's +z.
+
+    Parameters
+    ----------
+    f : Fields
+        The entry's fields: ``radius`` (m), ``segments``, ``pose``, ``material``.
+    name : str
+        Name of the entry.
+    ctx : Context
+        Scanner description, scanner position and base directory of the scene file.
+
+    Returns
+    -------
+    list of SceneObject
+        One object in world coordinates (m), with its ground truth (``center``, ``normal``, ``area_m2``).
+    """
     radius = f.number("radius", positive=True, unit="m")
     vertices, faces = disk_mesh(radius, f.number("segments", None, integer=True, low=3))
     pose = _pose(f, ctx)
@@ -94,6 +126,22 @@ def _flat_truth(pose: Pose, area: float) -> dict:
 
 
 def build_box(f: Fields, name: str, ctx: Context):
+    """An axis-aligned box (in its pose's frame) centred on its pose.
+
+    Parameters
+    ----------
+    f : Fields
+        The entry's fields: ``size`` [x, y, z] (m), ``pose``, ``material``.
+    name : str
+        Name of the entry.
+    ctx : Context
+        Scanner description, scanner position and base directory of the scene file.
+
+    Returns
+    -------
+    list of SceneObject
+        One object in world coordinates (m), with its ground truth (``center``, ``size_m``).
+    """
     size = f.vector("size", 3, positive=True, unit="m")
     vertices, faces = box_mesh(size)
     pose = _pose(f, ctx)
@@ -102,6 +150,22 @@ def build_box(f: Fields, name: str, ctx: Context):
 
 
 def build_sphere(f: Fields, name: str, ctx: Context):
+    """A sphere centred on its pose.
+
+    Parameters
+    ----------
+    f : Fields
+        The entry's fields: ``radius`` (m), ``pose``, ``material``.
+    name : str
+        Name of the entry.
+    ctx : Context
+        Scanner description, scanner position and base directory of the scene file.
+
+    Returns
+    -------
+    list of SceneObject
+        One object in world coordinates (m), with its ground truth (``center``, ``radius_m``).
+    """
     radius = f.number("radius", positive=True, unit="m")
     vertices, faces = ellipsoid_mesh([radius] * 3)
     pose = _pose(f, ctx)
@@ -110,6 +174,22 @@ def build_sphere(f: Fields, name: str, ctx: Context):
 
 
 def build_ellipsoid(f: Fields, name: str, ctx: Context):
+    """An ellipsoid with semi-axes along its pose's x, y, z.
+
+    Parameters
+    ----------
+    f : Fields
+        The entry's fields: ``radii`` [a, b, c] (m), ``pose``, ``material``.
+    name : str
+        Name of the entry.
+    ctx : Context
+        Scanner description, scanner position and base directory of the scene file.
+
+    Returns
+    -------
+    list of SceneObject
+        One object in world coordinates (m), with its ground truth (``center``, ``radii_m``).
+    """
     radii = f.vector("radii", 3, positive=True, unit="m")
     vertices, faces = ellipsoid_mesh(radii)
     pose = _pose(f, ctx)
@@ -132,18 +212,85 @@ def _build_tube(f: Fields, name: str, ctx: Context, kind: str, caps_default: boo
 
 
 def build_cylinder(f: Fields, name: str, ctx: Context):
+    """A closed (capped by default) cylinder along its pose's z, centred on the pose.
+
+    Parameters
+    ----------
+    f : Fields
+        The entry's fields: ``radius``, ``length``, ``radius_end`` (m), ``caps``, ``sides``, ``pose``, ``material``.
+    name : str
+        Name of the entry.
+    ctx : Context
+        Scanner description, scanner position and base directory of the scene file.
+
+    Returns
+    -------
+    list of SceneObject
+        One object in world coordinates (m), with its ground truth (one ``cylinders`` record, ``volume_m3``).
+    """
     return _build_tube(f, name, ctx, "cylinder", caps_default=True)
 
 
 def build_tube(f: Fields, name: str, ctx: Context):
+    """An open (uncapped by default) cylinder along its pose's z, centred on the pose.
+
+    Parameters
+    ----------
+    f : Fields
+        The entry's fields: ``radius``, ``length``, ``radius_end`` (m), ``caps``, ``sides``, ``pose``, ``material``.
+    name : str
+        Name of the entry.
+    ctx : Context
+        Scanner description, scanner position and base directory of the scene file.
+
+    Returns
+    -------
+    list of SceneObject
+        One object in world coordinates (m), with its ground truth (one ``cylinders`` record, ``volume_m3``).
+    """
     return _build_tube(f, name, ctx, "tube", caps_default=False)
 
 
 def build_cone(f: Fields, name: str, ctx: Context):
+    """A cone along its pose's z (apex at +z), centred on the pose, capped by default.
+
+    Parameters
+    ----------
+    f : Fields
+        The entry's fields: ``radius``, ``length`` (m), ``caps``, ``sides``, ``pose``, ``material``.
+    name : str
+        Name of the entry.
+    ctx : Context
+        Scanner description, scanner position and base directory of the scene file.
+
+    Returns
+    -------
+    list of SceneObject
+        One object in world coordinates (m), with its ground truth (one ``cylinders`` record, ``volume_m3``).
+    """
     return _build_tube(f, name, ctx, "cone", caps_default=True, cone=True)
 
 
 def build_surface(f: Fields, name: str, ctx: Context):
+    """An analytic height field (:mod:`scenes.surfaces`) meshed finer than the scanner resolves.
+
+    Angle parameters are given as ``<name>_deg`` and converted to radians; the default grid
+    resolution follows :func:`~scenes.primitives.facet_size_m` at the surface's distance.
+
+    Parameters
+    ----------
+    f : Fields
+        The entry's fields: ``surface``, ``params``, ``size`` (m), ``resolution``, ``pose``, ``material``.
+    name : str
+        Name of the entry.
+    ctx : Context
+        Scanner description, scanner position and base directory of the scene file.
+
+    Returns
+    -------
+    list of SceneObject
+        One object in world coordinates (m), with its ground truth from :func:`~scenes.surfaces.surface_truth`.
+    """
     surface_name = f.choice("surface", SURFACE_NAMES)
     params = dict(f.sub("params", {}).data)
     for key in [k for k in params if isinstance(k, str) and k.endswith("_deg")]:
@@ -183,6 +330,22 @@ def _resolve(f: Fields, ctx: Context, allowed: tuple[str, ...]) -> Path:
 
 
 def build_mesh(f: Fields, name: str, ctx: Context):
+    """A triangle mesh read from an OBJ, PLY or STL file; zero-area triangles are dropped.
+
+    Parameters
+    ----------
+    f : Fields
+        The entry's fields: ``file`` (relative to the scene file), ``pose``, ``material``.
+    name : str
+        Name of the entry.
+    ctx : Context
+        Scanner description, scanner position and base directory of the scene file.
+
+    Returns
+    -------
+    list of SceneObject
+        One object in world coordinates (m), with its ground truth (``file``, ``area_m2``).
+    """
     import trimesh
 
     path = _resolve(f, ctx, MESH_FORMATS)
@@ -237,6 +400,22 @@ def _leaf_shape(f: Fields):
 
 
 def build_leaf(f: Fields, name: str, ctx: Context):
+    """One pear leaf (preset shape, or drawn from ``seed``, with per-field overrides).
+
+    Parameters
+    ----------
+    f : Fields
+        The entry's fields: ``preset``, ``seed``, shape overrides (m, ``*_deg``), ``facet`` (m), ``pose``, ``material``.
+    name : str
+        Name of the entry.
+    ctx : Context
+        Scanner description, scanner position and base directory of the scene file.
+
+    Returns
+    -------
+    list of SceneObject
+        One object: the leaf (blade and petiole in one mesh, world coordinates, m) with its ground truth.
+    """
     shape, seed = _leaf_shape(f)
     pose = _rigid_pose(f, ctx)
     facet = f.number("facet", facet_size_m(_distance(ctx, pose), ctx.scanner), positive=True, unit="m")
@@ -265,6 +444,23 @@ def _leaf_facet(ctx: Context, detail: float):
 
 
 def build_tree(f: Fields, name: str, ctx: Context):
+    """One grown tree (:func:`~scenes.tree.grow_tree`) placed at its pose.
+
+    Parameters
+    ----------
+    f : Fields
+        The entry's fields: ``preset``, ``seed``, ``leaf_count``, ``leafless``, ``leaf_angle_distribution``,
+        ``leaf_detail``, ``overrides``, ``pose``, ``material``, ``leaf_material``.
+    name : str
+        Name of the entry; its objects are grouped under it.
+    ctx : Context
+        Scanner description, scanner position and base directory of the scene file.
+
+    Returns
+    -------
+    list of SceneObject
+        The woody object and one object per leaf, in world coordinates (m).
+    """
     preset = f.choice("preset", tuple(PRESETS))
     seed = f.number("seed", 0, integer=True, low=0)
     count, lad, detail = _leaf_options(f, 1.0)
@@ -286,6 +482,26 @@ SHOOT_ALLOWANCE_M = 0.4
 
 
 def build_orchard_row(f: Fields, name: str, ctx: Context):
+    """Rows of V-trellised Conference pear trees with (optional) soil beneath.
+
+    Trees stand ``tree_spacing`` apart along the pose's x, rows ``row_spacing`` apart along y;
+    each tree's height is drawn uniformly from ``height`` [min, max] (m).
+
+    Parameters
+    ----------
+    f : Fields
+        The entry's fields: ``seed``, ``trees``, ``tree_spacing``, ``rows``, ``row_spacing``, ``height`` (m),
+        ``v_aperture_deg``, ``leaders_per_side``, leaf options, ``ground``, materials, ``pose``.
+    name : str
+        Name of the entry; trees are grouped as ``<name>/tree-NN``.
+    ctx : Context
+        Scanner description, scanner position and base directory of the scene file.
+
+    Returns
+    -------
+    list of SceneObject
+        Per tree a woody object and its leaves, then the ground, in world coordinates (m).
+    """
     f.choice("preset", ("conference-pear",), "conference-pear")
     seed = f.number("seed", 0, integer=True, low=0)
     n_trees = f.number("trees", 19, integer=True, low=1)
@@ -337,6 +553,22 @@ def build_orchard_row(f: Fields, name: str, ctx: Context):
 
 
 def build_mitsuba(f: Fields, name: str, ctx: Context):
+    """The shapes of a Mitsuba 3 scene XML file, one object per shape.
+
+    Parameters
+    ----------
+    f : Fields
+        The entry's fields: ``file`` (relative to the scene file), ``pose``, ``material`` (overrides the file's).
+    name : str
+        Name of the entry; objects are named ``<name>/<shape id>``.
+    ctx : Context
+        Scanner description, scanner position and base directory of the scene file.
+
+    Returns
+    -------
+    list of SceneObject
+        One mesh object per shape, in world coordinates (m).
+    """
     from scenes.mitsuba_xml import load_mitsuba_shapes
 
     path = _resolve(f, ctx, (".xml",))

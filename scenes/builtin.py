@@ -22,7 +22,23 @@ FARO = "faro-ls880"
 
 
 def window_around(points, position, margin_deg: float = 0.3) -> dict:
-    """Scan window (``theta_deg``, ``psi_deg``) covering ``points`` seen from ``position``, plus a margin."""
+    """Scan window covering ``points`` seen from ``position``, plus a margin.
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3)
+        Points to cover, world coordinates, m.
+    position : array_like, shape (3,)
+        Scanner position, m.
+    margin_deg : float
+        Margin added on every side, degrees.
+
+    Returns
+    -------
+    dict
+        ``{"theta_deg": [min, max], "psi_deg": [min, max]}``: azimuth from +x (in [0, 360) when the
+        points straddle the -x axis) and zenith angle (at least 0), degrees, rounded to 0.001.
+    """
     d = np.asarray(points, dtype=float) - np.asarray(position, dtype=float)
     theta = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
     if np.ptp(theta) > 180:  # the points straddle the -x axis: use [0, 360)

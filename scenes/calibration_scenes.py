@@ -61,7 +61,19 @@ _LEAF = re.compile(r"^leaf-(?P<axis>vertical|horizontal)-(?P<deg>[0-9]+)deg$")
 
 
 def panel_name(reflectance: float, distance_m: float) -> str:
-    """Object name of a calibration panel, e.g. ``panel-rho0.99-d3.60m``."""
+    """Object name of a calibration panel, e.g. ``panel-rho0.99-d3.60m``.
+
+    Parameters
+    ----------
+    reflectance : float
+        Panel reflectance in [0, 1] (written with two decimals).
+    distance_m : float
+        Panel distance from the scanner, m (written with two decimals).
+
+    Returns
+    -------
+    str
+    """
     return f"panel-rho{reflectance:.2f}-d{distance_m:.2f}m"
 
 
@@ -72,7 +84,19 @@ def parse_panel_name(name: str) -> tuple[float, float] | None:
 
 
 def leaf_name(axis: str, angle_deg: int) -> str:
-    """Object name of a goniometer leaf, e.g. ``leaf-vertical-45deg``."""
+    """Object name of a goniometer leaf, e.g. ``leaf-vertical-45deg``.
+
+    Parameters
+    ----------
+    axis : str
+        Goniometer axis, ``"vertical"`` or ``"horizontal"``.
+    angle_deg : int
+        Nominal incidence angle, degrees.
+
+    Returns
+    -------
+    str
+    """
     return f"leaf-{axis}-{angle_deg:02d}deg"
 
 

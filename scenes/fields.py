@@ -40,11 +40,37 @@ class Fields:
         return key in self.data
 
     def error(self, key: str, message: str) -> SceneError:
-        """A :class:`SceneError` about field ``key``."""
+        """A :class:`SceneError` about field ``key``.
+
+        Parameters
+        ----------
+        key : str
+            Field name.
+        message : str
+            What is wrong and what is allowed.
+
+        Returns
+        -------
+        SceneError
+            To be raised by the caller; its message names the location and the field.
+        """
         return SceneError(f"{self.where}: field {key!r}: {message}")
 
     def raw(self, key: str, default=REQUIRED):
-        """The value of ``key`` as given (``default`` when absent)."""
+        """The value of ``key`` as given (``default`` when absent); marks the field as read.
+
+        Parameters
+        ----------
+        key : str
+            Field name.
+        default : object, optional
+            Value when the field is absent; :data:`REQUIRED` (the default) makes it required.
+
+        Returns
+        -------
+        object
+            The unchecked value.
+        """
         self.used.add(key)
         if key in self.data:
             return self.data[key]
@@ -54,7 +80,28 @@ class Fields:
 
     def number(self, key: str, default=REQUIRED, *, low=None, high=None, positive=False, integer=False,
                unit: str = ""):
-        """A finite number (optionally an integer, positive, or within ``[low, high]``)."""
+        """A finite number (optionally an integer, positive, or within ``[low, high]``).
+
+        Parameters
+        ----------
+        key : str
+            Field name.
+        default : object, optional
+            Value when the field is absent (a ``None`` default is returned as is); :data:`REQUIRED` makes it
+            required.
+        low, high : float, optional
+            Inclusive bounds.
+        positive : bool
+            Require a value > 0.
+        integer : bool
+            Require an integral value (returned as ``int``).
+        unit : str
+            Unit named in error messages (e.g. ``"m"``, ``"deg"``); the value is not converted.
+
+        Returns
+        -------
+        float or int or None
+        """
         value = self.raw(key, default)
         if value is None and default is None:
             return None
@@ -62,33 +109,102 @@ class Fields:
                        integer=integer, unit=unit)
 
     def vector(self, key: str, n: int = 3, default=REQUIRED, *, positive=False, unit: str = "") -> np.ndarray:
-        """A list of ``n`` finite numbers."""
+        """A list of ``n`` finite numbers.
+
+        Parameters
+        ----------
+        key : str
+            Field name.
+        n : int
+            Required length.
+        default : object, optional
+            Value when the field is absent; :data:`REQUIRED` (the default) makes it required.
+        positive : bool
+            Require every element > 0.
+        unit : str
+            Unit named in error messages; the values are not converted.
+
+        Returns
+        -------
+        ndarray, shape (n,), float
+        """
         value = self.raw(key, default)
         return vector(value, n, lambda msg: self.error(key, msg), positive=positive, unit=unit)
 
     def choice(self, key: str, allowed, default=REQUIRED):
-        """One of ``allowed``."""
+        """One of ``allowed``.
+
+        Parameters
+        ----------
+        key : str
+            Field name.
+        allowed : collection
+            The allowed values (listed in the error message).
+        default : object, optional
+            Value when the field is absent; :data:`REQUIRED` (the default) makes it required.
+
+        Returns
+        -------
+        object
+            The value, unchanged.
+        """
         value = self.raw(key, default)
         if value not in allowed:
             raise self.error(key, f"got {value!r}; allowed: {', '.join(map(str, allowed))}")
         return value
 
     def flag(self, key: str, default: bool) -> bool:
-        """A boolean."""
+        """A boolean.
+
+        Parameters
+        ----------
+        key : str
+            Field name.
+        default : bool
+            Value when the field is absent.
+
+        Returns
+        -------
+        bool
+        """
         value = self.raw(key, default)
         if not isinstance(value, bool):
             raise self.error(key, f"must be true or false, got {value!r}")
         return value
 
     def text(self, key: str, default=REQUIRED) -> str:
-        """A non-empty string."""
+        """A non-empty string.
+
+        Parameters
+        ----------
+        key : str
+            Field name.
+        default : object, optional
+            Value when the field is absent; :data:`REQUIRED` (the default) makes it required.
+
+        Returns
+        -------
+        str
+        """
         value = self.raw(key, default)
         if not isinstance(value, str) or not value:
             raise self.error(key, f"must be a non-empty string, got {value!r}")
         return value
 
     def sub(self, key: str, default=REQUIRED) -> "Fields":
-        """The mapping under ``key`` as :class:`Fields`."""
+        """The mapping under ``key`` as :class:`Fields` (located at ``"<where>, <key>"``).
+
+        Parameters
+        ----------
+        key : str
+            Field name.
+        default : object, optional
+            Value when the field is absent; :data:`REQUIRED` (the default) makes it required.
+
+        Returns
+        -------
+        Fields
+        """
         value = self.raw(key, default)
         if not isinstance(value, dict):
             raise self.error(key, f"must be a mapping, got {value!r}")
@@ -120,7 +236,25 @@ def _number(value, error, *, low=None, high=None, positive=False, integer=False,
 
 
 def vector(value, n: int, error, *, positive=False, unit: str = "") -> np.ndarray:
-    """``value`` as ``n`` finite numbers; ``error(message)`` builds the exception to raise."""
+    """``value`` as ``n`` finite numbers.
+
+    Parameters
+    ----------
+    value : list, tuple or ndarray
+        The numbers as given.
+    n : int
+        Required length.
+    error : callable
+        ``error(message)`` builds the exception to raise.
+    positive : bool
+        Require every element > 0.
+    unit : str
+        Unit named in error messages; the values are not converted.
+
+    Returns
+    -------
+    ndarray, shape (n,), float
+    """
     what = f"a list of {n} numbers" + (f" ({unit})" if unit else "")
     if isinstance(value, np.ndarray):
         value = value.tolist()

@@ -180,6 +180,11 @@ def sample_pear_leaves(rng: np.random.Generator, size_factors) -> list[LeafShape
         Source of randomness (same state, same leaves).
     size_factors : array_like, shape (N,)
         Scale of each leaf's length, width and petiole.
+
+    Returns
+    -------
+    list of LeafShape
+        N leaves.
     """
     size = np.atleast_1d(np.asarray(size_factors, dtype=float))
     n = len(size)
@@ -198,7 +203,19 @@ def sample_pear_leaves(rng: np.random.Generator, size_factors) -> list[LeafShape
 
 
 def sample_pear_leaf(rng: np.random.Generator, size_factor: float = 1.0) -> LeafShape:
-    """One random Conference pear leaf (see :func:`sample_pear_leaves`)."""
+    """One random Conference pear leaf (see :func:`sample_pear_leaves`).
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Source of randomness.
+    size_factor : float
+        Scale of the leaf's length, width and petiole.
+
+    Returns
+    -------
+    LeafShape
+    """
     return sample_pear_leaves(rng, [size_factor])[0]
 
 
@@ -217,7 +234,20 @@ def _widths(shapes: list[LeafShape], s) -> np.ndarray:
 
 
 def width_profile(shape: LeafShape, s) -> np.ndarray:
-    """Blade half-width ``w(s)`` at relative positions ``s = u / L`` in [0, 1], m."""
+    """Blade half-width ``w(s)`` at relative positions ``s = u / L`` along the midrib.
+
+    Parameters
+    ----------
+    shape : LeafShape
+        The leaf.
+    s : float or array_like, shape (M,)
+        Relative positions, clipped to [0, 1] (0: blade base, 1: apex).
+
+    Returns
+    -------
+    ndarray, shape (M,)
+        Half-widths, m.
+    """
     return _widths([shape], np.atleast_1d(s))[0]
 
 
@@ -243,8 +273,21 @@ def leaf_grids(shapes: list[LeafShape], facet_m, arc: np.ndarray | None = None) 
 
     ``n_u`` rows split the margin into arcs of at most ``facet_m`` (which also
     bounds the spacing along the midrib), ``n_v`` columns split the widest
-    row into steps of at most ``facet_m``. ``arc`` is :func:`_margin_arc` of
-    the shapes if already known.
+    row into steps of at most ``facet_m``.
+
+    Parameters
+    ----------
+    shapes : list of LeafShape
+        The N leaves.
+    facet_m : float or array_like, shape (N,)
+        Largest facet size of each leaf, m.
+    arc : ndarray, shape (N, M), optional
+        :func:`_margin_arc` of the shapes if already known, m.
+
+    Returns
+    -------
+    n_u, n_v : ndarray, shape (N,), int
+        Rows (at least 6) and columns (even, at least 4) of each blade grid.
     """
     facet = np.broadcast_to(np.asarray(facet_m, dtype=float), (len(shapes),))
     if not np.all((facet > 0) & np.isfinite(facet)):
@@ -256,7 +299,20 @@ def leaf_grids(shapes: list[LeafShape], facet_m, arc: np.ndarray | None = None) 
 
 
 def leaf_resolution(shape: LeafShape, facet_m: float) -> tuple[int, int]:
-    """Grid ``(n_u, n_v)`` of one blade (see :func:`leaf_grids`)."""
+    """Grid ``(n_u, n_v)`` of one blade (see :func:`leaf_grids`).
+
+    Parameters
+    ----------
+    shape : LeafShape
+        The leaf.
+    facet_m : float
+        Largest facet size, m.
+
+    Returns
+    -------
+    n_u, n_v : int
+        Rows and columns of the blade grid.
+    """
     n_u, n_v = leaf_grids([shape], facet_m)
     return int(n_u[0]), int(n_v[0])
 
@@ -286,7 +342,22 @@ class LeafTemplate:
 
 @lru_cache(maxsize=64)
 def leaf_template(n_u: int, n_v: int, petiole: bool = True) -> LeafTemplate:
-    """The mesh topology of a blade of ``n_u x n_v`` cells (plus an optional petiole)."""
+    """The mesh topology of a blade of ``n_u x n_v`` cells (plus an optional petiole).
+
+    Parameters
+    ----------
+    n_u : int
+        Rows of cells along the midrib, >= 2.
+    n_v : int
+        Columns of cells across the blade, even and >= 2.
+    petiole : bool
+        Add the faces of a petiole tube of :data:`PETIOLE_SIDES` sides.
+
+    Returns
+    -------
+    LeafTemplate
+        Shared (cached) topology; do not modify its arrays.
+    """
     if n_u < 2 or n_v < 2 or n_v % 2:
         raise SceneError(f"leaf grid needs n_u >= 2 and an even n_v >= 2, got {n_u} x {n_v}")
     cols = n_v + 1
@@ -322,14 +393,21 @@ def leaf_vertices(shapes: list[LeafShape], template: LeafTemplate,
                   arc: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Vertices of many leaves sharing one template, in their canonical frames (vectorised).
 
-    ``arc`` is :func:`_margin_arc` of the shapes if already known.
+    Parameters
+    ----------
+    shapes : list of LeafShape
+        The N leaves.
+    template : LeafTemplate
+        Their common topology (:func:`leaf_template`).
+    arc : ndarray, shape (N, M), optional
+        :func:`_margin_arc` of the shapes if already known, m.
 
     Returns
     -------
     vertices : ndarray, shape (N, V, 3)
         Canonical-frame coordinates, m.
     petiole_base : ndarray, shape (N, 3)
-        Free end of the petiole (the blade base if there is none), canonical frame.
+        Free end of the petiole (the blade base if there is none), canonical frame, m.
     """
     s_rows = _row_positions(_margin_arc(shapes) if arc is None else arc, template.n_u)
     s, t = s_rows[:, template.row], template.t[None, :]
@@ -388,7 +466,16 @@ def _to_canonical(vertices, petiole_base, template):
 
 
 def leaf_truths(vertices: np.ndarray, template: LeafTemplate, shapes: list[LeafShape]) -> list[dict]:
-    """Ground truth of leaves from their final (world) vertices ``(N, V, 3)`` (vectorised).
+    """Ground truth of leaves from their final (world) vertices (vectorised).
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (N, V, 3)
+        World coordinates of the N leaves' vertices, m.
+    template : LeafTemplate
+        Their common topology.
+    shapes : list of LeafShape
+        Their shape parameters (for ``length_m`` and ``half_width_m``).
 
     Returns
     -------
@@ -442,6 +529,12 @@ def leaf_objects(shapes: list[LeafShape], rotations, positions, names: list[str]
     anchor : {"centroid", "petiole"}
         What ``positions`` locate: the blade's area centroid (the canonical
         origin) or the free end of the petiole.
+
+    Returns
+    -------
+    list of SceneObject
+        One ``"leaf"`` object per shape (blade and petiole in one mesh, world coordinates, m), in input
+        order, with the truth of :func:`leaf_truths` and per-face labels.
     """
     if anchor not in ("centroid", "petiole"):
         raise SceneError(f"leaf anchor must be 'centroid' or 'petiole', got {anchor!r}")
@@ -471,8 +564,18 @@ def leaf_objects(shapes: list[LeafShape], rotations, positions, names: list[str]
 def leaf_frame(normal, midrib) -> np.ndarray:
     """Canonical-to-world rotation(s) putting a leaf's +z along ``normal`` and +x along ``midrib``.
 
-    ``midrib`` is projected onto the plane perpendicular to ``normal``; both
-    may be ``(3,)`` or ``(N, 3)`` (then the result is ``(N, 3, 3)``).
+    Parameters
+    ----------
+    normal : array_like, shape (3,) or (N, 3)
+        Adaxial normal (need not be unit length).
+    midrib : array_like, shape (3,) or (N, 3)
+        Midrib direction; projected onto the plane perpendicular to ``normal``
+        (must not be parallel to it).
+
+    Returns
+    -------
+    ndarray, shape (3, 3) or (N, 3, 3)
+        Rotation matrices with columns ``(x, y, z)`` of the canonical frame in world coordinates.
     """
     n = np.asarray(normal, dtype=float)
     n = n / np.linalg.norm(n, axis=-1, keepdims=True)

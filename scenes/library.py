@@ -20,7 +20,20 @@ _REGISTRY: dict[str, tuple[str, Callable[[], Scene]]] = {}
 
 
 def register(name: str, description: str):
-    """Decorator registering a scene builder under ``name`` with a one-line description."""
+    """Decorator registering a scene builder under ``name`` with a one-line description.
+
+    Parameters
+    ----------
+    name : str
+        Name of the built-in scene (registering a name twice raises :class:`SceneError`).
+    description : str
+        One-line description shown by :func:`describe`.
+
+    Returns
+    -------
+    callable
+        Decorator that registers a function ``() -> Scene`` and returns it unchanged.
+    """
 
     def decorator(builder: Callable[[], Scene]):
         if name in _REGISTRY:

@@ -94,6 +94,18 @@ def sample_material(name: str, rng: np.random.Generator) -> Material:
     The reflectance is drawn from a normal distribution with the entry's
     between-object standard deviation, clipped to ``[0.01, 0.99]`` and to
     ``1 - transmittance``; entries without variation come back unchanged.
+
+    Parameters
+    ----------
+    name : str
+        Library name (see the module table).
+    rng : numpy.random.Generator
+        Source of the draw (not used for entries without variation).
+
+    Returns
+    -------
+    Material
+        Same name and transmittance as the nominal entry.
     """
     entry = library_entry(name)
     nominal = entry.material
@@ -115,6 +127,10 @@ def material_from_spec(spec, where: str = "material") -> Material:
         ``transmittance`` overrides.
     where : str
         Location used in error messages.
+
+    Returns
+    -------
+    Material
     """
     if isinstance(spec, str):
         try:

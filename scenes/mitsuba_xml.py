@@ -50,6 +50,19 @@ def _reflectance(shape, mi) -> tuple[str, float]:
 def load_mitsuba_shapes(path: Path, where: str) -> list[tuple[str, np.ndarray, np.ndarray, Material]]:
     """Shapes of the Mitsuba scene at ``path`` as ``(id, vertices, faces, material)`` in world coordinates.
 
+    Parameters
+    ----------
+    path : Path
+        Mitsuba 3 scene XML file (its lengths are taken as metres).
+    where : str
+        Location used in error messages.
+
+    Returns
+    -------
+    list of (str, ndarray, ndarray, Material)
+        Per shape: its id (``shape-<k>`` when it has none), vertices ``(V, 3)`` in m, faces ``(F, 3)``
+        and a Lambertian material from a diffuse BSDF's mean reflectance (0.5 otherwise).
+
     Raises
     ------
     SceneError

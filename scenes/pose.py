@@ -80,6 +80,11 @@ def facing_pose(center, facing, incidence=0.0, rotation_axis="vertical", spin=0.
         Rotation about local +z applied first, rad.
     scale : float
         Uniform scale.
+
+    Returns
+    -------
+    Pose
+        Local to world, with the given uniform scale.
     """
     center = np.asarray(center, dtype=float)
     u, v, n = orthonormal_frame(facing)
@@ -111,6 +116,11 @@ def pose_from_spec(spec, scanner_position, where: str) -> Pose:
         Scanner position, for ``facing: scanner``.
     where : str
         Location for error messages.
+
+    Returns
+    -------
+    Pose
+        Local to world.
     """
     if spec is None:
         return IDENTITY

@@ -8,7 +8,18 @@ from scenes.errors import SceneError
 
 
 def cross(a, b) -> np.ndarray:
-    """Cross product of 3-vectors along the last axis (``np.cross`` without its per-call overhead)."""
+    """Cross product of 3-vectors along the last axis (``np.cross`` without its per-call overhead).
+
+    Parameters
+    ----------
+    a, b : array_like, shape (..., 3)
+        Vectors (broadcast against each other).
+
+    Returns
+    -------
+    ndarray, shape (..., 3), float
+        ``a × b``, in the product of the inputs' units.
+    """
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
                      a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
@@ -82,6 +93,11 @@ def grid_faces(n_rows: int, n_cols: int) -> np.ndarray:
     index grows along the first parameter axis and the row index along the
     second (so a grid laid out in an ``(x, y)`` plane gets normals along +z).
 
+    Parameters
+    ----------
+    n_rows, n_cols : int
+        Vertices per column and per row, each >= 2.
+
     Returns
     -------
     faces : ndarray, shape (2 (n_rows - 1)(n_cols - 1), 3), int64
@@ -101,6 +117,16 @@ def square_to_disk(u, v) -> tuple[np.ndarray, np.ndarray]:
     ``y = v sqrt(1 - u²/2)``, which is smooth, orientation-preserving and
     sends the square's border onto the unit circle (so meshes built on it end
     exactly at a round rim).
+
+    Parameters
+    ----------
+    u, v : array_like
+        Coordinates in ``[-1, 1]`` (dimensionless, broadcast against each other).
+
+    Returns
+    -------
+    x, y : ndarray
+        Coordinates in the unit disk.
     """
     u, v = np.asarray(u, dtype=float), np.asarray(v, dtype=float)
     return u * np.sqrt(1.0 - 0.5 * v**2), v * np.sqrt(1.0 - 0.5 * u**2)
@@ -130,6 +156,11 @@ def facet_size_m(distance_m, scanner: dict | None = None, fraction: float = FACE
         default: the ``faro-ls880`` preset.
     fraction : float
         Facet size as a fraction of the footprint diameter.
+
+    Returns
+    -------
+    float or ndarray
+        Facet size, m (shape of ``distance_m``; negative distances count as 0).
     """
     from tlssim.scanner import get_preset  # lazy: tlssim imports scenes
 

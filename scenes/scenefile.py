@@ -139,6 +139,18 @@ def save_scene(scene: Scene, path: str | Path) -> Path:
     Relative ``file`` paths of mesh and Mitsuba entries are rewritten
     relative to ``path``'s directory.
 
+    Parameters
+    ----------
+    scene : Scene
+        A scene built from a description (file, dict or built-in spec).
+    path : str or Path
+        File to write (overwritten).
+
+    Returns
+    -------
+    Path
+        ``path``.
+
     Raises
     ------
     SceneError

@@ -23,6 +23,20 @@ def polygon_sides(radius_m, sagitta_m: float = SAGITTA_M, minimum: int = 6, maxi
     """Sides of a regular polygon approximating a circle of ``radius_m`` within ``sagitta_m``.
 
     Works element-wise on arrays; ``r (1 - cos(π / n)) <= sagitta``.
+
+    Parameters
+    ----------
+    radius_m : float or array_like
+        Circle radius, m.
+    sagitta_m : float
+        Largest allowed gap between a polygon side and the circle, m.
+    minimum, maximum : int
+        Bounds on the number of sides.
+
+    Returns
+    -------
+    int or ndarray of int
+        Number of sides, same shape as ``radius_m``.
     """
     radius = np.asarray(radius_m, dtype=float)
     ratio = np.clip(1.0 - sagitta_m / np.maximum(radius, 1e-12), -1.0, 1.0)
@@ -76,13 +90,40 @@ def frusta(starts, ends, radii_start, radii_end, sides: int) -> tuple[np.ndarray
 
 
 def frustum_volume(length, radius_start, radius_end):
-    """Exact volume of frusta, ``π h (r0² + r0 r1 + r1²) / 3``, m³ (element-wise)."""
+    """Exact volume of frusta, ``π h (r0² + r0 r1 + r1²) / 3`` (element-wise).
+
+    Parameters
+    ----------
+    length : float or array_like
+        Axis length ``h``, m.
+    radius_start, radius_end : float or array_like
+        Radii ``r0`` and ``r1`` at the two ends, m.
+
+    Returns
+    -------
+    float or ndarray
+        Volume, m³ (broadcast shape of the inputs).
+    """
     r0, r1 = np.asarray(radius_start, float), np.asarray(radius_end, float)
     return np.pi * np.asarray(length, float) * (r0 * r0 + r0 * r1 + r1 * r1) / 3.0
 
 
 def disk_mesh(radius: float, segments: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Flat disk in the local x-y plane, normal +z, as a triangle fan."""
+    """Flat disk in the local x-y plane, centred at the origin, normal +z, as a triangle fan.
+
+    Parameters
+    ----------
+    radius : float
+        Disk radius, m.
+    segments : int, optional
+        Number of rim segments; default :func:`polygon_sides` of ``radius``.
+
+    Returns
+    -------
+    vertices : ndarray, shape (segments + 1, 3)
+        Centre first, then the rim, m.
+    faces : ndarray, shape (segments, 3)
+    """
     n = int(segments or polygon_sides(radius))
     angle = 2 * np.pi * np.arange(n) / n
     vertices = np.concatenate([[[0.0, 0.0, 0.0]], np.stack([radius * np.cos(angle), radius * np.sin(angle),
@@ -93,7 +134,27 @@ def disk_mesh(radius: float, segments: int | None = None) -> tuple[np.ndarray, n
 
 def tube_mesh(radius: float, length: float, radius_end: float | None = None, caps: bool = True,
               sides: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Straight (tapered) tube along local +z from ``-length/2`` to ``+length/2``, optionally capped."""
+    """Straight (tapered) tube along local +z from ``-length/2`` to ``+length/2``, optionally capped.
+
+    Parameters
+    ----------
+    radius : float
+        Radius at ``z = -length/2``, m.
+    length : float
+        Length along z, m.
+    radius_end : float, optional
+        Radius at ``z = +length/2``, m (0 gives a cone); default ``radius``.
+    caps : bool
+        Close both ends with outward-facing disks (an end of radius 0 gets none).
+    sides : int, optional
+        Polygon sides; default :func:`polygon_sides` of the larger radius.
+
+    Returns
+    -------
+    vertices : ndarray, shape (V, 3)
+        Local coordinates, m.
+    faces : ndarray, shape (F, 3)
+    """
     radius_end = radius if radius_end is None else radius_end
     n = int(sides or polygon_sides(max(radius, radius_end)))
     vertices, faces = frusta([[0, 0, -length / 2]], [[0, 0, length / 2]], [radius], [radius_end], n)
@@ -108,7 +169,22 @@ def tube_mesh(radius: float, length: float, radius_end: float | None = None, cap
 
 
 def ellipsoid_mesh(radii, sagitta_m: float = SAGITTA_M) -> tuple[np.ndarray, np.ndarray]:
-    """Ellipsoid with semi-axes ``radii`` along local x, y, z (a scaled icosphere)."""
+    """Ellipsoid with semi-axes ``radii`` along local x, y, z (a scaled icosphere), centred at the origin.
+
+    Parameters
+    ----------
+    radii : array_like, shape (3,)
+        Semi-axes, m.
+    sagitta_m : float
+        Largest allowed facet-to-surface gap on the sphere of the largest semi-axis, m
+        (sets the subdivision level, at most 7).
+
+    Returns
+    -------
+    vertices : ndarray, shape (V, 3)
+        Local coordinates, m.
+    faces : ndarray, shape (F, 3), int64
+    """
     radii = np.asarray(radii, dtype=float)
     r = radii.max()
     # Icosphere edge ≈ 1.05 r / 2^k; sagitta ≈ edge² / (8 r).

@@ -93,7 +93,18 @@ class HeightField:
     params: dict = field(default_factory=dict)
 
     def support(self, x, y) -> np.ndarray:
-        """True where the surface is defined (inside the domain and the surface's own support)."""
+        """True where the surface is defined (inside the domain and the surface's own support).
+
+        Parameters
+        ----------
+        x, y : array_like
+            Surface coordinates (surface units, broadcast against each other).
+
+        Returns
+        -------
+        ndarray of bool
+            Broadcast shape of ``x`` and ``y``.
+        """
         x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
         (x0, x1), (y0, y1) = self.domain
         inside = (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
@@ -102,14 +113,36 @@ class HeightField:
         return inside
 
     def height(self, x, y) -> np.ndarray:
-        """Exact height ``h(x, y)``; NaN outside the support."""
+        """Exact height ``h(x, y)``; NaN outside the support.
+
+        Parameters
+        ----------
+        x, y : array_like
+            Surface coordinates (surface units, broadcast against each other).
+
+        Returns
+        -------
+        ndarray
+            Heights, surface units, broadcast shape of ``x`` and ``y``.
+        """
         x, y, inside = self._inside(x, y)
         out = np.full(x.shape, np.nan)
         out[inside] = self.height_fn(x[inside], y[inside])
         return out
 
     def gradient(self, x, y) -> tuple[np.ndarray, np.ndarray]:
-        """Exact partial derivatives ``(p, q) = (dh/dx, dh/dy)``; NaN outside the support."""
+        """Exact partial derivatives ``(p, q) = (dh/dx, dh/dy)``; NaN outside the support.
+
+        Parameters
+        ----------
+        x, y : array_like
+            Surface coordinates (surface units, broadcast against each other).
+
+        Returns
+        -------
+        p, q : ndarray
+            Slopes (dimensionless; may be infinite on a rim), broadcast shape of ``x`` and ``y``.
+        """
         x, y, inside = self._inside(x, y)
         p, q = np.full(x.shape, np.nan), np.full(x.shape, np.nan)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -117,7 +150,18 @@ class HeightField:
         return p, q
 
     def normal(self, x, y) -> np.ndarray:
-        """Unit upward normal ``(-p, -q, 1) / sqrt(1 + p² + q²)``, shape ``(..., 3)``; NaN outside."""
+        """Unit upward normal ``(-p, -q, 1) / sqrt(1 + p² + q²)``; NaN outside the support.
+
+        Parameters
+        ----------
+        x, y : array_like
+            Surface coordinates (surface units, broadcast against each other).
+
+        Returns
+        -------
+        ndarray, shape (..., 3)
+            Unit normals with z >= 0 (``...``: broadcast shape of ``x`` and ``y``).
+        """
         x, y, inside = self._inside(x, y)
         out = np.full(x.shape + (3,), np.nan)
         if self.normal_fn is not None:
@@ -129,7 +173,18 @@ class HeightField:
         return out
 
     def alpha(self, x, y) -> np.ndarray:
-        """Incidence angle between the normal and +z, radians in ``[0, π/2]``; NaN outside."""
+        """Incidence angle between the normal and +z; NaN outside the support.
+
+        Parameters
+        ----------
+        x, y : array_like
+            Surface coordinates (surface units, broadcast against each other).
+
+        Returns
+        -------
+        ndarray
+            Angles, rad in ``[0, π/2]``, broadcast shape of ``x`` and ``y``.
+        """
         return np.arccos(np.clip(self.normal(x, y)[..., 2], 0.0, 1.0))
 
     def sample(self, nx: int, ny: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -138,12 +193,17 @@ class HeightField:
         Pixel ``(i, j)`` covers ``[x0 + j dx, x0 + (j + 1) dx] x [y0 + i dy, ...]``
         with ``dx = (x1 - x0) / nx``; its value is taken at the centre.
 
+        Parameters
+        ----------
+        nx, ny : int
+            Columns and rows of pixels over the domain, each >= 1.
+
         Returns
         -------
         x, y : ndarray, shape (ny, nx)
-            Pixel-centre coordinates (rows = y, columns = x).
+            Pixel-centre coordinates (rows = y, columns = x), surface units.
         h : ndarray, shape (ny, nx)
-            Height, NaN outside the support.
+            Height, surface units, NaN outside the support.
         mask : ndarray of bool, shape (ny, nx)
             Where the surface is defined.
         """
@@ -231,7 +291,19 @@ _RIM_TOLERANCE = 1.0 + 1e-12
 
 
 def plane(tilt: float = math.pi / 6, azimuth: float = 0.0) -> HeightField:
-    """Tilted plane on ``[-1, 1]²``: slope angle ``tilt`` (rad) rising towards ``azimuth`` (rad, from +x)."""
+    """Tilted plane on ``[-1, 1]²``, rising towards ``azimuth``.
+
+    Parameters
+    ----------
+    tilt : float
+        Slope angle, rad in ``[0, π/2)`` (also the plane's incidence ``alpha``).
+    azimuth : float
+        Direction of steepest ascent, rad counter-clockwise from +x.
+
+    Returns
+    -------
+    HeightField
+    """
     tilt, azimuth = _finite(tilt, "plane tilt"), _finite(azimuth, "plane azimuth")
     if not 0 <= tilt < math.pi / 2:
         raise SceneError(f"plane tilt must lie in [0, pi/2) rad, got {tilt!r}")
@@ -282,6 +354,10 @@ def ellipsoid(diameters=(30.0, 15.0, 10.0), elevation: float = math.pi / 8, roll
     With rotation ``R = Ry(-elevation) Rx(roll)`` and
     ``A = R diag(4/d²) Rᵀ``, the surface is ``{X : Xᵀ A X = 1}``; the height is
     the upper root of the quadratic in z and the normal is along ``A X``.
+
+    Returns
+    -------
+    HeightField
     """
     try:
         semi = np.array([_positive(d, "ellipsoid diameter") for d in diameters]) / 2
@@ -338,6 +414,17 @@ def cone(radius: float = 20.0, slope: float = math.pi / 6) -> HeightField:
     Every point but the apex has incidence ``alpha = slope``: the cone is a
     single iso-alpha region (a sand-pile surface). The apex has no tangent
     plane; :meth:`HeightField.gradient` reports ``(0, 0)`` there.
+
+    Parameters
+    ----------
+    radius : float
+        Base radius, surface units (pixels), > 0.
+    slope : float
+        Slope angle of the flank, rad in ``(0, π/2)``.
+
+    Returns
+    -------
+    HeightField
     """
     r0 = _positive(radius, "cone radius")
     slope = _finite(slope, "cone slope")
@@ -442,6 +529,10 @@ def multi_seed(seed: int | None = None, n_features: int = 4) -> HeightField:
         ``numpy.random.default_rng(seed)``.
     n_features : int
         Number of random features (only with ``seed``).
+
+    Returns
+    -------
+    HeightField
     """
     if seed is None:
         features = np.array(MULTI_SEED_FEATURES)
@@ -495,8 +586,17 @@ def surface_parameters(name: str) -> dict:
 def get_surface(name: str, **params) -> HeightField:
     """The analytic surface ``name`` (see ``SURFACE_NAMES``) with optional parameters.
 
-    Angles are in radians; see each builder (:func:`hemisphere`,
-    :func:`ellipsoid`, ...) for its parameters.
+    Parameters
+    ----------
+    name : str
+        One of ``SURFACE_NAMES``.
+    **params
+        Parameters of the surface's builder (:func:`plane`, :func:`hemisphere`,
+        :func:`ellipsoid`, ...); angles in radians, lengths in surface units.
+
+    Returns
+    -------
+    HeightField
 
     Raises
     ------
@@ -528,9 +628,19 @@ def surface_mesh(surface: HeightField, size_m: float, resolution: int = 201):
     A surface point ``(x, y, h)`` goes to ``s (x - xc, y - yc, h)`` with
     ``s = size_m / (longest domain side)`` and ``(xc, yc)`` the domain centre.
 
+    Parameters
+    ----------
+    surface : HeightField
+        The surface.
+    size_m : float
+        World size of the longest side of the domain, m.
+    resolution : int
+        Mesh vertices per axis (see :meth:`HeightField.mesh`).
+
     Returns
     -------
     vertices : ndarray, shape (V, 3)
+        Local coordinates, m.
     faces : ndarray, shape (F, 3)
     scale : float
         ``s``, metres per surface unit.
@@ -553,6 +663,22 @@ def surface_truth(surface: HeightField, pose: Pose, scale: float, center) -> dic
     surface unit) and ``center`` (domain centre, surface units), so that a
     world point ``p`` has surface coordinates
     ``(p - origin) @ axes.T / scale + (xc, yc, 0)``.
+
+    Parameters
+    ----------
+    surface : HeightField
+        The surface.
+    pose : Pose
+        Local (scaled, see :func:`surface_mesh`) frame to world; its scale multiplies ``scale``.
+    scale : float
+        Metres per surface unit of the local mesh.
+    center : array_like, shape (2,)
+        Domain centre ``(xc, yc)``, surface units.
+
+    Returns
+    -------
+    dict
+        JSON-ready ``{"surface", "params", "frame"}``.
     """
     return {
         "surface": surface.name,
@@ -592,6 +718,11 @@ def surface_object(name: str, distance_m: float, size_m: float, *, params: dict 
         Default: Lambertian reflectance 0.5.
     object_name : str, optional
         Object name (default: the surface name).
+
+    Returns
+    -------
+    SceneObject
+        Type ``"surface"``, world coordinates (m), with the truth of :func:`surface_truth`.
     """
     surface = get_surface(name, **(params or {}))
     distance_m = _positive(distance_m, "surface distance_m")

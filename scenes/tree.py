@@ -62,7 +62,22 @@ LEAF_ANGLE_DISTRIBUTIONS = {
 
 
 def sample_leaf_inclination(distribution: str, rng: np.random.Generator, size: int) -> np.ndarray:
-    """Draw leaf-normal inclinations from the zenith, rad in [0, π/2], by inverse transform sampling."""
+    """Draw leaf-normal inclinations from the zenith by inverse transform sampling.
+
+    Parameters
+    ----------
+    distribution : str
+        Key of :data:`LEAF_ANGLE_DISTRIBUTIONS`.
+    rng : numpy.random.Generator
+        Source of randomness.
+    size : int
+        Number of draws.
+
+    Returns
+    -------
+    ndarray, shape (size,)
+        Inclinations, rad in [0, π/2].
+    """
     if distribution not in LEAF_ANGLE_DISTRIBUTIONS:
         raise SceneError(f"unknown leaf-angle distribution {distribution!r}; "
                          f"allowed: {', '.join(LEAF_ANGLE_DISTRIBUTIONS)}")
@@ -171,7 +186,25 @@ class TreePreset:
 
 
 def v_trellis_leaders(aperture_deg: float = 40.0, per_side: int = 2, splay_deg: float = 12.0) -> tuple:
-    """Directions of V-trellis leaders: ``per_side`` on each side, leaning aperture/2 off vertical."""
+    """Directions of V-trellis leaders: ``per_side`` on each side of the row, leaning off vertical.
+
+    Seen along the row (x), a leader leans ``aperture_deg / 2`` from vertical towards +y or -y;
+    the leaders of one side fan out along x over ``[-splay_deg, +splay_deg]``.
+
+    Parameters
+    ----------
+    aperture_deg : float
+        Opening angle of the V between the two sides, degrees.
+    per_side : int
+        Leaders on each side.
+    splay_deg : float
+        Largest tilt along the row of a side's outer leaders, degrees (unused for one per side).
+
+    Returns
+    -------
+    tuple of (float, float, float)
+        ``2 per_side`` unit directions in the tree frame (z up): the +y side first.
+    """
     lean = math.radians(aperture_deg / 2)
     splays = np.radians(np.linspace(-splay_deg, splay_deg, per_side)) if per_side > 1 else np.zeros(1)
     out = []
@@ -307,6 +340,11 @@ def grow_tree(preset: TreePreset | str, seed: int, leaf_count: int | None = None
     **order_overrides
         ``order<k>_<field>=value`` replaces a field of order ``k`` (e.g.
         ``order1_length_m=2.0``).
+
+    Returns
+    -------
+    TreeModel
+        Truth cylinders and placed leaves in the tree's own frame (m, z up).
     """
     preset = get_tree_preset(preset) if isinstance(preset, str) else preset
     orders = list(preset.orders)
@@ -453,7 +491,28 @@ def wood_mesh(cylinders: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]
 
 def wood_object(model: TreeModel, pose: Pose, group: str, bark: str | Material, rng: np.random.Generator,
                 extra_truth: dict | None = None) -> SceneObject:
-    """The ``<group>/wood`` object of a tree: all its frusta, with the cylinder truth in world coordinates."""
+    """The ``<group>/wood`` object of a tree: all its frusta, with the cylinder truth in world coordinates.
+
+    Parameters
+    ----------
+    model : TreeModel
+        The tree in its own frame.
+    pose : Pose
+        Tree frame to world (rigid: scale must be 1).
+    group : str
+        Group and name prefix.
+    bark : str or Material
+        A library name (one material drawn for the tree with ``rng``) or a fixed material.
+    rng : numpy.random.Generator
+        Source of the material draw.
+    extra_truth : dict, optional
+        Added to the object's truth.
+
+    Returns
+    -------
+    SceneObject
+        Type ``"wood"``, with truth ``cylinders`` (world coordinates, m) and ``volume_m3``.
+    """
     if not math.isclose(pose.scale, 1.0):
         raise SceneError(f"{group}: trees cannot be scaled (got scale {pose.scale}); change the preset instead")
     arrays = model.arrays()
@@ -482,7 +541,21 @@ class LeafBatch:
 
     def add_tree(self, model: TreeModel, pose: Pose, group: str, leaf_material: str | Material,
                  rng: np.random.Generator) -> None:
-        """Queue the leaves of ``model`` placed by ``pose`` as ``<group>/leaf-0001`` ..."""
+        """Queue the leaves of ``model`` placed by ``pose`` as ``<group>/leaf-0001`` ...
+
+        Parameters
+        ----------
+        model : TreeModel
+            The tree in its own frame.
+        pose : Pose
+            Tree frame to world (rigid).
+        group : str
+            Group and name prefix.
+        leaf_material : str or Material
+            A library name (one material drawn per leaf with ``rng``) or a fixed material.
+        rng : numpy.random.Generator
+            Source of the material draws.
+        """
         count = len(model.leaf_shapes)
         self.shapes += model.leaf_shapes
         self.rotations.append(np.einsum("ij,njk->nik", pose.rotation, model.leaf_rotations))
@@ -526,6 +599,11 @@ def tree_objects(model: TreeModel, pose: Pose, group: str, *, bark: str | Materi
         Seed of the material draws.
     extra_truth : dict, optional
         Added to the truth of the wood object.
+
+    Returns
+    -------
+    list of SceneObject
+        The wood object first, then one object per leaf (world coordinates, m).
     """
     rng = np.random.default_rng([seed, 1])
     wood = wood_object(model, pose, group, bark, rng, extra_truth)

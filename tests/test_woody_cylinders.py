@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from woody import FollowParams, WoodyError, follow_cylinders, score
-from woody.cylinders import fit_circle, fit_direction
+from woody.cylfit import fit_circle, fit_direction
 from woody.synthetic import add_noise, sample_cylinders, straight_cylinder
 
 Y = [{"id": 0, "parent": -1, "order": 1, "branch": 0, "start": [0, 0, 0], "end": [0, 0, 0.8],

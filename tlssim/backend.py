@@ -184,12 +184,18 @@ class TraceScene:
 
         Parameters
         ----------
-        model, beam, pose
-            Scanner model, sub-ray layout and pose.
+        model : ScannerModel
+            Scanner model (beam waist radius and divergence; for tracing also ``max_range_m``, the
+            radiometry, the modulation frequencies and leaf transmission).
+        beam : BeamSamples
+            Sub-ray layout: offsets in units of the 1/e² radius and power weights (``S`` sub-rays).
+        pose : ScannerPose
+            Scanner orientation (its rotation turns the rays into the world axes; the position is the
+            tracing origin given at construction).
         theta, psi : ndarray, shape (n,)
-            Beam angles of the pulses, radians.
+            Azimuth and zenith angle of each pulse's beam in the scanner frame, rad.
         spin : ndarray, shape (n,)
-            Rotation of the sub-ray layout about the beam axis, per pulse, radians.
+            Rotation of the sub-ray layout about the beam axis, per pulse, rad.
         smear_rad : float
             Zenith angle swept by the beam during one integration time, rad.
             Sub-ray ``k >= 1`` of a pulse is traced at the instant
@@ -203,7 +209,7 @@ class TraceScene:
         Returns
         -------
         ray : mitsuba.Ray3f
-            ``n·S`` rays, pulse-major (sub-ray ``k`` of pulse ``p`` at ``p·S + k``).
+            ``n·S`` rays, pulse-major (sub-ray ``k`` of pulse ``p`` at ``p·S + k``); origins in m.
         weight : mitsuba.Float
             Power share of each sub-ray.
         """
@@ -241,11 +247,34 @@ class TraceScene:
               time_shift: np.ndarray | None = None) -> SubrayHits:
         """Trace the sub-rays of a set of pulses and sum their phasors.
 
-        Parameters are those of :meth:`subrays`.
+        Parameters
+        ----------
+        model : ScannerModel
+            Scanner model (beam waist radius and divergence; for tracing also ``max_range_m``, the
+            radiometry, the modulation frequencies and leaf transmission).
+        beam : BeamSamples
+            Sub-ray layout: offsets in units of the 1/e² radius and power weights (``S`` sub-rays).
+        pose : ScannerPose
+            Scanner orientation (its rotation turns the rays into the world axes; the position is the
+            tracing origin given at construction).
+        theta, psi : ndarray, shape (n,)
+            Azimuth and zenith angle of each pulse's beam in the scanner frame, rad.
+        spin : ndarray, shape (n,)
+            Rotation of the sub-ray layout about the beam axis, per pulse, rad.
+        smear_rad : float
+            Zenith angle swept by the beam during one integration time, rad.
+            Sub-ray ``k >= 1`` of a pulse is traced at the instant
+            ``tau_k = frac(time_shift + k·0.618...)`` of the integration and
+            its zenith is shifted by ``(tau_k - 1/2)·smear_rad``; the central
+            sub-ray stays on the nominal beam (it defines the truth range).
+        time_shift : ndarray, shape (n,), optional
+            Per-pulse random offset in [0, 1) of those instants (required
+            when ``smear_rad > 0``).
 
         Returns
         -------
         SubrayHits
+            Per-pulse phasor sums and reductions, and per-sub-ray hits, for the ``n`` pulses.
         """
         import drjit as dr
         import mitsuba as mi

@@ -76,10 +76,24 @@ def backscatter_reflectance(plugin: dict, reflectance: float) -> np.ndarray:
 
 
 def reflectance_table(plugin: dict, reflectance: np.ndarray, uses_bsdf: np.ndarray) -> np.ndarray:
-    """Effective-reflectance table of every object, shape ``(n_objects, TABLE_ANGLES)``.
+    """Effective-reflectance table of every object against incidence.
 
     Objects with ``uses_bsdf`` False keep their Lambertian reflectance (a
     constant row); the BSDF is evaluated once per distinct reflectance.
+
+    Parameters
+    ----------
+    plugin : dict
+        Mitsuba BSDF plugin description (``type`` among :data:`REFLECTANCE_KEYS`).
+    reflectance : ndarray, shape (n_objects,)
+        Diffuse reflectance of every object, in [0, 1].
+    uses_bsdf : ndarray of bool, shape (n_objects,)
+        Which objects get the BSDF.
+
+    Returns
+    -------
+    ndarray, shape (n_objects, TABLE_ANGLES), float64
+        Effective reflectance ``pi·f_r`` at the incidence angles of :func:`table_angles`.
     """
     table = np.repeat(np.asarray(reflectance, dtype=np.float64)[:, None], TABLE_ANGLES, axis=1)
     for value in np.unique(np.asarray(reflectance)[uses_bsdf]):

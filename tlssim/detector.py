@@ -53,7 +53,22 @@ class PulseReturns:
 
 
 def log_amplifier_dn(model: ScannerModel, power: np.ndarray) -> np.ndarray:
-    """Intensity in digital numbers of a received power (NaN where the power is not positive)."""
+    """Intensity in digital numbers of a received power: ``I = I_ref + k·ln(P / P_ref)``.
+
+    Clipped to ``[0, intensity_max_dn]`` and rounded.
+
+    Parameters
+    ----------
+    model : ScannerModel
+        Scanner model (``intensity_ref_dn``, ``log_gain_dn`` ``k``, ``intensity_max_dn``, reference target).
+    power : array_like
+        Received power (or phasor amplitude) ``P``, units of :func:`~tlssim.radiometry.reference_power`.
+
+    Returns
+    -------
+    ndarray, float32
+        Intensity, DN, shape of ``power`` (NaN where the power is not positive).
+    """
     power = np.asarray(power, dtype=np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
         dn = model.intensity_ref_dn + model.log_gain_dn * np.log(power / reference_power(model))
@@ -113,6 +128,11 @@ def average_along_psi(range_m: np.ndarray, length: int) -> np.ndarray:
         Ranges, NaN where there is no return.
     length : int
         Filter length, samples (1 returns the input).
+
+    Returns
+    -------
+    ndarray, shape (rows, cols)
+        Filtered ranges, m, NaN where there is no return.
     """
     if length == 1:
         return range_m

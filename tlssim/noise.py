@@ -27,7 +27,22 @@ from tlssim.scanner import ScannerModel
 
 
 def range_noise_std(model: ScannerModel, amplitude: np.ndarray) -> np.ndarray:
-    """Standard deviation of range noise of pulses with received ``amplitude``, m (inf where it is 0)."""
+    """Standard deviation of the range noise of pulses with received ``amplitude``.
+
+    ``sigma_d = sqrt((s0·(A/A_ref)**-gamma)**2 + floor**2)`` (module docstring).
+
+    Parameters
+    ----------
+    model : ScannerModel
+        Scanner model (``range_noise_m``, ``range_noise_exponent``, ``range_noise_floor_m``, reference target).
+    amplitude : array_like
+        Received amplitude ``A``, units of :func:`~tlssim.radiometry.reference_power`.
+
+    Returns
+    -------
+    ndarray, float64
+        ``sigma_d``, m, shape of ``amplitude`` (inf where the amplitude is 0).
+    """
     with np.errstate(divide="ignore"):
         scale = np.power(np.asarray(amplitude, dtype=np.float64) / reference_power(model), -model.range_noise_exponent)
     sigma = model.range_noise_m * scale
@@ -35,14 +50,46 @@ def range_noise_std(model: ScannerModel, amplitude: np.ndarray) -> np.ndarray:
 
 
 def amplitude_noise_std(model: ScannerModel, amplitude: np.ndarray) -> np.ndarray:
-    """Standard deviation of the noise on the received amplitude (units of :func:`reference_power`)."""
+    """Standard deviation of the noise on the received amplitude.
+
+    ``sigma_A = (sigma_I0 / k)·A_ref·(A/A_ref)**(1 - e)`` (module docstring).
+
+    Parameters
+    ----------
+    model : ScannerModel
+        Scanner model (``intensity_noise_dn``, ``log_gain_dn``, ``intensity_noise_exponent``, reference target).
+    amplitude : array_like
+        Received amplitude ``A``, units of :func:`~tlssim.radiometry.reference_power`.
+
+    Returns
+    -------
+    ndarray, float64
+        ``sigma_A``, units of :func:`~tlssim.radiometry.reference_power`, shape of ``amplitude``.
+    """
     ref = reference_power(model)
     ratio = np.asarray(amplitude, dtype=np.float64) / ref
     return (model.intensity_noise_dn / model.log_gain_dn) * ref * np.power(ratio, 1.0 - model.intensity_noise_exponent)
 
 
 def panel_amplitude(model: ScannerModel, reflectance, distance_m, cos_incidence=1.0):
-    """Received amplitude of a Lambertian target filling the whole beam (units of :func:`reference_power`)."""
+    """Received amplitude of a Lambertian target filling the whole beam.
+
+    Parameters
+    ----------
+    model : ScannerModel
+        Scanner model (radiometry: near-range attenuator).
+    reflectance : float or array_like
+        Lambertian reflectance of the target, in [0, 1].
+    distance_m : float or array_like
+        Distance from the scanner, m.
+    cos_incidence : float or array_like
+        Cosine of the incidence angle (1: perpendicular).
+
+    Returns
+    -------
+    float or ndarray
+        Amplitude, units of :func:`~tlssim.radiometry.reference_power` (broadcast shape of the inputs).
+    """
     return subray_power(model, 1.0, reflectance, cos_incidence, np.asarray(distance_m, dtype=np.float64))
 
 

@@ -25,7 +25,20 @@ from tlssim.scanner import ScannerModel
 
 
 def near_filter(model: ScannerModel, distance_m):
-    """Transmission ``A(d)`` of the near-range attenuator, in (0, 1], for ``d`` in metres."""
+    """Transmission ``A(d)`` of the near-range attenuator, in (0, 1].
+
+    Parameters
+    ----------
+    model : ScannerModel
+        Scanner model (``near_filter_table``, or ``near_filter_range_m`` and ``near_filter_exponent``).
+    distance_m : float or array
+        Distance ``d``, m (numpy or Dr.Jit array).
+
+    Returns
+    -------
+    float or array
+        ``A(d)`` (dimensionless), same type and shape as ``distance_m``.
+    """
     if model.near_filter_table:
         return _interpolate(model.near_filter_table, distance_m)
     ratio = model.near_filter_range_m / distance_m
@@ -33,12 +46,48 @@ def near_filter(model: ScannerModel, distance_m):
 
 
 def range_gain(model: ScannerModel, distance_m):
-    """Distance factor ``g(d) = A(d) / d²`` of the received power, for ``d`` in metres."""
+    """Distance factor ``g(d) = A(d) / d²`` of the received power.
+
+    Parameters
+    ----------
+    model : ScannerModel
+        Scanner model (near-range attenuator).
+    distance_m : float or array
+        Distance ``d``, m (numpy or Dr.Jit array).
+
+    Returns
+    -------
+    float or array
+        ``g(d)``, m⁻², same type and shape as ``distance_m``.
+    """
     return near_filter(model, distance_m) / (distance_m * distance_m)
 
 
 def subray_power(model: ScannerModel, weight, reflectance, cos_incidence, distance_m):
-    """Received power of sub-rays (same units as :func:`reference_power`)."""
+    """Received power of sub-rays, ``P = w · rho · cos(alpha) · g(d)``.
+
+    All array arguments broadcast against each other (numpy or Dr.Jit arrays).
+
+    Parameters
+    ----------
+    model : ScannerModel
+        Scanner model (near-range attenuator).
+    weight : float or array
+        Power share ``w`` of each sub-ray in its pulse (the shares of a pulse sum to 1).
+    reflectance : float or array
+        Reflectance ``rho`` (Lambertian, in [0, 1]) or the effective reflectance ``pi·f_r`` of a BSDF
+        (:mod:`tlssim.bsdf`).
+    cos_incidence : float or array
+        Cosine of the incidence angle ``alpha``.
+    distance_m : float or array
+        Distance ``d``, m.
+
+    Returns
+    -------
+    float or array
+        ``P``, relative to the emitted power up to the receiver factor, m⁻² (the units of
+        :func:`reference_power`).
+    """
     return weight * reflectance * cos_incidence * range_gain(model, distance_m)
 
 

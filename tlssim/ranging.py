@@ -16,7 +16,20 @@ from tlssim.scanner import SPEED_OF_LIGHT_M_S
 
 
 def phase_to_distance(real: np.ndarray, imag: np.ndarray, freq_hz: float) -> np.ndarray:
-    """Distance modulo the ambiguity interval ``c / (2 f)`` from a phasor, m."""
+    """Distance modulo the ambiguity interval ``c / (2 f)`` from a phasor.
+
+    Parameters
+    ----------
+    real, imag : ndarray
+        Real and imaginary parts of the summed phasor (any common shape and scale).
+    freq_hz : float
+        Modulation frequency ``f``, Hz.
+
+    Returns
+    -------
+    ndarray
+        Distance in ``[0, c / (2 f))``, m, shape of ``real``.
+    """
     phase = np.mod(np.arctan2(imag, real), 2.0 * np.pi)
     return phase * SPEED_OF_LIGHT_M_S / (4.0 * np.pi * freq_hz)
 

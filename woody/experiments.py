@@ -37,7 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
-from woody.cylinders import fit_direction, follow_cylinders
+from woody.cylfit import fit_direction
+from woody.cylinders import follow_cylinders
 from woody.normals import pca_normals
 from woody.scoring import score
 from woody.step import step
