@@ -57,3 +57,17 @@ def test_follow_tree_without_a_stem_at_breast_height_is_plain_cylinder_following
              "radius_m": 0.03}]
     points = sample_cylinders(twig, 5e3, seed=3).points
     assert follow_tree(points).cylinders() == follow_cylinders(points).cylinders()
+
+
+def test_degenerate_clouds_end_in_a_result_or_a_woody_error_at_once():
+    from woody import WoodyError, step
+    from woody.dbh import measure_dbh
+
+    line = np.array([[1.0, 1, 1], [2, 2, 2], [3, 3, 3], [4, 4, 4]])  # as in a real 4-point LAS test file
+    for follow in (follow_cylinders, follow_tree):
+        assert len(follow(line).branches) == 1
+    for cloud, message in ((line, "straight line"), (np.ones((50, 3)), "coincide")):
+        with pytest.raises(WoodyError, match=message):
+            step(cloud)
+        with pytest.raises(WoodyError):
+            measure_dbh(cloud)

@@ -236,11 +236,15 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
     if normals is not None:
         normals = check_normals(normals, len(points))
     count = len(points)
+    _check_not_a_line(points)
     kept = _subsample(points, cell_m, subsample_m)
     if kept is not None:
         points = points[kept]
         normals = None if normals is None else normals[kept]
         viewpoints = None if viewpoints is None else viewpoints[kept]
+        if len(points) < normal_k:
+            raise WoodyError(f"the {count} points fill only {len(points)} voxels of {cell_m / 4} m: too few for "
+                             f"STEP (at least {normal_k})")
     if normals is not None:
         oriented = True if oriented is None else oriented
     else:
@@ -279,6 +283,17 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
              "hough_bytes": hs.nbytes, "seeds": len(seeds), "seeds_tried": tried, "snakes_rejected": rejected,
              "tuboids": len(tuboids), **timings}
     return StepResult(tuboids, normals, stats)
+
+
+def _check_not_a_line(points: np.ndarray) -> None:
+    """Refuse points that all lie on one straight line (no circle, no tube through them)."""
+    if len(points) < 3:
+        return
+    singular = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+    if singular[0] == 0:
+        raise WoodyError(f"all {len(points)} points coincide: no tube can be fitted to them")
+    if singular[1] <= 1e-6 * singular[0]:
+        raise WoodyError(f"the {len(points)} points lie on a straight line: no tube can be fitted to them")
 
 
 def _subsample(points: np.ndarray, cell_m: float, subsample_m: float | None) -> np.ndarray | None:
