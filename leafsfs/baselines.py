@@ -280,6 +280,20 @@ def smoothed_range(scan, kept, smoothing_m: float) -> np.ndarray:
 
     The width in pixels follows the kept points' median range and the grid
     step. NaN outside ``kept``.
+
+    Parameters
+    ----------
+    scan : tlssim.Scan
+        The scan.
+    kept : ndarray of bool
+        Points whose ranges are smoothed (grid shape).
+    smoothing_m : float
+        Standard deviation of the Gaussian across the beams at the median range, m (> 0).
+
+    Returns
+    -------
+    ndarray
+        Smoothed ranges, m (grid shape).
     """
     kept = _checked_mask(scan, kept)
     _positive("smoothing_m", smoothing_m)
@@ -353,6 +367,17 @@ def leaf_traits(scan, kept, max_edge_m: float | None = None, smoothing_m: float 
     scanner); the midrib is taken as the principal axis of the area-weighted
     triangle centroids (the blade's longest extent; it has no sense, so the
     upward one is returned).
+
+    Parameters
+    ----------
+    scan : tlssim.Scan
+        The scan.
+    kept : ndarray of bool
+        Points of the leaf (grid shape).
+    max_edge_m : float, optional
+        Longest mesh edge, m (default above).
+    smoothing_m : float
+        Standard deviation of the range smoothing across the beams, m.
 
     Returns
     -------

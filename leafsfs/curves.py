@@ -75,6 +75,20 @@ def extract_curve(region: np.ndarray, grid: PixelGrid, estimator: str = "lambda"
     region's area. Without this, every annulus is propagated with the alpha
     of a band lying farther out than its rays, a bias that accumulates from
     the seed to the shell.
+
+    Parameters
+    ----------
+    region : ndarray of bool, 2-D
+        A 4-connected region of pixels.
+    grid : PixelGrid
+        Map from pixel indices to continuous coordinates (m in a scan's local frame).
+    estimator : {"lambda", "thesis"}
+        Discrete tangent estimator (:func:`leafsfs.euclid.discrete_tangents`).
+
+    Returns
+    -------
+    Curve or None
+        The counter-clockwise boundary curve, in continuous units.
     """
     pixels, codes = trace_contour(region)
     if len(codes) < 4:
@@ -96,6 +110,21 @@ def extract_curve(region: np.ndarray, grid: PixelGrid, estimator: str = "lambda"
 def cast_rays(origins: np.ndarray, directions: np.ndarray, curve: Curve, min_distance: float = 1e-9,
               chunk: int = 2_000_000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """First crossing of rays ``o + u d`` (``u > min_distance``) with a closed polyline.
+
+    Parameters
+    ----------
+    origins : ndarray, (n, 2)
+        Ray origins, continuous units (m in a scan's local frame).
+    directions : ndarray, (n, 2)
+        Unit ray directions.
+    curve : Curve
+        The closed polyline.
+    min_distance : float
+        Crossings at ``u <= min_distance`` (continuous units) are ignored, so a
+        ray starting on the polyline does not hit it at its origin.
+    chunk : int
+        Number of ray-edge pairs tested at once (bounds the memory of the
+        temporaries, a few tens of bytes per pair).
 
     Returns
     -------
@@ -129,7 +158,23 @@ def cast_rays(origins: np.ndarray, directions: np.ndarray, curve: Curve, min_dis
 
 
 def segments_cross(p1, p2, q1, q2, eps: float = 1e-9) -> np.ndarray:
-    """Whether segments ``[p1, p2]`` and ``[q1, q2]`` cross at interior points (broadcasting over leading axes)."""
+    """Whether segments ``[p1, p2]`` and ``[q1, q2]`` cross at interior points (broadcasting over leading axes).
+
+    Parameters
+    ----------
+    p1, p2 : ndarray, (..., 2)
+        End points of the first segments, continuous units.
+    q1, q2 : ndarray, (..., 2)
+        End points of the second segments, same units.
+    eps : float
+        Margin in segment parameter (dimensionless, fraction of each segment)
+        within which a touch at an end point does not count as a crossing.
+
+    Returns
+    -------
+    ndarray of bool, (...)
+        Whether each pair crosses (parallel segments never do).
+    """
     r, s = p2 - p1, q2 - q1
     denom = cross2(r, s)
     rel = q1 - p1
@@ -144,6 +189,20 @@ def crosses_polyline(starts: np.ndarray, ends: np.ndarray, vertices: np.ndarray)
 
     Segment ``j`` starts at vertex ``j`` of the polyline, so the two polyline
     edges that touch vertex ``j`` are not tested.
+
+    Parameters
+    ----------
+    starts : ndarray, (n, 2)
+        Segment starts: the polyline's vertices, continuous units.
+    ends : ndarray, (n, 2)
+        Segment ends, same units.
+    vertices : ndarray, (n, 2)
+        Vertices of the closed polyline, same units.
+
+    Returns
+    -------
+    ndarray of bool, (n,)
+        Whether each segment crosses the polyline.
     """
     n = len(vertices)
     nxt = np.roll(vertices, -1, axis=0)
@@ -155,7 +214,22 @@ def crosses_polyline(starts: np.ndarray, ends: np.ndarray, vertices: np.ndarray)
 
 
 def project_on_curve(points: np.ndarray, curve: Curve) -> tuple[np.ndarray, np.ndarray]:
-    """Arc parameter of the nearest point of ``curve`` and the distance to it, for points ``(n, 2)``."""
+    """Arc parameter of the nearest point of ``curve`` and the distance to it.
+
+    Parameters
+    ----------
+    points : ndarray, (n, 2)
+        Points, continuous units (m in a scan's local frame).
+    curve : Curve
+        The closed polyline.
+
+    Returns
+    -------
+    arc : ndarray, (n,)
+        Arc parameter of the nearest point of the curve, continuous units from its vertex 0.
+    distance : ndarray, (n,)
+        Distance to that point, continuous units.
+    """
     start = curve.points
     edge = np.roll(start, -1, axis=0) - start
     length2 = np.maximum(np.sum(edge**2, axis=1), 1e-300)

@@ -40,7 +40,22 @@ from leafsfs.segment import split_parts
 
 
 def smooth_alpha(alpha: np.ndarray, mask: np.ndarray, passes: int) -> np.ndarray:
-    """Repeated normalised 3 x 3 mean of ``alpha`` over ``mask`` (digest §3.1, A13); NaN off the mask."""
+    """Repeated normalised 3 x 3 mean of ``alpha`` over ``mask`` (digest §3.1, A13); NaN off the mask.
+
+    Parameters
+    ----------
+    alpha : ndarray, 2-D
+        Incidence angle of every pixel, rad.
+    mask : ndarray of bool, 2-D
+        Pixels averaged (and the only ones given a value).
+    passes : int
+        Number of 3 x 3 smoothing passes (0 keeps ``alpha`` on the mask).
+
+    Returns
+    -------
+    ndarray, 2-D
+        Smoothed alpha, rad.
+    """
     weight = ndimage.uniform_filter(mask.astype(float), size=3, mode="nearest")
     values = np.where(mask, alpha, 0.0)
     for _ in range(passes):
@@ -121,6 +136,23 @@ def domain_thresholds(alpha: np.ndarray, mask: np.ndarray, params: SfsParams,
 
     The shell rule measures the object ``mask``; the quantiles are those of its
     ``reliable`` pixels (default: all of them).
+
+    Parameters
+    ----------
+    alpha : ndarray, 2-D
+        Smoothed alpha image, rad.
+    mask : ndarray of bool, 2-D
+        The object's pixels.
+    params : SfsParams
+        Quantisation rule (``quantization``: fixed thresholds in degrees, the
+        shell rule or fixed area fractions) and its parameters.
+    reliable : ndarray of bool, 2-D, optional
+        Pixels whose alpha values set the quantiles (default, or when empty: ``mask``).
+
+    Returns
+    -------
+    ndarray
+        Increasing thresholds, rad.
     """
     reliable = mask if reliable is None or not reliable.any() else reliable
     if params.quantization == "fixed":
@@ -160,10 +192,39 @@ def reconstruct_heights(alpha: np.ndarray, height: np.ndarray, mask: np.ndarray 
         mixed points at edges): they are left out of the smoothing and of
         every use of the measured heights, and join the outermost domain.
 
+    Returns
+    -------
+    HeightResult
+
     Raises
     ------
     SfsError
         On inconsistent shapes, an empty object or an unknown variant.
+
+    Examples
+    --------
+    A spherical cap (sphere radius 4 cm) seen along its axis over a disk of
+    radius 2 cm, on 1 mm pixels. The alpha image covers the disk; the
+    measured heights only its central 1 cm, yet the propagation gives every
+    pixel a height within half a millimetre of the truth. Domains of 10 % of
+    the area each: the default shell rule would make nearly all of an object
+    this small (41 pixels across) its seed.
+
+    >>> import numpy as np
+    >>> from leafsfs import SfsParams, reconstruct_heights
+    >>> from leafsfs.grid import PixelGrid
+    >>> y, x = np.mgrid[-20:21, -20:21] * 0.001                 # m
+    >>> r = np.hypot(x, y)
+    >>> mask = r <= 0.02
+    >>> truth = np.sqrt(0.04**2 - np.minimum(r, 0.02) ** 2)     # heights, m
+    >>> alpha = np.where(mask, np.arcsin(np.minimum(r, 0.02) / 0.04), np.nan)  # rad
+    >>> measured = np.where(r < 0.01, truth, np.nan)
+    >>> grid = PixelGrid(0.001 * np.eye(2), (-0.02, -0.02))
+    >>> params = SfsParams(quantization="percentile", eps_seed=0.1, eps_alpha=0.1)
+    >>> result = reconstruct_heights(alpha, measured, mask, grid, params=params)
+    >>> error = np.abs(result.height - truth)[mask]
+    >>> bool(np.isfinite(error).all()), bool(error.max() < 0.5e-3)
+    (True, True)
     """
     params = params or SfsParams()
     grid = grid or PixelGrid()

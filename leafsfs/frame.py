@@ -70,7 +70,20 @@ class LocalFrame:
         return self.reference_range * np.exp(np.asarray(height) / self.reference_range)
 
     def world_points(self, pixels: np.ndarray, heights: np.ndarray) -> np.ndarray:
-        """World coordinates of points given by sub-pixel positions (box pixels) and heights, ``(n, 3)``."""
+        """World coordinates of points given by sub-pixel positions (box pixels) and heights.
+
+        Parameters
+        ----------
+        pixels : ndarray, (n, 2)
+            Sub-pixel positions (row, col) in the box, pixels.
+        heights : ndarray, (n,)
+            Heights ``d0 ln(r / d0)``, m (:meth:`height`).
+
+        Returns
+        -------
+        ndarray, (n, 3)
+            World coordinates, m.
+        """
         rows, cols = self.directions.shape[:2]
         base = np.clip(np.floor(pixels).astype(int), 0, [rows - 2, cols - 2])
         frac = np.clip(pixels - base, 0.0, 1.0)
@@ -102,6 +115,10 @@ def local_frame(theta: np.ndarray, psi: np.ndarray, range_m: np.ndarray, mask: n
         Further pixels the box must hold (e.g. the object's mixed edge pulses).
     margin : int
         Pixels kept around the object's bounding box.
+
+    Returns
+    -------
+    LocalFrame
 
     Raises
     ------

@@ -80,6 +80,28 @@ class Fusion:
         ``alpha_spread`` is the standard deviation of ``tan(alpha)`` over the
         annulus' pixels: one alpha stands for the whole domain, so the slope
         of the sand-pile model is uncertain by that much (quantisation error).
+
+        Parameters
+        ----------
+        inner : leafsfs.seed.CurveState
+            The inner 3-D curve of the annulus (points in continuous units, m in a scan's local frame).
+        alpha : float
+            Alpha of the annulus' domain, rad.
+        alpha_spread : float
+            Standard deviation of ``tan(alpha)`` over the annulus (dimensionless).
+        direction : ndarray, (n, 2)
+            Predicted unit horizontal propagation directions.
+        gradient : ndarray, (n, 2)
+            Predicted height gradients (height per continuous unit).
+
+        Returns
+        -------
+        direction : ndarray, (n, 2)
+            Fused unit propagation directions (unchanged at toggle points).
+        gradient : ndarray, (n, 2)
+            Fused height gradients.
+        covariance : ndarray, (n, 2, 2)
+            Their covariances (squared gradient units).
         """
         n = len(inner)
         t = inner.tangents
@@ -125,7 +147,17 @@ class Fusion:
         return new_direction, fused, covariance
 
     def fuse_heights(self, lines, gradient_covariance: np.ndarray) -> None:
-        """Kalman update of the lines' end heights with the measured heights there (in place)."""
+        """Kalman update of the lines' end heights with the measured heights there (in place).
+
+        Parameters
+        ----------
+        lines : leafsfs.propagate.Lines
+            The annulus' propagation lines; ``end_h``, ``end_variance`` and
+            ``gradient`` are updated.
+        gradient_covariance : ndarray, (n, 2, 2)
+            Covariance of each line's gradient (squared height per continuous
+            unit), from :meth:`fuse_gradients`.
+        """
         step = lines.end - lines.start
         predicted_var = lines.end_variance + np.einsum("ni,nij,nj->n", step, gradient_covariance, step)
         measured = bilinear(self.height, self.valid, self._pixels(lines.end))

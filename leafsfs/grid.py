@@ -64,6 +64,20 @@ def bilinear(image: np.ndarray, valid: np.ndarray, points_px: np.ndarray) -> np.
     """Bilinear samples of ``image`` at sub-pixel positions, using only ``valid`` pixels (weights renormalised).
 
     Returns NaN where none of the four neighbours is valid.
+
+    Parameters
+    ----------
+    image : ndarray, 2-D
+        Values to sample (e.g. heights, m).
+    valid : ndarray of bool, 2-D
+        Pixels that may be used.
+    points_px : ndarray, (n, 2)
+        Sub-pixel positions (row, col), pixels.
+
+    Returns
+    -------
+    ndarray, (n,)
+        Samples, in the image's unit.
     """
     rows, cols = image.shape
     base = np.floor(points_px).astype(int)
@@ -131,6 +145,11 @@ def local_planes(image: np.ndarray, valid: np.ndarray, grid: PixelGrid, centres:
         Neighbourhood radius, pixels.
     order : {1, 2}
         Degree of the fitted polynomial surface.
+
+    Returns
+    -------
+    LocalPlanes
+        One plane per centre (heights in the image's unit, gradients per continuous unit).
     """
     r = int(np.floor(radius_px))
     di, dj = np.mgrid[-r:r + 1, -r:r + 1]

@@ -23,7 +23,22 @@ class MeshBuilder:
         self.count = 0
 
     def add(self, points: np.ndarray, points_px: np.ndarray, heights: np.ndarray) -> np.ndarray:
-        """Append vertices; returns their indices."""
+        """Append vertices; returns their indices.
+
+        Parameters
+        ----------
+        points : ndarray, (n, 2)
+            Lateral positions ``x1, x2``, continuous units (m in a scan's local frame).
+        points_px : ndarray, (n, 2)
+            The same positions in pixels (row, col).
+        heights : ndarray, (n,)
+            Heights ``h``, same units as ``points``.
+
+        Returns
+        -------
+        ndarray of int, (n,)
+            Indices of the new vertices.
+        """
         n = len(points)
         while self.count + n > len(self._vertices):
             self._vertices = np.concatenate([self._vertices, np.zeros_like(self._vertices)])

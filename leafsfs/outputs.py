@@ -21,6 +21,13 @@ def write_outputs(result: SfsResult, outdir) -> dict[str, Path]:
     ``n_outliers`` and the other traits), the redundancy ratios and the
     parameters.
 
+    Parameters
+    ----------
+    result : SfsResult
+        The reconstruction (:func:`leafsfs.reconstruct`).
+    outdir : str or Path
+        Output folder (created if missing; existing files of these names are replaced).
+
     Returns
     -------
     dict of str to Path
@@ -51,7 +58,20 @@ def json_ready(value):
 
 
 def preview(result: SfsResult, path) -> Path:
-    """Two panels over the leaves: smoothed alpha with the iso-alpha curves, and the range correction (mm)."""
+    """Two panels over the leaves: smoothed alpha with the iso-alpha curves, and the range correction (mm).
+
+    Parameters
+    ----------
+    result : SfsResult
+        The reconstruction (:func:`leafsfs.reconstruct`).
+    path : str or Path
+        The PNG file to write.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
     import matplotlib
 
     matplotlib.use("Agg")

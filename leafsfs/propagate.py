@@ -63,6 +63,15 @@ class Workspace:
     stats: dict = field(default_factory=dict)
 
     def count(self, key: str, value: int) -> None:
+        """Add to a counter of :attr:`stats`.
+
+        Parameters
+        ----------
+        key : str
+            Counter name.
+        value : int
+            Amount added (the counter starts at 0).
+        """
         self.stats[key] = self.stats.get(key, 0) + int(value)
 
 
@@ -81,7 +90,20 @@ class Lines:
     end_variance: np.ndarray
 
     def plane(self, k: np.ndarray, points: np.ndarray) -> np.ndarray:
-        """Height of the tangent planes of lines ``k`` at ``points``."""
+        """Height of the tangent planes of lines ``k`` at ``points``.
+
+        Parameters
+        ----------
+        k : ndarray of int, (n,)
+            Line indices.
+        points : ndarray, (n, 2)
+            Points, continuous units (m in a scan's local frame).
+
+        Returns
+        -------
+        ndarray, (n,)
+            Heights, height units (m in a scan's local frame).
+        """
         return self.start_h[k] + np.sum(self.gradient[k] * (points - self.start[k]), axis=1)
 
     def slope(self, k: np.ndarray) -> np.ndarray:
@@ -395,6 +417,12 @@ def fill_heights(points: np.ndarray, ka: np.ndarray, kb: np.ndarray, lines: Line
 
     Parameters
     ----------
+    points : ndarray, (n, 2)
+        Points to fill, continuous units (m in a scan's local frame).
+    ka, kb : ndarray of int, (n,)
+        The two bounding lines of each point's wedge.
+    lines : Lines
+        The annulus' propagation lines.
     fill : {"planar", "ruled", "cone"}
         ``planar``: blend of the two lines' tangent planes with weight
         ``weight`` (default: relative distance to the two lines).
@@ -405,6 +433,8 @@ def fill_heights(points: np.ndarray, ka: np.ndarray, kb: np.ndarray, lines: Line
         ``v`` solves a quadratic. ``cone``: where the two lines meet behind
         their starts at heights that agree within 5 %, the circular cone of
         that apex; elsewhere ``ruled``.
+    weight : ndarray, (n,), optional
+        Blend weight toward line ``kb``, in [0, 1] (``planar`` only).
 
     Returns
     -------

@@ -25,7 +25,20 @@ SHELL_SETS = {"T1": (2, 2), "T2": (3, 2), "T3": (4, 2), "T3*": (4, 1)}
 
 
 def shell_fractions(mask: np.ndarray, shell_set: str) -> tuple[float, float]:
-    """``(eps_alpha, eps_seed)`` of the shell rule for an object mask and a parameter set (T1, T2, T3, T3*)."""
+    """``(eps_alpha, eps_seed)`` of the shell rule for an object mask and a parameter set.
+
+    Parameters
+    ----------
+    mask : ndarray of bool, 2-D
+        The object's pixels.
+    shell_set : {"T1", "T2", "T3", "T3*"}
+        Chapter-7 parameter set: shell number ``mu`` and seed factor ``nu`` (:data:`SHELL_SETS`).
+
+    Returns
+    -------
+    eps_alpha, eps_seed : float
+        Area fractions (of the object's pixels) of every domain and of the seed domain, in (0, 1].
+    """
     mu, nu = SHELL_SETS[shell_set]
     a_tot = int(mask.sum())
     a_shell = int(contour_pixels(mask).sum())
@@ -38,6 +51,20 @@ def quantile_thresholds(values: np.ndarray, eps_alpha: float, eps_seed: float) -
 
     ``alpha_0 = Q(eps_seed)``, ``alpha_i = Q(eps_seed + i eps_alpha)`` while the
     fraction is below 1 (digest §3.2). Equal quantiles (flat alpha) collapse.
+
+    Parameters
+    ----------
+    values : ndarray
+        Alpha values of the object's pixels, rad.
+    eps_alpha : float
+        Area fraction of every domain after the seed, in (0, 1].
+    eps_seed : float
+        Area fraction of the seed domain, in (0, 1].
+
+    Returns
+    -------
+    ndarray
+        The thresholds, rad.
     """
     fractions = np.arange(eps_seed, 1.0 - 1e-9, eps_alpha)
     inner = np.quantile(values, fractions) if len(fractions) else np.zeros(0)
@@ -45,6 +72,21 @@ def quantile_thresholds(values: np.ndarray, eps_alpha: float, eps_seed: float) -
 
 
 def assign_levels(alpha: np.ndarray, mask: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
-    """Domain index of every pixel: 0 for ``alpha <= alpha_0``, ``i`` for ``alpha_(i-1) < alpha <= alpha_i``; -1 off the mask."""
+    """Domain index of every pixel: 0 for ``alpha <= alpha_0``, ``i`` for ``alpha_(i-1) < alpha <= alpha_i``; -1 off the mask.
+
+    Parameters
+    ----------
+    alpha : ndarray, 2-D
+        Alpha image, rad.
+    mask : ndarray of bool, 2-D
+        The object's pixels.
+    thresholds : ndarray
+        Increasing thresholds ``alpha_0 .. alpha_n``, rad (:func:`quantile_thresholds`).
+
+    Returns
+    -------
+    ndarray of int, 2-D
+        Domain index of every pixel.
+    """
     levels = np.searchsorted(thresholds, np.where(mask, alpha, 0.0), side="left")
     return np.where(mask, np.minimum(levels, len(thresholds) - 1), -1)

@@ -72,14 +72,18 @@ def lowpass_closed(values: np.ndarray, arc: np.ndarray, length: float, harmonics
     Parameters
     ----------
     values : ndarray, (n,)
-        Samples at the arc parameters ``arc`` (increasing, in ``[0, length)``).
+        Samples at the arc parameters ``arc`` (e.g. heights, m).
+    arc : ndarray, (n,)
+        Arc parameters of the samples, increasing in ``[0, length)``, continuous units.
+    length : float
+        Length of the closed curve, same units.
     harmonics : int or None
         Highest harmonic kept (``k`` cycles per curve length); None keeps all.
 
     Returns
     -------
     filtered, derivative : ndarray, (n,)
-        The filtered signal and ``d/ds`` of it at ``arc``.
+        The filtered signal and ``d/ds`` of it at ``arc`` (signal units per continuous unit).
     """
     n = len(values)
     uniform = np.arange(n) * length / n
@@ -110,6 +114,11 @@ def mark_toggles(sines: np.ndarray, window: int) -> np.ndarray:
         Sign runs shorter than ``window`` points are noise and take the sign
         of their neighbours; each remaining change gets one toggle, at the
         point within ``window`` points of it with the smallest ``|sines|``.
+
+    Returns
+    -------
+    ndarray of int, (n,)
+        +1 (descending direction on the left), -1 (on the right) or 0 (toggle point).
     """
     sign = np.where(sines >= 0, 1, -1)
     n = len(sign)
@@ -133,7 +142,25 @@ def mark_toggles(sines: np.ndarray, window: int) -> np.ndarray:
 
 
 def seed_harmonics(curve: Curve, seed_area_px: int, cutoff, peaks: int) -> int | None:
-    """Highest harmonic kept on the seed curve: ``round(f_c L_px)`` (None: no filtering)."""
+    """Highest harmonic kept on the seed curve: ``round(f_c L_px)`` (None: no filtering).
+
+    Parameters
+    ----------
+    curve : Curve
+        The seed's boundary curve (its length is measured in pixels, ``L_px``).
+    seed_area_px : int
+        Area of the seed region ``a_seed``, pixels.
+    cutoff : "auto", float or None
+        Cutoff ``f_c`` in cycles per pixel of arc; ``"auto"`` = ``peaks / l``
+        with ``l = 2 sqrt(pi a_seed)`` (thesis eq 3.4); None: no filtering.
+    peaks : int
+        Number of peaks of the seed curve in the ``"auto"`` cutoff.
+
+    Returns
+    -------
+    int or None
+        Highest harmonic kept (cycles per curve length).
+    """
     if cutoff is None:
         return None
     length_px = float(np.sum(np.linalg.norm(np.roll(curve.points_px, -1, axis=0) - curve.points_px, axis=1)))
@@ -143,7 +170,30 @@ def seed_harmonics(curve: Curve, seed_area_px: int, cutoff, peaks: int) -> int |
 
 def initial_state(curve: Curve, height: np.ndarray, valid: np.ndarray, grid: PixelGrid, harmonics: int | None,
                   lsr_radius_px: float, toggle_window: int) -> CurveState | None:
-    """3-D state of the seed's outer curve from the range (height) image; None without valid heights."""
+    """3-D state of the seed's outer curve from the range (height) image; None without valid heights.
+
+    Parameters
+    ----------
+    curve : Curve
+        The seed's boundary curve.
+    height : ndarray, 2-D
+        Measured heights (the range image in the local frame, m; NaN = none).
+    valid : ndarray of bool, 2-D
+        Pixels whose heights may be used.
+    grid : PixelGrid
+        Pixel-to-continuous map of ``height``.
+    harmonics : int or None
+        Highest harmonic kept by the low-pass along the curve (:func:`seed_harmonics`).
+    lsr_radius_px : float
+        Radius of the local least-squares planes that set the greatest-slope signs, pixels.
+    toggle_window : int
+        Sign runs shorter than this (points) are noise (:func:`mark_toggles`).
+
+    Returns
+    -------
+    CurveState or None
+        The seed curve's 3-D state, or None if fewer than 3 of its points have a height.
+    """
     sampled = bilinear(height, valid, curve.points_px)
     good = np.isfinite(sampled)
     if good.sum() < 3:

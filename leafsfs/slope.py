@@ -29,13 +29,37 @@ import numpy as np
 
 
 def rotate(vectors: np.ndarray, angles: np.ndarray) -> np.ndarray:
-    """Rotate 2-D vectors ``(n, 2)`` counter-clockwise by ``angles`` ``(n,)``."""
+    """Rotate 2-D vectors counter-clockwise.
+
+    Parameters
+    ----------
+    vectors : ndarray, (n, 2)
+        Vectors to rotate (any length unit; lengths are kept).
+    angles : ndarray, (n,)
+        Counter-clockwise rotation of each vector, rad.
+
+    Returns
+    -------
+    ndarray, (n, 2)
+        The rotated vectors.
+    """
     c, s = np.cos(angles), np.sin(angles)
     return np.stack([c * vectors[:, 0] - s * vectors[:, 1], s * vectors[:, 0] + c * vectors[:, 1]], axis=1)
 
 
 def cross2(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """2-D cross product ``u_x v_y - u_y v_x`` (positive when ``v`` is left of ``u``)."""
+    """2-D cross product ``u_x v_y - u_y v_x`` (positive when ``v`` is left of ``u``).
+
+    Parameters
+    ----------
+    u, v : ndarray, (..., 2)
+        Vectors (broadcast over the leading axes; any length unit).
+
+    Returns
+    -------
+    ndarray, (...)
+        The cross product, in the product of the two vectors' units.
+    """
     return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
 
 
@@ -49,23 +73,83 @@ def gs_azimuth(gamma: np.ndarray, alpha: np.ndarray, sign: np.ndarray) -> np.nda
 
     ``tan|gamma| / tan(alpha)`` is clamped to [0, 1]: noise can make the curve
     steeper than the region allows (digest §3.6.3 step 2).
+
+    Parameters
+    ----------
+    gamma : ndarray, (n,)
+        Elevation of the curve's 3-D tangent, rad (positive rising along the curve).
+    alpha : ndarray, (n,)
+        Angle between the surface normal and the view axis e3, rad, in (0, pi/2].
+    sign : ndarray, (n,)
+        Side of the curve on which the descending GS direction lies (eq 2.6):
+        +1 left, -1 right, 0 at a toggle point.
+
+    Returns
+    -------
+    ndarray, (n,)
+        ``phi``, rad.
     """
     ratio = np.clip(np.tan(np.abs(gamma)) / np.tan(alpha), 0.0, 1.0)
     return sign * np.abs(np.where(gamma >= 0, np.pi, 0.0) - np.arccos(ratio))
 
 
 def descending_direction(t: np.ndarray, gamma: np.ndarray, alpha: np.ndarray, sign: np.ndarray) -> np.ndarray:
-    """Horizontal unit descending GS direction ``g = R(phi) t`` (eqs 2.7-2.8)."""
+    """Horizontal unit descending GS direction ``g = R(phi) t`` (eqs 2.7-2.8).
+
+    Parameters
+    ----------
+    t : ndarray, (n, 2)
+        Horizontal unit tangents of the curve.
+    gamma : ndarray, (n,)
+        Elevation of the curve's 3-D tangent, rad.
+    alpha : ndarray, (n,)
+        Angle between the surface normal and the view axis, rad.
+    sign : ndarray, (n,)
+        Side of the GS direction (eq 2.6): +1 left, -1 right, 0 toggle.
+
+    Returns
+    -------
+    ndarray, (n, 2)
+        Unit horizontal descending GS directions.
+    """
     return rotate(t, gs_azimuth(gamma, alpha, sign))
 
 
 def gs_vector(g: np.ndarray, alpha: np.ndarray) -> np.ndarray:
-    """Unit 3-D descending GS vector ``(cos(alpha) g, -sin(alpha))`` (eq 2.9)."""
+    """Unit 3-D descending GS vector ``(cos(alpha) g, -sin(alpha))`` (eq 2.9).
+
+    Parameters
+    ----------
+    g : ndarray, (n, 2)
+        Horizontal unit descending GS directions.
+    alpha : ndarray, (n,)
+        Angle between the surface normal and the view axis, rad.
+
+    Returns
+    -------
+    ndarray, (n, 3)
+        Unit GS vectors (the third component is along the view axis e3).
+    """
     return np.column_stack([np.cos(alpha)[:, None] * g, -np.sin(alpha)])
 
 
 def propagation_direction(t: np.ndarray, g: np.ndarray, sign: np.ndarray) -> np.ndarray:
-    """Outward horizontal propagation direction: ``-sign * g``, or the outward normal at toggles (``sign = 0``)."""
+    """Outward horizontal propagation direction: ``-sign * g``, or the outward normal at toggles (``sign = 0``).
+
+    Parameters
+    ----------
+    t : ndarray, (n, 2)
+        Horizontal unit tangents of the counter-clockwise curve.
+    g : ndarray, (n, 2)
+        Horizontal unit descending GS directions.
+    sign : ndarray, (n,)
+        Side of the GS direction (eq 2.6): +1 left, -1 right, 0 toggle.
+
+    Returns
+    -------
+    ndarray, (n, 2)
+        Unit horizontal propagation directions.
+    """
     return np.where((sign == 0)[:, None], outward_normal(t), -sign[:, None] * g)
 
 
@@ -81,6 +165,18 @@ def curve_tangent_3d(t: np.ndarray, normal: np.ndarray) -> np.ndarray:
     Closed form of ``T = sgn(x) (k x N)`` (``k`` the principal normal of the
     curve's projection): ``T ∝ (t, -(N_x t_x + N_y t_y) / N_z)``, oriented so
     that its horizontal part is ``+t``. ``normal`` must have ``N_z > 0``.
+
+    Parameters
+    ----------
+    t : ndarray, (n, 2)
+        Horizontal unit tangents of the curve.
+    normal : ndarray, (n, 3)
+        Unit surface normals with a positive third (view-axis) component.
+
+    Returns
+    -------
+    ndarray, (n, 3)
+        Unit 3-D tangents.
     """
     rise = -(normal[:, 0] * t[:, 0] + normal[:, 1] * t[:, 1]) / normal[:, 2]
     tangent = np.column_stack([t, rise])
@@ -93,5 +189,17 @@ def toggle_gradient(t: np.ndarray, gamma: np.ndarray) -> np.ndarray:
     At a toggle point the GS is tangent to the curve, so the plane through
     ``T = (t, tan gamma)`` and the horizontal outward normal has gradient
     ``tan(gamma) t``.
+
+    Parameters
+    ----------
+    t : ndarray, (n, 2)
+        Horizontal unit tangents of the curve.
+    gamma : ndarray, (n,)
+        Elevation of the curve's 3-D tangent, rad.
+
+    Returns
+    -------
+    ndarray, (n, 2)
+        Height gradient, height units per continuous unit (m/m in a scan's local frame).
     """
     return np.tan(gamma)[:, None] * t

@@ -64,6 +64,10 @@ def sample_surface(surface, side: int, *, alpha_noise_deg: float = 0.0, alpha_bi
         Amplitude of the uniform height noise, as a fraction of ``h_max - h_min``.
     seed : int
         Seed of the noise generator.
+
+    Returns
+    -------
+    SyntheticInput
     """
     x, y, h, mask = surface.sample(side, side)
     alpha = np.where(mask, surface.alpha(x, y), np.nan)
@@ -106,7 +110,20 @@ class LambertCalibration:
         self.model, self.reflectance, self.limit = model, float(reflectance), np.radians(limit_deg)
 
     def alpha(self, intensity_dn, range_m) -> np.ndarray:
-        """Incidence from raw intensity and range, rad in [0, pi/2]."""
+        """Incidence from raw intensity and range, rad in [0, pi/2].
+
+        Parameters
+        ----------
+        intensity_dn : array_like
+            Raw intensities, DN.
+        range_m : array_like
+            Ranges, m (same shape).
+
+        Returns
+        -------
+        ndarray
+            Incidence angles, rad.
+        """
         from tlssim.radiometry import range_gain, reference_power
 
         power = np.exp((np.asarray(intensity_dn, float) - self.model.intensity_ref_dn) / self.model.log_gain_dn) \
@@ -115,5 +132,18 @@ class LambertCalibration:
         return np.arccos(np.clip(cosine, 0.0, 1.0))
 
     def reliable(self, intensity_dn, range_m) -> np.ndarray:
-        """Whether the incidence lies below the validity limit."""
+        """Whether the incidence lies below the validity limit.
+
+        Parameters
+        ----------
+        intensity_dn : array_like
+            Raw intensities, DN.
+        range_m : array_like
+            Ranges, m (same shape).
+
+        Returns
+        -------
+        ndarray of bool
+            Whether :meth:`alpha` is below ``limit_deg``.
+        """
         return self.alpha(intensity_dn, range_m) < self.limit

@@ -19,6 +19,11 @@ ENABLED = {
     "scenes": None,
     "tlssim": ("noise.py", "radiometry.py", "detector.py", "ranging.py", "bsdf.py", "beam.py",
                "backend.py", "preview.py"),
+    "leafsfs": ("slope.py", "curves.py", "quantize.py", "engine.py", "fusion.py", "propagate.py", "seed.py",
+                "outputs.py", "baselines.py", "frame.py", "grid.py", "euclid.py", "contour.py", "mesh.py",
+                "synthetic.py"),
+    "woody": ("snake.py", "hough.py", "synthetic.py", "scoring.py", "normals.py", "cylfit.py", "branch.py",
+              "growth.py", "merge.py", "balance.py"),
 }
 
 # ``name : type`` (several names may share one entry); ``*args`` and ``**kwargs`` may stand alone.

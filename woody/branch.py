@@ -123,8 +123,19 @@ class Branch:
 
         Parameters
         ----------
-        n, total, outer, normal_outer
-            Running sums as in :meth:`shape_direction` (m, m^2).
+        n : int
+            Number of points.
+        total : ndarray, (3,)
+            Sum of the points, m.
+        outer : ndarray, (3, 3)
+            Sum of the points' outer products, m^2.
+        normal_outer : ndarray, (3, 3)
+            Sum of the unit normals' outer products (used in "normals" mode).
+
+        Returns
+        -------
+        ndarray, (3,) or None
+            Unit axis direction.
         """
         if n < 3:
             return None
@@ -266,5 +277,9 @@ def is_significant(order: int, count: int, params) -> bool:
         Number of points of the branch.
     params : woody.cylinders.FollowParams
         Settings (``ord_min1``, ``ord_min2``, ``n_min_factor``, free-seed counts).
+
+    Returns
+    -------
+    bool
     """
     return order < params.ord_min1 or (order < params.ord_min2 and count > params.n_min_factor * params.n_s(order))

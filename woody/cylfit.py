@@ -153,5 +153,10 @@ def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     ----------
     a, b : ndarray, (3,)
         Unit vectors.
+
+    Returns
+    -------
+    float
+        Angle in [0, 180], degrees.
     """
     return float(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))))

@@ -72,6 +72,21 @@ class HoughGrid:
                r_max_m: float) -> "HoughGrid":
         """The grid covering ``points`` padded by ``r_max_m`` (every possible vote).
 
+        Parameters
+        ----------
+        points : ndarray, (n, 3)
+            Coordinates, m.
+        cell_m : float
+            Cell size in x, y, z, m (at least ``2 radius_step_m``).
+        radius_step_m : float
+            Cell size in r, m (below ``r_min_m``).
+        r_min_m, r_max_m : float
+            Smallest and largest radius sought, m.
+
+        Returns
+        -------
+        HoughGrid
+
         Raises
         ------
         WoodyError
@@ -173,14 +188,40 @@ class HoughSpace:
         return pos, self.keys[pos] == keys
 
     def values_at(self, values: np.ndarray, index: np.ndarray) -> np.ndarray:
-        """Per-cell ``values`` (aligned with :attr:`keys`) at integer indices; 0 for empty or outside cells."""
+        """Per-cell ``values`` (aligned with :attr:`keys`) at integer indices; 0 for empty or outside cells.
+
+        Parameters
+        ----------
+        values : ndarray, (m,)
+            One value per occupied cell (e.g. :attr:`counts`, votes, or an energy).
+        index : ndarray of int, (..., 4)
+            Cell indices (x, y, z, r).
+
+        Returns
+        -------
+        ndarray, (...)
+            The values, in the unit of ``values``.
+        """
         index = np.asarray(index, np.int64)
         inside = self.grid.interior(index)
         pos, found = self.find(self.grid.pack(np.where(inside[..., None], index, 0)))
         return np.where(found & inside, values[pos], 0)
 
     def interpolate(self, values: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Quadrilinear interpolation of per-cell ``values`` at continuous indices ``u`` (m, 4)."""
+        """Quadrilinear interpolation of per-cell ``values`` at continuous indices ``u``.
+
+        Parameters
+        ----------
+        values : ndarray, (m,)
+            One value per occupied cell (empty cells count as 0).
+        u : ndarray, (n, 4)
+            Continuous index coordinates (cell units, :meth:`HoughGrid.to_index`).
+
+        Returns
+        -------
+        ndarray, (n,)
+            Interpolated values, in the unit of ``values``.
+        """
         u = np.asarray(u, float)
         base = np.floor(u).astype(np.int64)
         frac = u - base

@@ -54,8 +54,19 @@ def _cylinders_of(value, name: str) -> list[dict]:
 def sample_centrelines(arr: dict, step_m: float) -> dict:
     """Centreline samples of a cylinder list: midpoints of pieces of at most ``step_m``.
 
-    Returns arrays ``xyz``, ``radius``, ``direction``, ``length`` (of the
-    piece), ``row`` (cylinder row) and ``hidden`` (inside another cylinder).
+    Parameters
+    ----------
+    arr : dict of ndarray
+        Cylinder columns (:func:`woody.geometry.cylinder_arrays`: ``start``,
+        ``end`` in m, radii ``r0``, ``r1`` in m).
+    step_m : float
+        Longest piece, m (> 0).
+
+    Returns
+    -------
+    dict of ndarray
+        ``xyz`` (m), ``radius`` (m), ``direction`` (unit), ``length`` (of the
+        piece, m), ``row`` (cylinder row) and ``hidden`` (inside another cylinder).
     """
     xyz, radius, direction, length, row = [], [], [], [], []
     for i, (a, b, r0, r1) in enumerate(zip(arr["start"], arr["end"], arr["r0"], arr["r1"])):
@@ -106,11 +117,25 @@ def match_samples(samples: dict, target: dict, min_tolerance_m: float, max_angle
                   tolerance_from: str = "sample") -> dict:
     """Match centreline samples to the nearest admissible axis of ``target`` cylinders.
 
-    ``tolerance_from="sample"``: tolerance ``max(sample radius, min)``;
-    ``"target"``: ``max(target radius there, min)``.
+    Parameters
+    ----------
+    samples : dict of ndarray
+        Centreline samples (:func:`sample_centrelines`).
+    target : dict of ndarray
+        Cylinder columns to match against (:func:`woody.geometry.cylinder_arrays`).
+    min_tolerance_m : float
+        Smallest distance tolerance, m.
+    max_angle_deg : float
+        Largest angle between a sample's direction and a matched axis, degrees.
+    tolerance_from : {"sample", "target"}
+        ``"sample"``: tolerance ``max(sample radius, min_tolerance_m)``;
+        ``"target"``: ``max(target radius there, min_tolerance_m)``.
 
-    Returns ``row`` (matched target row or -1), ``radius`` (target radius at
-    the match), ``angle_deg`` and ``distance``.
+    Returns
+    -------
+    dict of ndarray
+        ``row`` (matched target row or -1), ``radius`` (target radius at the
+        match, m), ``angle_deg`` and ``distance`` (m); NaN where unmatched.
     """
     count = len(samples["xyz"])
     out = {"row": np.full(count, -1), "radius": np.full(count, np.nan), "angle_deg": np.full(count, np.nan),

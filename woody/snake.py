@@ -114,7 +114,23 @@ class SnakeParams:
 
 
 def data_energy(hs: HoughSpace, h_min: np.ndarray, h_max: np.ndarray, balance: float) -> np.ndarray:
-    """Eq. 8 on every occupied cell (aligned with ``hs.keys``); empty cells have energy 0."""
+    """Eq. 8 on every occupied cell (aligned with ``hs.keys``); empty cells have energy 0.
+
+    Parameters
+    ----------
+    hs : HoughSpace
+        The accumulator (its vote counts are the score ``H``).
+    h_min, h_max : ndarray of int, (m,)
+        Lowest and highest score over each occupied cell's 3^4 neighbourhood
+        (:meth:`HoughSpace.neighbourhood`), votes.
+    balance : float
+        ``a`` of eq. 8: weight of the global against the local contrast, in [0, 1].
+
+    Returns
+    -------
+    ndarray, (m,)
+        ``E_d`` of each occupied cell, dimensionless in [-1, 0].
+    """
     score = hs.counts.astype(float)
     top = score.max() if len(score) else 1.0
     spread = (h_max - h_min).astype(float)
@@ -128,7 +144,20 @@ def upca(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def seed_segment(hs: HoughSpace, seed: np.ndarray) -> np.ndarray:
-    """Initial three-vertex snake through a seed cell along the UPCA axis of its weighted neighbours (eq. A.8)."""
+    """Initial three-vertex snake through a seed cell along the UPCA axis of its weighted neighbours (eq. A.8).
+
+    Parameters
+    ----------
+    hs : HoughSpace
+        The accumulator.
+    seed : ndarray of int, (4,)
+        Seed cell indices (x, y, z, r).
+
+    Returns
+    -------
+    ndarray, (3, 4)
+        Vertices one cell apart, index space.
+    """
     neighbours = seed + NEIGHBOUR_OFFSETS
     score = hs.values_at(hs.counts, neighbours).astype(float)
     offsets = NEIGHBOUR_OFFSETS.astype(float)
@@ -184,7 +213,20 @@ class Snake:
         return values[0], gradient
 
     def minimise(self, c: np.ndarray, iterations: int) -> np.ndarray:
-        """Run ``iterations`` semi-implicit steps of eq. 15 on the polyline ``c`` (k, 4)."""
+        """Run ``iterations`` semi-implicit steps of eq. 15 on the polyline ``c``.
+
+        Parameters
+        ----------
+        c : ndarray, (k, 4)
+            Vertices, Hough index space (cell units).
+        iterations : int
+            Number of steps (0, or fewer than 3 vertices, returns ``c``).
+
+        Returns
+        -------
+        ndarray, (k, 4)
+            The moved vertices, index space.
+        """
         k = len(c)
         if k < 3 or iterations == 0:
             return c
@@ -210,7 +252,22 @@ class Snake:
     # -- growth ---------------------------------------------------------------------------------
 
     def grow_direction(self, end: np.ndarray, tangent: np.ndarray) -> tuple[np.ndarray | None, float]:
-        """Growth direction at an end and the dominant UPCA share, or ``(None, 0)`` when the cone is empty."""
+        """Growth direction at an end and the dominant UPCA share, or ``(None, 0)`` when the cone is empty.
+
+        Parameters
+        ----------
+        end : ndarray, (4,)
+            The end vertex, index space (cell units).
+        tangent : ndarray, (4,)
+            Unit outward tangent at the end: the axis of the growth cone.
+
+        Returns
+        -------
+        direction : ndarray, (4,) or None
+            Unit growth direction (on the tangent's side), index space.
+        share : float
+            Largest UPCA eigenvalue over the sum of all four, in [0, 1].
+        """
         cells = np.rint(end).astype(np.int64) + self._ball
         vectors = cells - end
         length = np.linalg.norm(vectors, axis=1)
@@ -270,7 +327,23 @@ class Snake:
         return c, {"stop_start": reasons[0], "stop_end": reasons[-1], "growth_steps": steps}
 
     def run(self, seed: np.ndarray, conflict: Callable[[np.ndarray], bool] | None = None) -> tuple[np.ndarray, dict]:
-        """:meth:`grow`, then the final ``final_iterations`` minimisation steps."""
+        """:meth:`grow`, then the final ``final_iterations`` minimisation steps.
+
+        Parameters
+        ----------
+        seed : ndarray, (4,), int
+            Seed cell indices.
+        conflict : callable, optional
+            ``conflict(vertex)`` is True when a new vertex (index space)
+            collides with an accepted tuboid (see :meth:`grow`).
+
+        Returns
+        -------
+        vertices : ndarray, (k, 4)
+            Polyline, index space.
+        info : dict
+            As :meth:`grow`.
+        """
         c, info = self.grow(seed, conflict)
         return self.minimise(resample(c, 1.0), self.params.final_iterations), info
 
@@ -292,7 +365,20 @@ class Snake:
 
 
 def resample(c: np.ndarray, spacing: float) -> np.ndarray:
-    """The polyline resampled at (nearly) uniform arc length ``spacing``, end points kept."""
+    """The polyline resampled at (nearly) uniform arc length ``spacing``, end points kept.
+
+    Parameters
+    ----------
+    c : ndarray, (k, d)
+        Vertices (any unit; index space for snakes).
+    spacing : float
+        Target distance between vertices, same unit.
+
+    Returns
+    -------
+    ndarray, (m, d)
+        At least 3 vertices (``c`` itself if it has fewer than 2 or no length).
+    """
     seg = np.linalg.norm(np.diff(c, axis=0), axis=1)
     total = seg.sum()
     if len(c) < 2 or total == 0:

@@ -218,6 +218,20 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
     ------
     WoodyError
         On an invalid cloud or parameter.
+
+    Examples
+    --------
+    A vertical stem of radius 5 cm and 1 m length, sampled at 5000 points
+    per m^2 with its exact (outward) normals:
+
+    >>> from woody import step
+    >>> from woody.synthetic import sample_cylinders, straight_cylinder
+    >>> cloud = sample_cylinders(straight_cylinder(0.05, 1.0), 5e3, seed=0)
+    >>> result = step(cloud.points, cloud.normals)
+    >>> len(result.tuboids)
+    1
+    >>> round(result.diameter_at_height(0.5), 2), round(result.tuboids[0].length, 1)   # m
+    (0.1, 1.0)
     """
     timings = {}
     clock = time.perf_counter()

@@ -73,6 +73,11 @@ def sample_cylinders(cylinders: list[dict], density_per_m2: float, seed=0, arc_d
     drop_inside : bool
         Drop points that lie inside another cylinder (the buried base of a
         child branch).
+
+    Returns
+    -------
+    SyntheticCloud
+        Points (m), their outward unit normals, the row of the cylinder each lies on, and the cylinders.
     """
     if not density_per_m2 > 0:
         raise WoodyError(f"density_per_m2 must be positive, got {density_per_m2}")
@@ -136,6 +141,22 @@ def add_noise(points: np.ndarray, amplitude_m: float, seed=0, kind: str = "unifo
     """Points with isotropic coordinate noise (spec D-S13).
 
     ``kind="uniform"``: each coordinate shifted by U(-A, A); ``"gaussian"``: by N(0, A^2).
+
+    Parameters
+    ----------
+    points : ndarray, (n, 3)
+        Coordinates, m.
+    amplitude_m : float
+        ``A``, m (>= 0): half-width of the uniform noise or standard deviation of the Gaussian.
+    seed : int
+        Seed of the noise generator.
+    kind : {"uniform", "gaussian"}
+        Noise distribution.
+
+    Returns
+    -------
+    ndarray, (n, 3)
+        Noisy coordinates, m.
     """
     rng = np.random.default_rng(seed)
     if amplitude_m < 0:
@@ -154,13 +175,47 @@ def _cylinder(cid, parent, order, branch, start, end, r0, r1) -> dict:
 
 
 def straight_cylinder(radius_m: float = 0.5, length_m: float = 2.0) -> list[dict]:
-    """One vertical cylinder standing on the origin (STEP's DS1: 0.5 m x 2 m)."""
+    """One vertical cylinder standing on the origin (STEP's DS1: 0.5 m x 2 m).
+
+    Parameters
+    ----------
+    radius_m : float
+        Radius, m.
+    length_m : float
+        Length along +z, m.
+
+    Returns
+    -------
+    list of dict
+        One cylinder record (:mod:`woody.geometry`).
+    """
     return [_cylinder(0, -1, 1, 0, (0, 0, 0), (0, 0, length_m), radius_m, radius_m)]
 
 
 def polyline_cylinders(centres: np.ndarray, radii: np.ndarray, first_id: int = 0, parent: int = -1,
                        order: int = 1, branch: int = 0) -> list[dict]:
-    """A chain of frusta through centreline vertices (one branch, each piece parented to the previous)."""
+    """A chain of frusta through centreline vertices (one branch, each piece parented to the previous).
+
+    Parameters
+    ----------
+    centres : ndarray, (k, 3)
+        Centreline vertices, m.
+    radii : ndarray, (k,)
+        Radius at each vertex, m.
+    first_id : int
+        Id of the first frustum (the others follow).
+    parent : int
+        Parent id of the first frustum (-1: none).
+    order : int
+        Branching order of the chain (1: stem).
+    branch : int
+        Branch id of every frustum.
+
+    Returns
+    -------
+    list of dict
+        ``k - 1`` cylinder records (:mod:`woody.geometry`).
+    """
     out = []
     for i in range(len(centres) - 1):
         cid = first_id + i
@@ -189,6 +244,26 @@ def conifer_stem(height_m: float = 15.0, dbh_m: float = 0.30, whorl_step_m: floa
     ``dbh_m`` at 1.3 m to 2 cm at the top (sizes are assumptions: the paper
     gives none). Each whorl has 4-5 stubs of ``stub_m`` beyond the bark,
     radius 0.15 x the local stem radius, rising 30 deg above horizontal.
+
+    Parameters
+    ----------
+    height_m : float
+        Stem height, m (above 1.3 m).
+    dbh_m : float
+        Stem diameter at 1.3 m, m.
+    whorl_step_m : float
+        Vertical distance between whorls, m.
+    first_whorl_m : float
+        Height of the lowest whorl, m.
+    stub_m : float
+        Length of a stub beyond the bark, m.
+    seed : int
+        Seed of the whorl azimuths and stub counts.
+
+    Returns
+    -------
+    list of dict
+        Cylinder records (:mod:`woody.geometry`): the stem, then the stubs.
     """
     rng = np.random.default_rng(seed)
     z = np.linspace(0.0, height_m, int(round(height_m / 0.5)) + 1)
@@ -276,6 +351,18 @@ def vine_like(seed=0, shoots_per_arm: int = 5) -> list[dict]:
     Sizes are assumptions (trunk radius 2.5 cm, arms 1.8 cm tapering to 1
     cm, shoots 7 mm at the base and 0.8-1.1 m long); see
     :data:`VINE_SHOOT_SPEC`.
+
+    Parameters
+    ----------
+    seed : int
+        Seed of the shoot shapes.
+    shoots_per_arm : int
+        Upright shoots along each arm.
+
+    Returns
+    -------
+    list of dict
+        Cylinder records (:mod:`woody.geometry`).
     """
     rng = np.random.default_rng(seed)
     trunk_top = np.array([0.0, 0.0, 0.8])
