@@ -52,3 +52,11 @@ def test_normals_are_oriented_outwards_without_a_viewpoint(radius, arc_deg):
     normals = pca_normals(points, 16) * np.where(np.arange(len(points)) % 2, 1.0, -1.0)[:, None]  # random signs
     outward = np.einsum("ij,ij->i", orient_outward(points, normals), cloud.normals) > 0
     assert outward.mean() > 0.95
+
+
+def test_step_orients_estimated_normals_outwards_when_asked_without_a_viewpoint():
+    cloud = sample_cylinders(straight_cylinder(0.15, 0.6), 2e4, seed=5, arc_deg=180)
+    result = step(cloud.points, oriented=True, cell_m=0.02, radius_step_m=0.01, r_min_m=0.08, r_max_m=0.25)
+    assert result.stats["oriented"]
+    assert (np.einsum("ij,ij->i", result.normals, cloud.normals) > 0).mean() > 0.95
+    assert len(result.tuboids) >= 1 and abs(np.median(result.tuboids[0].radii) - 0.15) < 0.01

@@ -36,7 +36,7 @@ from woody.errors import WoodyError
 from woody.geometry import cylinders_volume, frustum_volume, ring_frames, tube_mesh
 from woody.hough import HoughGrid, HoughSpace, hough_transform
 from woody.density import point_spacing, voxel_subsample
-from woody.normals import pca_normals
+from woody.normals import orient_outward, pca_normals
 from woody.snake import Snake, SnakeParams, data_energy, resample
 
 
@@ -172,7 +172,9 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
     oriented : bool, optional
         Whether normals point outwards (vote on one half-line, eq. 5) or
         have an arbitrary sign (both half-lines, eq. 6). Default: True when
-        normals are given or ``viewpoints`` is known, False otherwise.
+        normals are given or ``viewpoints`` is known, False otherwise. True
+        without either orients the PCA normals away from the local centre
+        of mass (:func:`woody.normals.orient_outward`).
     normal_k : int
         Neighbours for PCA normals.
     samples_per_bin, min_votes : int
@@ -264,6 +266,8 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
     else:
         normals = pca_normals(points, normal_k, viewpoints)
         oriented = viewpoints is not None if oriented is None else oriented
+        if oriented and viewpoints is None:
+            normals = orient_outward(points, normals)
     timings["normals_s"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
