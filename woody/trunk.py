@@ -37,6 +37,11 @@ AXIS_SLABS = 5
 #: Heights above the ground where the trunk is looked for, in turn, m (breast height first; lower for a tree
 #: that forks below it).
 START_HEIGHTS_M = (1.3, 0.9, 0.5)
+#: Largest RMS residual of a rough trunk section seen over half a circle or more, relative to its radius
+#: (assumption: real trunks are not circular to better than this; crossing branches give more).
+TRUNK_RESIDUAL_REL = 0.1
+#: Smallest part of the cloud left by the trunk that cylinder following reconstructs.
+MIN_COMPONENT_POINTS = 10
 #: A trunk of fewer circles is no trunk (a short piece of a leader): cylinder following alone is used.
 MIN_TRUNK_CIRCLES = 4
 
@@ -134,13 +139,21 @@ def _start(points: np.ndarray, ground_z: float | None):
     for height in START_HEIGHTS_M:
         try:
             stems = [s for s in measure_dbh(points, ground_z=ground_z, height_m=height)
-                     if s.flag in ("ok", "partial-arc")]
+                     if _trunk_like(s.flag, s.arc_deg, s.residual_m, s.dbh_m / 2)]
         except WoodyError:
             continue
         if stems:
             return stems[0]
     raise WoodyError(f"no stem fits a circle well at {', '.join(map(str, START_HEIGHTS_M))} m above the ground "
                      "(arcs under 40 deg or residuals too high)")
+
+
+def _trunk_like(flag: str, arc_deg: float, residual_m: float, radius_m: float) -> bool:
+    """Whether a section fit can be trunk: flagged ok or partial-arc, or rough (bark, a non-circular trunk) with
+    a residual within 10 % of the radius over at least half a circle."""
+    if flag in ("ok", "partial-arc"):
+        return True
+    return flag == "high-residual" and arc_deg >= 180.0 and residual_m <= TRUNK_RESIDUAL_REL * radius_m
 
 
 def _walk(points, tree, start: dict, step: float, floor: float | None, members, tolerance) -> list:
@@ -192,7 +205,8 @@ def _slab_fit(points, tree, target, axis, radius, thickness):
         fit = fit_circle(planar[keep])
     except WoodyError:
         return None
-    if quality_flag(fit) in ("unreliable", "high-residual") or abs(fit.radius_m / radius - 1) > MAX_RADIUS_JUMP \
+    if not _trunk_like(quality_flag(fit), fit.arc_deg, fit.residual_m, fit.radius_m) \
+            or abs(fit.radius_m / radius - 1) > MAX_RADIUS_JUMP \
             or np.hypot(*fit.centre) > MAX_CENTRE_JUMP * radius:
         return None
     return target + fit.centre[0] * u + fit.centre[1] * v, fit.radius_m, fit.residual_m
@@ -223,7 +237,8 @@ def follow_tree(points, ground_z: float | None = None, ground_clearance_m: float
     The trunk (:func:`follow_trunk`) is branch 0; cylinder following
     (:func:`woody.cylinders.follow_cylinders`) reconstructs the points the
     trunk does not explain, less the ground (points within
-    ``ground_clearance_m`` of it), and each of its root branches that
+    ``ground_clearance_m`` of it), each connected part of them from its own
+    lowest point, and each of its root branches that
     starts within two trunk radii of the trunk's surface becomes a child of
     the trunk. A cloud without a stem (fitted over at least four slabs, from
     1.3, 0.9 or 0.5 m above the ground) is reconstructed by cylinder
@@ -272,15 +287,18 @@ def follow_tree(points, ground_z: float | None = None, ground_clearance_m: float
     labels = np.full(len(points), -1, np.int64)
     labels[trunk.members] = 0
     branches, stats = [trunk_record], {}
-    if len(rest) >= 3:
-        result = follow_cylinders(points[rest], progress=progress, **follow)
-        stats = result.stats
-        labels[rest] = np.where(result.labels >= 0, result.labels + 1, -1)
+    components = _components(points[rest]) if len(rest) >= MIN_COMPONENT_POINTS else []
+    for component in components:  # each part the trunk cut off grows from its own lowest point
+        chosen = rest[component]
+        result = follow_cylinders(points[chosen], progress=progress, **follow)
+        stats = result.stats if not stats else stats
+        offset = len(branches)
+        labels[chosen] = np.where(result.labels >= 0, result.labels + offset, -1)
         depth = {}
         for b in result.branches:  # parents come before their children
-            record = {**b, "id": b["id"] + 1, "children": [c + 1 for c in b["children"]]}
+            record = {**b, "id": b["id"] + offset, "children": [c + offset for c in b["children"]]}
             if b["parent"] >= 0:
-                record["parent"] = b["parent"] + 1
+                record["parent"] = b["parent"] + offset
                 record["order"] = depth[b["parent"]] + 1
             else:
                 distance = _distance_to_trunk(np.asarray(b["start"]), trunk)
@@ -294,6 +312,27 @@ def follow_tree(points, ground_z: float | None = None, ground_clearance_m: float
     stats = {**stats, "trunk": {"circles": len(trunk.radii), "base": base.tolist(), "top": top.tolist(),
                                 "ground_z_m": trunk.ground_z_m, "points": int(trunk.members.sum())}}
     return FollowResult(branches, labels, stats)
+
+
+def _components(points: np.ndarray) -> list[np.ndarray]:
+    """Indices of the connected parts of a cloud (voxels of twice the point spacing, 26-connected), largest first;
+    parts of fewer than ``MIN_COMPONENT_POINTS`` points are left out."""
+    from scipy import ndimage
+
+    from woody.density import point_spacing
+
+    voxel = 2.0 * max(point_spacing(points), 1e-4) if len(points) >= 7 else 1.0
+    index = np.floor((points - points.min(axis=0)) / voxel).astype(np.int64)
+    shape = index.max(axis=0) + 1
+    if float(np.prod(shape.astype(float))) > 2e8:  # too fine a grid: one part
+        return [np.arange(len(points))]
+    occupied = np.zeros(shape, bool)
+    occupied[tuple(index.T)] = True
+    grid_labels, _ = ndimage.label(occupied, structure=np.ones((3, 3, 3), bool))
+    labels = grid_labels[tuple(index.T)]
+    order = np.argsort(labels, kind="stable")
+    parts = np.split(order, np.flatnonzero(np.diff(labels[order])) + 1)
+    return sorted((p for p in parts if len(p) >= MIN_COMPONENT_POINTS), key=len, reverse=True)
 
 
 def _distance_to_trunk(point: np.ndarray, trunk: Trunk) -> float:
