@@ -67,7 +67,21 @@ def stem_scan(diameter_m: float, distance_m: float, step_deg: float, seed: int =
 
 
 def run(diameters=DIAMETERS_M, distances=DISTANCES_M, steps=STEPS_DEG, seed: int = 0) -> list[dict]:
-    """One row per (diameter, distance, step): true and measured DBH, error, arc, residual, flag, times."""
+    """One row per (diameter, distance, step): true and measured DBH, error, arc, residual, flag, times.
+
+    Parameters
+    ----------
+    diameters, distances : sequence of float
+        Stem diameters and scanner distances, m.
+    steps : sequence of float
+        Angular steps, degrees.
+    seed : int
+        Seed of every simulation.
+
+    Returns
+    -------
+    list of dict
+    """
     rows = []
     for step in steps:
         for distance in distances:

@@ -68,7 +68,19 @@ class Trunk:
     ground_z_m: float
 
     def cylinders(self, first_id: int = 0, branch: int = 0) -> list[dict]:
-        """The trunk as a cylinder list (order 0, each piece parented to the one below)."""
+        """The trunk as a cylinder list (order 0, each piece parented to the one below).
+
+        Parameters
+        ----------
+        first_id : int
+            Id of the lowest piece (the others follow).
+        branch : int
+            Branch id of every piece.
+
+        Returns
+        -------
+        list of dict
+        """
         out = []
         for i in range(len(self.radii) - 1):
             cid = first_id + i
