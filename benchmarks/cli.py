@@ -8,6 +8,9 @@
 - ``tlsbench sweep KIND [--scene GENERATOR] [--values ...]`` runs a stress sweep and writes its table and plot;
 - ``tlsbench main -o DIR`` is the project's main job (``make bench``): the main suite with every
   registered variant, the distance and incidence sweeps, the store, the report and the headline table;
+- ``tlsbench baseline update [--suite quick]`` rewrites the suite's committed baseline from a new (or stored) run;
+- ``tlsbench check [--suite quick]`` runs the suite and compares it with the baseline (exit 1 on a regression);
+- ``tlsbench history METRIC [--variant V] [--suite S] [--db DB]`` shows a metric across the stored commits (PNG);
 - ``tlsbench list`` shows suites, variants, scene generators and sweeps.
 """
 
@@ -21,7 +24,8 @@ from pathlib import Path
 
 import yaml
 
-from benchmarks import registry, summary, sweeps
+from benchmarks import baseline, registry, summary, sweeps
+from benchmarks.baseline import TIMING_BAND
 from benchmarks.errors import BenchError
 from benchmarks.generators import describe_generators
 from benchmarks.runner import MEMORY_LIMIT_GB, TIMEOUT_S, execute
@@ -122,9 +126,45 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--db", default=None, help="results database (default OUTPUT/results.sqlite)")
     p.set_defaults(func=cmd_main)
 
+    p = sub.add_parser("baseline", help="the committed baseline of a suite (benchmarks/baseline/SUITE.json)")
+    p = p.add_subparsers(dest="action", required=True, metavar="ACTION").add_parser(
+        "update", help="rewrite the baseline from a new run of the suite (or a stored one, --run)")
+    _add_baseline_options(p)
+    p.set_defaults(func=cmd_baseline_update)
+
+    p = sub.add_parser("check", help="run the suite and compare it with its baseline (exit 1 on a regression)")
+    _add_baseline_options(p)
+    p.add_argument("--timing-band", type=float, default=TIMING_BAND,
+                   help=f"factor by which a runtime (per trace time and in seconds) may move before a "
+                        f"warning (default {TIMING_BAND:g})")
+    p.set_defaults(func=cmd_check)
+
+    p = sub.add_parser("history", help="a metric across the commits of the stored runs (table and PNG chart)")
+    p.add_argument("metric", help="summary metric, e.g. rop_reduction, area_rel_err_median, runtime_s")
+    p.add_argument("--variant", default=None, help="only this variant (default: all)")
+    p.add_argument("--suite", default=MAIN_SUITE, help=f"suite name (default {MAIN_SUITE})")
+    p.add_argument("--case", default=None, help="the metric on this case alone (default: over the suite)")
+    p.add_argument("--db", default="results.sqlite", help="results database (default results.sqlite)")
+    p.add_argument("-o", "--output", default=None, help="chart (default history-METRIC[-VARIANT].png)")
+    p.set_defaults(func=cmd_history)
+
     p = sub.add_parser("list", help="list suites, variants, scene generators and sweeps")
     p.set_defaults(func=cmd_list)
     return parser
+
+
+def _add_baseline_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--suite", default=MAIN_SUITE, help=f"built-in suite or suite file (default {MAIN_SUITE})")
+    _add_execution(p)
+    p.add_argument("--run", default=None, help="use this stored run of --db (id, prefix, latest) instead of running")
+    p.add_argument("--baseline", default=None, help="baseline file (default benchmarks/baseline/SUITE.json)")
+
+
+def _baseline_run(args, store: Store) -> str:
+    """The run a baseline command works on: ``--run`` of the store, or a new complete run of the suite."""
+    if args.run:
+        return store.resolve(args.run)
+    return _run_suite(load_suite(args.suite), args, store).run_id
 
 
 def _run_suite(suite, args, store: Store, resume=True, notes=None):
@@ -249,6 +289,53 @@ def cmd_main(args) -> int:
     print(f"report: {html_path} and {json_path}; sweeps: {', '.join(MAIN_SWEEPS)} in {outdir}")
     print(f"main job finished in {time.perf_counter() - start:.0f} s")
     return status
+
+
+def cmd_baseline_update(args) -> int:
+    with Store(args.db, create=not args.run) as store:
+        run_id = _baseline_run(args, store)
+        document = baseline.baseline_of_run(store, run_id)
+    path = baseline.baseline_path(document["suite"], args.baseline)
+    if path.is_file():
+        old = baseline.load_baseline(path, document["suite"])
+        changes = baseline.compare_to_baseline(old, document, document["variants"])
+        for change in changes:
+            print(f"{change.verdict}: {change.describe()}")
+        print(f"{len(changes)} metric value(s) moved beyond the tolerances since the previous baseline "
+              f"(commit {old['commit']})")
+    baseline.write_baseline(document, path)
+    print(f"baseline of suite {document['suite']} written to {path} from run {run_id} (commit {document['commit']})")
+    return 0
+
+
+def cmd_check(args) -> int:
+    def load(suite: str) -> dict:
+        return baseline.load_baseline(baseline.baseline_path(suite, args.baseline), suite)
+
+    baseline.valid_band(args.timing_band)  # refuse bad options and a missing baseline before running anything
+    old = None if args.run else load(load_suite(args.suite).name)
+    with Store(args.db, create=not args.run) as store:
+        current = baseline.run_document(store, _baseline_run(args, store))
+    old = old or load(current["suite"])
+    variants = current["variants"] if args.variants else old["variants"]
+    text, passed = baseline.format_check(old, current, baseline.compare_to_baseline(old, current, variants),
+                                         args.timing_band)
+    print(text)
+    return 0 if passed else 1
+
+
+def cmd_history(args) -> int:
+    from benchmarks.history import format_history, metric_history, plot_history
+
+    with Store(args.db, create=False) as store:
+        points = metric_history(store, args.metric, args.suite, args.variant, args.case)
+    print(format_history(points, args.metric))
+    path = Path(args.output or f"history-{args.metric}{'-' + args.variant if args.variant else ''}.png")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    plot_history(points, args.metric, f"{args.metric} of suite {args.suite}" + (f", case {args.case}" if args.case
+                                                                               else "")).savefig(path, dpi=100)
+    print(f"chart: {path}")
+    return 0
 
 
 def cmd_list(args) -> int:

@@ -6,8 +6,10 @@ suite × variant (:func:`benchmarks.summary.summarize`), plus the tables of
 the sweeps attached to the run. :func:`write_html` writes the page a person
 reads: the headline table, the full variant × metric table, ROP against
 distance per variant, area-error distributions, before/after point clouds of
-one leaf (re-simulated from its case, which is deterministic) and the sweep
-plots, every figure embedded as a PNG.
+one leaf (re-simulated from its case, which is deterministic), the sweep
+plots and, where the store holds runs of the suite at several commits, the
+goal's metrics across commits (:mod:`benchmarks.history`), every figure
+embedded as a PNG.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from benchmarks import heightfields, scoring, summary, sweeps
+from benchmarks.history import history_figures
 from benchmarks.registry import get_variant, unavailable
 from benchmarks.runner import simulate_case
 from benchmarks.store import Store
@@ -239,6 +242,7 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
     for sweep in document["sweeps"]:
         if sweep["table"]:
             figures.append((f"Sweep: {sweep['kind']} (run {sweep['run_id']})", sweeps.plot_sweep(sweep["table"], sweep["kind"])))
+    figures += history_figures(store, run["suite"])
     for title, figure in figures:
         parts.append(f"<h2>{html.escape(title)}</h2><img alt='{html.escape(title)}' src='data:image/png;base64,{_png(figure)}'>")
     for sweep in document["sweeps"]:

@@ -254,6 +254,12 @@ class Store:
             raise BenchError(f"{self.path}: no run {run_id!r}")
         return _decoded(row)
 
+    def runs(self, suite: str) -> list[dict]:
+        """The complete runs of a suite (``runs`` rows, JSON columns decoded), oldest first."""
+        rows = self._db.execute("SELECT * FROM runs WHERE suite = ? AND status = 'complete' ORDER BY created",
+                                (suite,))
+        return [_decoded(r) for r in rows]
+
     def results(self, run_id: str) -> list[dict]:
         """Every result row of a run, JSON columns decoded, in finishing order."""
         rows = self._db.execute("SELECT * FROM results WHERE run_id = ? ORDER BY finished", (run_id,))
