@@ -301,6 +301,12 @@ def _register_woody() -> None:
         result = woody.follow_cylinders(scan.xyz[mask], **params)
         return VariantOutput(scan.xyz, {"cylinders": result.cylinders()}, {"branches": len(result.branches)})
 
+    def cylinders_trunk(scan, mask, **params):
+        from woody.trunk import follow_tree
+
+        result = follow_tree(scan.xyz[mask], **params)
+        return VariantOutput(scan.xyz, {"cylinders": result.cylinders()}, {"branches": len(result.branches)})
+
     follow = {k: v for k, v in dataclasses.asdict(woody.FollowParams()).items()
               if v is None or isinstance(v, (bool, int, float, str))}
     register_variant(Variant("step", "woody", step, {"cell_m": 0.02, "radius_step_m": 0.01, "r_min_m": 0.02,
@@ -309,6 +315,9 @@ def _register_woody() -> None:
                              target="wood"))
     register_variant(Variant("cylinders", "woody", cylinders, follow,
                              "cylinder following (Mendez et al.): branch hierarchy of cylinders", target="wood"))
+    register_variant(Variant("cylinders-trunk", "woody", cylinders_trunk, follow,
+                             "cylinder following with the trunk followed first from the ground up by stacked circle "
+                             "fits (woody.trunk.follow_tree)", target="wood"))
 
 
 _register_builtins()

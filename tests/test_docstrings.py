@@ -23,7 +23,8 @@ ENABLED = {
                 "outputs.py", "baselines.py", "frame.py", "grid.py", "euclid.py", "contour.py", "mesh.py",
                 "synthetic.py"),
     "woody": ("snake.py", "hough.py", "synthetic.py", "scoring.py", "normals.py", "cylfit.py", "branch.py",
-              "growth.py", "merge.py", "balance.py"),
+              "growth.py", "merge.py", "balance.py", "circles.py", "ground.py", "dbh.py", "density.py", "qsm.py",
+              "trunk.py"),
 }
 
 # ``name : type`` (several names may share one entry); ``*args`` and ``**kwargs`` may stand alone.

@@ -15,6 +15,10 @@ EXAMPLES = {
     "leafsfs.engine": ("reconstruct_heights",),
     "woody.step": ("step",),
     "woody.cylinders": ("follow_cylinders",),
+    "woody.circles": ("fit_circle", "algebraic_circle"),
+    "woody.ground": ("ground_grid",),
+    "woody.density": ("point_spacing", "voxel_subsample"),
+    "woody.normals": ("pca_normals", "orient_outward"),
 }
 
 

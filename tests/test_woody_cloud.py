@@ -1,4 +1,4 @@
-"""Point-cloud readers (NPZ, tlssim scan NPZ, PLY, LAS, E57), normals and synthetic sampling."""
+"""Point-cloud readers (NPZ, tlssim scan NPZ, PLY, LAS, E57, PTX, ASCII), normals and synthetic sampling."""
 
 import numpy as np
 import pytest
@@ -70,7 +70,10 @@ def test_e57_scans_are_read_in_world_coordinates_with_their_scanner_positions(tm
 
 
 @pytest.mark.parametrize("name, content, message", [
-    ("x.xyz", b"1 2 3", "unknown point-cloud format"),
+    ("x.foo", b"1 2 3", "unknown point-cloud format"),
+    ("x.xyz", b"1 2\n3 4\n", "three columns"),
+    ("x.csv", b"x,y,z\n1,2,3\n4,five,6\n", "line 3"),
+    ("x.txt", "é".encode("latin-1"), "ASCII"),
     ("x.npz", b"not a zip", "not a readable NPZ"),
     ("x.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n", "x, y, z"),
     ("x.las", b"garbage", "LAS"),
@@ -82,6 +85,53 @@ def test_malformed_files_name_the_file_and_the_problem(tmp_path, name, content, 
     with pytest.raises(WoodyError, match=message) as info:
         read_cloud(path)
     assert name in str(info.value)
+
+
+def test_ascii_ply_with_normals(tmp_path):
+    path = tmp_path / "a.ply"
+    rows = "".join(f"{x} {y} {z} 0 0 1 7\n" for x, y, z in POINTS)
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+                    "property float nx\nproperty float ny\nproperty float nz\nproperty uchar red\nend_header\n" + rows)
+    cloud = read_cloud(path)
+    assert np.allclose(cloud.points, POINTS) and np.allclose(cloud.normals, [0.0, 0.0, 1.0])
+
+
+@pytest.mark.parametrize("name, text", [
+    ("c.xyz", "\n".join(" ".join(map(str, p)) for p in POINTS)),
+    ("c.csv", "// X,Y,Z,intensity\n" + "\n".join(",".join(map(str, p)) + ",0.5" for p in POINTS)),
+    ("c.pts", "4\n" + "\n".join("\t".join(map(str, p)) + " 12 200 10 10" for p in POINTS)),
+    ("c.txt", "intensity;x;y;z;nx;ny;nz\n" + "\n".join(f"1;{x};{y};{z};0;2;0" for x, y, z in POINTS)),
+])
+def test_ascii_columns_with_or_without_a_header(tmp_path, name, text):
+    path = tmp_path / name
+    path.write_text(text + "\n")
+    cloud = read_cloud(path)
+    assert np.allclose(cloud.points, POINTS)
+    assert (cloud.normals is None) == (name != "c.txt")
+    if cloud.normals is not None:
+        assert np.allclose(cloud.normals, [0.0, 1.0, 0.0])
+
+
+def test_rotated_unstructured_e57_and_tlssim_las_and_ptx_round_trips(tmp_path):
+    import pye57
+
+    from tlssim.formats import export_scan
+
+    path = str(tmp_path / "s.e57")
+    with pye57.E57(path, mode="w") as e57:  # a scan turned 90 deg about z (quaternion w, x, y, z)
+        e57.write_scan_raw({"cartesianX": POINTS[:, 0], "cartesianY": POINTS[:, 1], "cartesianZ": POINTS[:, 2]},
+                           rotation=np.array([np.sqrt(0.5), 0.0, 0.0, np.sqrt(0.5)]),
+                           translation=np.array([1.0, 0.0, 0.0]))
+    cloud = read_cloud(path)
+    assert np.allclose(cloud.points, np.column_stack([1.0 - POINTS[:, 1], POINTS[:, 0], POINTS[:, 2]]), atol=1e-6)
+    xyz = np.arange(18, dtype=float).reshape(2, 3, 3) + 1.0
+    scan = Scan(range=np.linalg.norm(xyz - [5.0, 6.0, 7.0], axis=-1), intensity=np.ones((2, 3), np.float32),
+                theta=np.zeros((2, 3)), psi=np.full((2, 3), np.pi / 2), xyz=xyz,
+                pose=ScannerPose(np.array([5.0, 6.0, 7.0]), np.eye(3)))
+    for suffix in (".las", ".ptx"):
+        cloud = read_cloud(export_scan(scan, tmp_path / f"s{suffix}"))
+        assert np.allclose(cloud.points, xyz.reshape(-1, 3), atol=1e-4), suffix
+        assert np.allclose(cloud.viewpoints, [5.0, 6.0, 7.0]), suffix
 
 
 def test_missing_file_and_bad_arrays(tmp_path):

@@ -2,9 +2,13 @@
 
 - ``woody reconstruct CLOUD --method step|cylinders -o OUTDIR``: reconstruct
   the woody structure of a point cloud (NPZ, PLY, LAS, E57) and write
-  ``cylinders.json`` (cylinder list, volume, run statistics), ``mesh.ply``
+  ``cylinders.json`` (cylinder list, volume, DBH, run statistics),
+  ``qsm_cylinders.csv`` (the TreeQSM-style cylinder table), ``mesh.ply``
   and the method's own output (``tuboids.json`` for STEP; ``branches.json``
-  with the skeleton and ``point_labels.npy`` for cylinder following).
+  with the skeleton and ``point_labels.npy`` for cylinder following; the
+  other method's files left by an earlier run are removed);
+- ``woody dbh CLOUD``: diameter at breast height of every stem, with its
+  arc coverage, fit residual and quality flag (``--json`` for one object).
 
 The experiments of the woody spec and the run-time benchmark are
 ``tlsbench experiment woody`` and ``tlsbench perf woody``.
@@ -45,13 +49,31 @@ def build_parser() -> argparse.ArgumentParser:
                    help="cylinders: largest point-to-branch distance, m (default 2.5 x point spacing)")
     p.add_argument("--sections", type=float, default=4.0,
                    help="cylinders: output cylinder length in branch radii; 0 = one per branch (default 4)")
+    p.add_argument("--ground-z", type=float, default=None,
+                   help="ground height for the DBH and the trunk, m (default: found from the lowest points)")
+    p.add_argument("--no-trunk", action="store_true",
+                   help="cylinders: plain cylinder following (default: the trunk is followed first from the ground "
+                        "up by circle fits, the ground left out)")
     p.set_defaults(func=run_reconstruct)
+
+    p = sub.add_parser("dbh", help="diameter at breast height of the stems of a point cloud",
+                       description="DBH of every stem crossing breast height: a robust circle fit on a thin slice, "
+                                   "with the arc coverage, the fit residual and a quality flag.")
+    p.add_argument("cloud", help="point-cloud file")
+    p.add_argument("--ground-z", type=float, default=None,
+                   help="ground height, m (default: found from the lowest points under each stem)")
+    p.add_argument("--height", type=float, default=1.3, help="measurement height above the ground, m (default 1.3)")
+    p.add_argument("--slice", type=float, default=0.1, help="height of the fitted slice, m (default 0.1)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=run_dbh)
 
     return parser
 
 
 def run_reconstruct(args) -> int:
     from woody.cloud import read_cloud
+    from woody.dbh import dbh_summary
+    from woody.qsm import write_qsm_csv
     from woody.errors import WoodyError
 
     cloud = read_cloud(args.cloud)
@@ -69,21 +91,46 @@ def run_reconstruct(args) -> int:
         (out / "tuboids.json").write_text(json.dumps([t.to_dict() for t in result.tuboids]))
     else:
         from woody.cylinders import follow_cylinders
+        from woody.trunk import follow_tree
 
-        result = follow_cylinders(cloud.points, precision_m=args.precision_m, section_radii=args.sections,
-                                  progress=True)
+        settings = {"precision_m": args.precision_m, "section_radii": args.sections, "progress": True}
+        result = follow_cylinders(cloud.points, **settings) if args.no_trunk else \
+            follow_tree(cloud.points, ground_z=args.ground_z, **settings)
         nodes, edges = result.skeleton()
         (out / "branches.json").write_text(json.dumps({"branches": result.branches, "skeleton": {
             "nodes": nodes.tolist(), "edges": edges.tolist()}}))
         np.save(out / "point_labels.npy", result.labels)
+    own = {"step": ("tuboids.json",), "cylinders": ("branches.json", "point_labels.npy")}
+    for name in own["cylinders" if args.method == "step" else "step"]:
+        (out / name).unlink(missing_ok=True)  # an earlier run's files of the other method
     cylinders = result.cylinders()
-    summary = {"method": args.method, "cloud": str(args.cloud), "volume_m3": result.volume, "stats": result.stats,
-               "cylinders": cylinders}
+    dbh = dbh_summary(cloud.points, cylinders, ground_z=args.ground_z)
+    summary = {"method": args.method, "cloud": str(args.cloud), "volume_m3": result.volume, "dbh": dbh,
+               "stats": result.stats, "cylinders": cylinders}
     (out / "cylinders.json").write_text(json.dumps(summary, default=float))
+    write_qsm_csv(cylinders, out / "qsm_cylinders.csv")
     result.mesh().export(out / "mesh.ply")
     kind = "tuboids" if args.method == "step" else "branches"
     count = len(result.tuboids) if args.method == "step" else len(result.branches)
-    print(f"{count} {kind}, {len(cylinders)} cylinders, volume {result.volume * 1e3:.3f} dm^3 -> {out}")
+    stem = f"DBH {dbh['stems'][0]['dbh_m'] * 100:.1f} cm ({dbh['stems'][0]['flag']})" if "stems" in dbh else "no DBH"
+    print(f"{count} {kind}, {len(cylinders)} cylinders, volume {result.volume * 1e3:.3f} dm^3, {stem} -> {out}")
+    return 0
+
+
+def run_dbh(args) -> int:
+    from woody.cloud import read_cloud
+    from woody.dbh import measure_dbh
+
+    stems = measure_dbh(read_cloud(args.cloud).points, ground_z=args.ground_z, height_m=args.height,
+                        slice_m=args.slice)
+    if args.json:
+        print(json.dumps({"cloud": str(args.cloud), "stems": [s.to_dict() for s in stems]}, indent=2))
+        return 0
+    for stem in stems:
+        x, y, _ = stem.centre
+        print(f"DBH {stem.dbh_m * 100:.2f} cm at {stem.height_m:.2f} m above the ground (z {stem.ground_z_m:.3f} m), "
+              f"stem at x {x:.3f} y {y:.3f} m; arc {stem.arc_deg:.0f} deg, residual {stem.residual_m * 1e3:.1f} mm, "
+              f"{stem.n_points} points: {stem.flag}")
     return 0
 
 

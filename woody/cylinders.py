@@ -462,7 +462,7 @@ def _sections(branch: Branch, params: FollowParams) -> list[tuple]:
     if params.section_radii <= 0 or branch.direction is None:
         return whole
     piece = params.section_radii * max(branch.r_median, 1e-9)
-    count = int((branch.t1 - branch.t0) // piece)
+    count = min(int((branch.t1 - branch.t0) // piece), len(branch.points))  # r = 0 on collinear points
     if count < 2:
         return whole
     indices = np.asarray(branch.points)

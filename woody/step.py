@@ -35,7 +35,8 @@ from woody.cloud import check_normals, check_points, check_viewpoints
 from woody.errors import WoodyError
 from woody.geometry import cylinders_volume, frustum_volume, ring_frames, tube_mesh
 from woody.hough import HoughGrid, HoughSpace, hough_transform
-from woody.normals import pca_normals
+from woody.density import point_spacing, voxel_subsample
+from woody.normals import orient_outward, pca_normals
 from woody.snake import Snake, SnakeParams, data_energy, resample
 
 
@@ -100,7 +101,8 @@ class StepResult:
     tuboids : list of Tuboid
         Accepted tuboids, in order of acceptance (strongest seed first).
     normals : ndarray, (n, 3)
-        Normals used for voting.
+        Normals used for voting (of the ``stats["points_used"]`` points
+        kept when the cloud was subsampled).
     stats : dict
         Counts, Hough-space footprint (bytes), timings (s) and settings.
     """
@@ -148,7 +150,8 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
          samples_per_bin: int = 1, min_votes: int = 2, params: SnakeParams | None = None,
          max_tuboids: int | None = None, max_seeds: int | None = 5000, min_vertices: int = 3,
          min_length_radii: float = 1.0, max_mean_energy: float = -0.3, weak_energy: float = -0.4,
-         min_weak_arc_deg: float = 72.0, refine: bool = True, progress: bool = False) -> StepResult:
+         min_weak_arc_deg: float = 72.0, refine: bool = True, subsample_m: float | None = None,
+         progress: bool = False) -> StepResult:
     """Extract tuboids from a point cloud with STEP.
 
     Parameters
@@ -169,7 +172,9 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
     oriented : bool, optional
         Whether normals point outwards (vote on one half-line, eq. 5) or
         have an arbitrary sign (both half-lines, eq. 6). Default: True when
-        normals are given or ``viewpoints`` is known, False otherwise.
+        normals are given or ``viewpoints`` is known, False otherwise. True
+        without either orients the PCA normals away from the local centre
+        of mass (:func:`woody.normals.orient_outward`).
     normal_k : int
         Neighbours for PCA normals.
     samples_per_bin, min_votes : int
@@ -197,6 +202,13 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
         strong ridge even when only 10 deg of it are seen.
     refine : bool
         Re-fit each circle to its points (see the module docstring).
+    subsample_m : float, optional
+        Voxel edge of the subsampling applied before anything else, m
+        (:func:`woody.density.voxel_subsample`); 0 keeps every point. By
+        default a cloud whose point spacing is below a quarter of
+        ``cell_m`` is subsampled to that spacing: a Hough cell then still
+        receives the votes of about 16 points per cm of stem, and a 30
+        pts/cm² scan costs what a 4 pts/cm² one does.
     progress : bool
         Show a progress bar over the seeds.
 
@@ -239,10 +251,23 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
     grid = HoughGrid.around(points, cell_m, radius_step_m, r_min_m, r_max_m)
     if normals is not None:
         normals = check_normals(normals, len(points))
+    count = len(points)
+    _check_not_a_line(points)
+    kept = _subsample(points, cell_m, subsample_m)
+    if kept is not None:
+        points = points[kept]
+        normals = None if normals is None else normals[kept]
+        viewpoints = None if viewpoints is None else viewpoints[kept]
+        if len(points) < normal_k:
+            raise WoodyError(f"the {count} points fill only {len(points)} voxels of {cell_m / 4} m: too few for "
+                             f"STEP (at least {normal_k})")
+    if normals is not None:
         oriented = True if oriented is None else oriented
     else:
         normals = pca_normals(points, normal_k, viewpoints)
         oriented = viewpoints is not None if oriented is None else oriented
+        if oriented and viewpoints is None:
+            normals = orient_outward(points, normals)
     timings["normals_s"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
@@ -271,11 +296,34 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
         for _ in range(2):  # the second pass starts from straighter slabs
             tuboids = [refine_tuboid(t, points, tree, radius_step_m) for t in tuboids]
     timings["refine_s"] = time.perf_counter() - clock
-    stats = {"points": len(points), "oriented": bool(oriented), "grid_shape": list(grid.shape),
+    stats = {"points": count, "points_used": len(points), "oriented": bool(oriented), "grid_shape": list(grid.shape),
              "dense_cells": float(np.prod(np.array(grid.shape, float))), "occupied_cells": len(hs.keys),
              "hough_bytes": hs.nbytes, "seeds": len(seeds), "seeds_tried": tried, "snakes_rejected": rejected,
              "tuboids": len(tuboids), **timings}
     return StepResult(tuboids, normals, stats)
+
+
+def _check_not_a_line(points: np.ndarray) -> None:
+    """Refuse points that all lie on one straight line (no circle, no tube through them)."""
+    if len(points) < 3:
+        return
+    singular = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+    if singular[0] == 0:
+        raise WoodyError(f"all {len(points)} points coincide: no tube can be fitted to them")
+    if singular[1] <= 1e-6 * singular[0]:
+        raise WoodyError(f"the {len(points)} points lie on a straight line: no tube can be fitted to them")
+
+
+def _subsample(points: np.ndarray, cell_m: float, subsample_m: float | None) -> np.ndarray | None:
+    """Indices of the points STEP uses (None: all of them); see ``subsample_m`` of :func:`step`."""
+    if subsample_m is not None and not (np.isfinite(subsample_m) and subsample_m >= 0):
+        raise WoodyError(f"subsample_m must be a length >= 0 in metres, got {subsample_m}")
+    if subsample_m == 0 or len(points) < 7:
+        return None
+    voxel = cell_m / 4.0 if subsample_m is None else subsample_m
+    if subsample_m is None and point_spacing(points) >= voxel:
+        return None
+    return voxel_subsample(points, voxel)
 
 
 def _run_snakes(hs: HoughSpace, energy, seeds, params, max_tuboids, max_seeds, min_vertices, min_length_radii,

@@ -1,0 +1,62 @@
+"""Point spacing, voxel subsampling, STEP at a scan density far above its Hough cells, normals without a viewpoint."""
+
+import numpy as np
+import pytest
+
+from woody import WoodyError, step
+from woody.density import point_spacing, voxel_subsample
+from woody.normals import orient_outward, pca_normals
+from woody.synthetic import add_noise, sample_cylinders, straight_cylinder
+
+
+@pytest.mark.parametrize("per_cm2", [0.75, 3.0, 30.0])
+def test_spacing_of_random_and_grid_surfaces_is_one_over_root_density(per_cm2):
+    rng = np.random.default_rng(1)
+    side = 0.5
+    n = int(per_cm2 * 1e4 * side * side)
+    random = np.column_stack([rng.uniform(0, side, (n, 2)), np.zeros(n)])
+    step_m = 1 / np.sqrt(per_cm2 * 1e4)
+    u = np.arange(0, side, step_m)
+    grid = np.column_stack([np.repeat(u, len(u)), np.tile(u, len(u)), np.zeros(len(u) ** 2)])
+    for points in (random, grid):
+        assert point_spacing(points) == pytest.approx(step_m, rel=0.12)
+
+
+def test_voxel_subsample_keeps_one_surface_point_per_voxel():
+    cloud = sample_cylinders(straight_cylinder(0.2, 0.5), 2e5, seed=2)
+    kept = voxel_subsample(cloud.points, 0.01)
+    cells = {tuple(c) for c in np.floor((cloud.points - cloud.points.min(axis=0)) / 0.01).astype(int)}
+    assert len(kept) == len(cells) and len(np.unique(kept)) == len(kept)
+    assert np.allclose(np.hypot(*cloud.points[kept, :2].T), 0.2)  # real points, not centroids
+    assert point_spacing(cloud.points[kept]) == pytest.approx(0.01, rel=0.25)
+    with pytest.raises(WoodyError, match="voxel_m"):
+        voxel_subsample(cloud.points, 0.0)
+    with pytest.raises(WoodyError, match="too few"):
+        point_spacing(cloud.points[:5])
+
+
+def test_step_subsamples_a_dense_cloud_and_keeps_the_radius():
+    cloud = sample_cylinders(straight_cylinder(0.15, 0.5), 3e5, seed=3)  # 30 pts/cm2
+    cells = {"cell_m": 0.02, "radius_step_m": 0.01, "r_min_m": 0.08, "r_max_m": 0.25}
+    result = step(cloud.points, cloud.normals, **cells)
+    assert result.stats["points_used"] < result.stats["points"] / 4
+    assert len(result.normals) == result.stats["points_used"]
+    assert len(result.tuboids) == 1 and np.abs(result.tuboids[0].radii - 0.15).max() < 0.002
+    assert step(cloud.points[:2000], cloud.normals[:2000], subsample_m=0, **cells).stats["points_used"] == 2000
+
+
+@pytest.mark.parametrize("radius, arc_deg", [(0.02, 360), (0.15, 180), (0.5, 90)])
+def test_normals_are_oriented_outwards_without_a_viewpoint(radius, arc_deg):
+    cloud = sample_cylinders(straight_cylinder(radius, 1.0), 3e4, seed=1, arc_deg=arc_deg)
+    points = add_noise(cloud.points, 0.003, seed=2)
+    normals = pca_normals(points, 16) * np.where(np.arange(len(points)) % 2, 1.0, -1.0)[:, None]  # random signs
+    outward = np.einsum("ij,ij->i", orient_outward(points, normals), cloud.normals) > 0
+    assert outward.mean() > 0.95
+
+
+def test_step_orients_estimated_normals_outwards_when_asked_without_a_viewpoint():
+    cloud = sample_cylinders(straight_cylinder(0.15, 0.6), 2e4, seed=5, arc_deg=180)
+    result = step(cloud.points, oriented=True, cell_m=0.02, radius_step_m=0.01, r_min_m=0.08, r_max_m=0.25)
+    assert result.stats["oriented"]
+    assert (np.einsum("ij,ij->i", result.normals, cloud.normals) > 0).mean() > 0.95
+    assert len(result.tuboids) >= 1 and abs(np.median(result.tuboids[0].radii) - 0.15) < 0.01
