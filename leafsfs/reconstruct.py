@@ -215,8 +215,6 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
         except _Skipped as exc:
             skipped.append((int(label), str(exc)))
             continue
-        # Only the leaf's box of its share is kept (one full-scan image per region took 12.6 GB on a 300-leaf tree).
-        regions.shares[label] = share[fit.frame.box].copy()
         _paste_leaf(grids, fit, region)
         fits.append((int(label), fit))
     return _assemble(scan, variant, params, regions, grids, fits, skipped, reliable)
