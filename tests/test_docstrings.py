@@ -17,8 +17,7 @@ PACKAGES = ("scenes", "tlssim", "leafsfs", "woody", "benchmarks")
 
 ENABLED = {
     "scenes": None,
-    "tlssim": ("noise.py", "radiometry.py", "detector.py", "ranging.py", "bsdf.py", "beam.py",
-               "backend.py", "preview.py"),
+    "tlssim": None,
     "leafsfs": ("slope.py", "curves.py", "quantize.py", "engine.py", "fusion.py", "propagate.py", "seed.py",
                 "outputs.py", "baselines.py", "frame.py", "grid.py", "euclid.py", "contour.py", "mesh.py",
                 "synthetic.py"),

@@ -49,6 +49,13 @@ def panel_table(scan: Scan, margin: float = 2.5) -> dict[str, np.ndarray]:
     pixels, which itself reaches about one radius beyond the panel (where
     part of the beam misses it).
 
+    Parameters
+    ----------
+    scan : Scan
+        A simulated scan of a calibration scene, with truth (``truth_id``).
+    margin : float
+        Clearance kept from a panel's outline, in beam radii (dimensionless).
+
     Returns
     -------
     dict of ndarray

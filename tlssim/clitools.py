@@ -13,7 +13,20 @@ import warnings
 
 
 def run_main(parser: argparse.ArgumentParser, argv: list[str]) -> int:
-    """Parse ``argv``, run the selected command's ``func(args)`` and return the exit status."""
+    """Parse ``argv``, run the selected command's ``func(args)`` and return the exit status.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The command's parser; each sub-command sets ``func`` in its defaults.
+    argv : list of str
+        Command-line arguments, without the program name.
+
+    Returns
+    -------
+    int
+        Exit status: the command's status, 2 after a one-line error message, 130 if interrupted.
+    """
     args = parser.parse_args(argv)
 
     def one_line_warning(message, category, filename, lineno, file=None, line=None):

@@ -19,7 +19,22 @@ from tlssim.scanner import ScannerModel
 
 
 def rotation_from_yaw_pitch_roll(yaw_deg: float = 0.0, pitch_deg: float = 0.0, roll_deg: float = 0.0) -> np.ndarray:
-    """Rotation matrix ``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (angles in degrees)."""
+    """Rotation matrix ``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (angles in degrees).
+
+    Parameters
+    ----------
+    yaw_deg : float
+        Rotation about z, degrees.
+    pitch_deg : float
+        Rotation about y, degrees.
+    roll_deg : float
+        Rotation about x, degrees.
+
+    Returns
+    -------
+    ndarray
+        Rotation matrix, shape ``(3, 3)``.
+    """
     y, p, r = (math.radians(a) for a in (yaw_deg, pitch_deg, roll_deg))
     rz = np.array([[math.cos(y), -math.sin(y), 0], [math.sin(y), math.cos(y), 0], [0, 0, 1]])
     ry = np.array([[math.cos(p), 0, math.sin(p)], [0, 1, 0], [-math.sin(p), 0, math.cos(p)]])
@@ -153,6 +168,20 @@ def grid_directions(theta_axis: np.ndarray, psi_axis: np.ndarray, rotation: np.n
 
     Uses the separability of the grid (one sine and cosine per row and per
     column), which is much cheaper than :func:`beam_frame` on 2-D arrays.
+
+    Parameters
+    ----------
+    theta_axis : ndarray
+        Azimuth of each column, rad.
+    psi_axis : ndarray
+        Zenith angle of each row, rad.
+    rotation : ndarray
+        Scanner-to-world rotation matrix, shape ``(3, 3)``.
+
+    Returns
+    -------
+    ndarray
+        Unit direction vectors (dimensionless).
     """
     sp, cp = np.sin(psi_axis)[:, None], np.cos(psi_axis)[:, None]
     st, ct = np.sin(theta_axis)[None, :], np.cos(theta_axis)[None, :]

@@ -252,6 +252,18 @@ def write_npz(path, arrays: dict[str, np.ndarray]) -> Path:
     member gets a fixed date so that the same data gives the same file. The
     file is written under a temporary name and renamed, so an interrupted
     write never leaves a truncated scan behind.
+
+    Parameters
+    ----------
+    path : str or Path
+        Output ``.npz`` file; missing folders are created.
+    arrays : dict of str to ndarray
+        Arrays to store, by member name.
+
+    Returns
+    -------
+    Path
+        The written file.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -296,7 +308,24 @@ def write_ply_points(path, columns) -> Path:
 
 
 def grid_to_xyz(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, pose: ScannerPose) -> np.ndarray:
-    """World coordinates of grid measurements, m (NaN where ``range_m`` is NaN)."""
+    """World coordinates of grid measurements, m (NaN where ``range_m`` is NaN).
+
+    Parameters
+    ----------
+    range_m : ndarray
+        Measured range per cell, m (NaN without return).
+    theta : ndarray
+        Azimuth per cell, rad.
+    psi : ndarray
+        Zenith angle per cell, rad.
+    pose : ScannerPose
+        Scanner position (m) and orientation in the world frame.
+
+    Returns
+    -------
+    ndarray
+        World coordinates, m, shape ``range_m.shape + (3,)``.
+    """
     axis, _, _ = beam_frame(theta, psi)
     local = axis * range_m[..., None]
     return local @ pose.rotation.T + pose.position

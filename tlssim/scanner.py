@@ -406,6 +406,18 @@ def preset_names() -> list[str]:
 def get_preset(name: str, **overrides) -> ScannerModel:
     """The preset ``name``, with optional field overrides.
 
+    Parameters
+    ----------
+    name : str
+        Preset name (see :func:`preset_names`).
+    **overrides
+        :class:`ScannerModel` fields to replace, in the fields' units.
+
+    Returns
+    -------
+    ScannerModel
+        The preset, or a copy with the overrides.
+
     Raises
     ------
     ScanError
@@ -422,7 +434,20 @@ register_preset(ScannerModel(name="faro-ls880-filtered", range_filter_length=15)
 
 
 def parameter_table(model: ScannerModel, sources: dict[str, str] = FARO_LS880_SOURCES) -> str:
-    """Markdown table of a model's parameters with the source or assumption behind each value."""
+    """Markdown table of a model's parameters with the source or assumption behind each value.
+
+    Parameters
+    ----------
+    model : ScannerModel
+        The scanner model to tabulate.
+    sources : dict of str to str
+        Source or assumption behind each field, by field name.
+
+    Returns
+    -------
+    str
+        Markdown table, one row per field (values in the fields' units).
+    """
     lines = ["| parameter | value | source / assumption |", "|---|---|---|"]
     for field in dataclasses.fields(model):
         if field.name == "name":

@@ -231,7 +231,22 @@ def _available_memory_bytes() -> int | None:
 
 
 def trace_scene(scene: Scene, model: ScannerModel, pose: ScannerPose) -> TraceScene:
-    """Upload ``scene`` to the ray-tracing backend with the materials the model needs."""
+    """Upload ``scene`` to the ray-tracing backend with the materials the model needs.
+
+    Parameters
+    ----------
+    scene : Scene
+        The scene to upload (vertices in m).
+    model : ScannerModel
+        Scanner model; selects the BSDF the materials need.
+    pose : ScannerPose
+        Scanner position (m) and orientation.
+
+    Returns
+    -------
+    TraceScene
+        The uploaded scene, ready for tracing.
+    """
     vertices, faces, face_object = scene.merged_mesh()
     reflectance = np.array([o.material.reflectance for o in scene.objects])
     table = None

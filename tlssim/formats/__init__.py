@@ -41,7 +41,20 @@ def _codec(path: Path):
 
 
 def export_scan(scan: Scan, path) -> Path:
-    """Write ``scan`` in the format of ``path``'s extension (``.e57``, ``.ptx``, ``.las``, ``.laz``)."""
+    """Write ``scan`` in the format of ``path``'s extension (``.e57``, ``.ptx``, ``.las``, ``.laz``).
+
+    Parameters
+    ----------
+    scan : Scan
+        The scan to write.
+    path : str or Path
+        Output file; its extension picks the format. Missing folders are created.
+
+    Returns
+    -------
+    Path
+        The written file.
+    """
     path = Path(path)
     writer, _ = _codec(path)
     path.parent.mkdir(parents=True, exist_ok=True)

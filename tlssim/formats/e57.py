@@ -17,7 +17,15 @@ MAX_INDEX = 65535
 
 
 def write(scan: Scan, path: Path) -> None:
-    """Write the whole grid as one structured E57 scan (scanner frame, with the pose)."""
+    """Write the whole grid as one structured E57 scan (scanner frame, with the pose).
+
+    Parameters
+    ----------
+    scan : Scan
+        The scan to write; coordinates in m.
+    path : Path
+        Output ``.e57`` file.
+    """
     import pye57
 
     rows, cols = scan.shape
@@ -47,6 +55,18 @@ def read(path: Path, intensity_max_dn: float = 2047.0) -> Scan:
     refused with the reason otherwise. Cartesian or spherical coordinates are
     accepted. Intensities normalised to [0, 1]
     (``intensityLimits`` maximum <= 1) are scaled to ``0..intensity_max_dn``.
+
+    Parameters
+    ----------
+    path : Path
+        Input ``.e57`` file.
+    intensity_max_dn : float
+        Full scale that normalised intensities are scaled to, DN.
+
+    Returns
+    -------
+    Scan
+        The scan (range in m, angles in rad, intensity in DN), without truth.
     """
     import pye57
 

@@ -31,6 +31,18 @@ def complete_angles(theta: np.ndarray, psi: np.ndarray) -> tuple[np.ndarray, np.
     A scan grid has one azimuth per column and one zenith per row; missing
     columns or rows (no direction anywhere in them) are filled from a
     straight-line fit of the known ones against their index.
+
+    Parameters
+    ----------
+    theta : ndarray
+        Azimuth per grid cell, rad, shape ``(rows, cols)``; NaN where unknown.
+    psi : ndarray
+        Zenith angle per grid cell, rad, same shape; NaN where unknown.
+
+    Returns
+    -------
+    tuple of ndarray
+        ``(theta, psi)`` with the unknown cells filled, rad.
     """
     if not (np.isnan(theta).any() or np.isnan(psi).any()):
         return theta, psi
@@ -108,7 +120,30 @@ def grid_indices(local: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def scan_from_local(local: np.ndarray, valid: np.ndarray, intensity: np.ndarray, pose: ScannerPose,
                     theta: np.ndarray, psi: np.ndarray, meta: dict) -> Scan:
-    """A truth-less :class:`Scan` from scanner-frame points on the grid."""
+    """A truth-less :class:`Scan` from scanner-frame points on the grid.
+
+    Parameters
+    ----------
+    local : ndarray
+        Points in the scanner frame, m, shape ``(rows, cols, 3)``.
+    valid : ndarray of bool
+        Cells with a return, shape ``(rows, cols)``.
+    intensity : ndarray
+        Intensity per cell, DN.
+    pose : ScannerPose
+        Scanner position (m) and orientation in the world frame.
+    theta : ndarray
+        Azimuth per cell, rad.
+    psi : ndarray
+        Zenith angle per cell, rad.
+    meta : dict
+        Scan metadata stored with the scan.
+
+    Returns
+    -------
+    Scan
+        Range in m (NaN without return), world coordinates in m, no truth.
+    """
     range_m = np.where(valid, np.linalg.norm(local, axis=-1), np.nan)
     xyz = np.where(valid[..., None], local @ pose.rotation.T + pose.position, np.nan)
     intensity = np.where(valid, intensity, np.nan).astype(np.float32)

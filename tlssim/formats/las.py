@@ -23,7 +23,15 @@ _TRUTH_DIMS = (("truth_range", np.float64), ("truth_id", np.int32), ("mixed_frac
 
 
 def write(scan: Scan, path: Path) -> None:
-    """Write the returned points (world frame) as LAS, or LAZ for a ``.laz`` path."""
+    """Write the returned points (world frame) as LAS, or LAZ for a ``.laz`` path.
+
+    Parameters
+    ----------
+    scan : Scan
+        The scan to write; coordinates in m.
+    path : Path
+        Output ``.las`` or ``.laz`` file.
+    """
     import laspy
 
     valid = scan.valid

@@ -23,7 +23,15 @@ HEADER_LINES = 10
 
 
 def write(scan: Scan, path: Path) -> None:
-    """Write the grid as PTX (coordinates to 1 µm, intensity to 1e-6 of the full scale)."""
+    """Write the grid as PTX (coordinates to 1 µm, intensity to 1e-6 of the full scale).
+
+    Parameters
+    ----------
+    scan : Scan
+        The scan to write; coordinates in m, intensity in DN.
+    path : Path
+        Output ``.ptx`` file.
+    """
     rows, cols = scan.shape
     full_scale = float(scan.scanner.assumed_model.intensity_max_dn)
     rotation, position = scan.pose.rotation, scan.pose.position
@@ -42,6 +50,18 @@ def read(path: Path, intensity_max_dn: float = 2047.0) -> Scan:
 
     Intensity is scaled from [0, 1] to ``0..intensity_max_dn``; points at the
     origin are cells without a return. Extra columns (colour) are ignored.
+
+    Parameters
+    ----------
+    path : Path
+        Input ``.ptx`` file.
+    intensity_max_dn : float
+        Full scale that the [0, 1] intensities are scaled to, DN.
+
+    Returns
+    -------
+    Scan
+        The scan (range in m, angles in rad, intensity in DN), without truth.
     """
     with open(path, "rb") as handle:
         try:
