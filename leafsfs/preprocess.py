@@ -41,7 +41,24 @@ def resolve_calibration(calibration):
 
 
 def scan_alpha(intensity: np.ndarray, range_m: np.ndarray, calibration) -> tuple[np.ndarray, np.ndarray]:
-    """Incidence angle (rad, NaN where there is no return) and its reliability flag for every pixel."""
+    """Incidence angle (rad, NaN where there is no return) and its reliability flag for every pixel.
+
+    Parameters
+    ----------
+    intensity : ndarray
+        Measured intensity per pixel, DN (NaN without return).
+    range_m : ndarray
+        Measured range per pixel, m (NaN without return).
+    calibration : Calibration
+        Inverse model with ``alpha(intensity, range)`` and ``reliable(intensity, range)``.
+
+    Returns
+    -------
+    alpha : ndarray
+        Incidence angle, rad, clipped to 0..pi/2; NaN without return.
+    reliable : ndarray of bool
+        Whether the angle is reliable (False without return).
+    """
     valid = np.isfinite(intensity) & np.isfinite(range_m)
     alpha = np.full(np.shape(range_m), np.nan)
     reliable = np.zeros(np.shape(range_m), dtype=bool)

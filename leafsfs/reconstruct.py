@@ -147,7 +147,20 @@ class SfsResult:
         return [{"leaf": leaf.label, **leaf.traits} for leaf in self.leaves]
 
     def rppp(self, region: np.ndarray | None = None, n_max: int = 3) -> dict[str, float]:
-        """Redundancy ratios over the reconstructed leaf pixels, or those of ``region`` (see :meth:`HeightResult.rppp`)."""
+        """Redundancy ratios over the reconstructed leaf pixels, or those of ``region`` (see :meth:`HeightResult.rppp`).
+
+        Parameters
+        ----------
+        region : ndarray of bool or None
+            Pixels to count; ``None`` for all reconstructed leaf pixels.
+        n_max : int
+            Largest candidate count with a ratio of its own; larger counts go to ``rppp_more``.
+
+        Returns
+        -------
+        dict of str to float
+            ``rppp_0`` .. ``rppp_{n_max}`` and ``rppp_more``, fractions of the pixels (0..1).
+        """
         counts = self.candidates[self.labels > 0 if region is None else region]
         total = max(len(counts), 1)
         out = {f"rppp_{n}": float(np.sum(counts == n) / total) for n in range(n_max + 1)}
@@ -558,6 +571,22 @@ def plausible(height: np.ndarray, measured: np.ndarray, pure: np.ndarray, frame:
     keep their measured distance. The bound lets the surface rise or fall by
     the diagonal of its bounding box (a 45 deg slope across the whole leaf)
     beyond the heights of its pure pulses.
+
+    Parameters
+    ----------
+    height : ndarray
+        Reconstructed height per pixel of the leaf's box, m.
+    measured : ndarray
+        Measured height per pixel of the box, m (NaN without return).
+    pure : ndarray of bool
+        The leaf's pure (reliable) pulses in the box.
+    frame : LocalFrame
+        The leaf's local frame; its grid gives the box's size in m.
+
+    Returns
+    -------
+    ndarray of bool
+        Pixels whose height is within the bound (always False where ``height`` is NaN).
     """
     rows, cols = np.nonzero(pure)
     if not len(rows):
@@ -575,6 +604,18 @@ def outlier_threshold(range_m: np.ndarray, pure: np.ndarray) -> float:
     The issue's outlier rule (tls-physics §7.10) with the truth replaced by
     the reconstruction: a measured point farther than this from its
     corrected distance is an outlier.
+
+    Parameters
+    ----------
+    range_m : ndarray
+        Measured range per pixel, m.
+    pure : ndarray of bool
+        The leaf's pure pulses.
+
+    Returns
+    -------
+    float
+        Outlier distance, m.
     """
     sigma = range_noise(np.where(pure, range_m, np.nan))
     return max(3.0 * sigma, OUTLIER_FLOOR_M) if np.isfinite(sigma) else OUTLIER_FLOOR_M

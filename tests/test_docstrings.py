@@ -20,10 +20,9 @@ ENABLED = {
     "tlssim": None,
     "leafsfs": ("slope.py", "curves.py", "quantize.py", "engine.py", "fusion.py", "propagate.py", "seed.py",
                 "outputs.py", "baselines.py", "frame.py", "grid.py", "euclid.py", "contour.py", "mesh.py",
-                "synthetic.py"),
-    "woody": ("snake.py", "hough.py", "synthetic.py", "scoring.py", "normals.py", "cylfit.py", "branch.py",
-              "growth.py", "merge.py", "balance.py", "circles.py", "ground.py", "dbh.py", "density.py", "qsm.py",
-              "trunk.py"),
+                "synthetic.py", "reconstruct.py", "preprocess.py", "calibration.py", "calibration_plot.py",
+                "cli.py", "errors.py", "params.py", "segment.py", "traits.py", "__init__.py"),
+    "woody": None,
 }
 
 # ``name : type`` (several names may share one entry); ``*args`` and ``**kwargs`` may stand alone.

@@ -41,6 +41,18 @@ class Cloud:
 def check_points(points, name: str = "points") -> np.ndarray:
     """Validate a point array and return it as ``(n, 3)`` float64.
 
+    Parameters
+    ----------
+    points : array_like
+        Point coordinates x, y, z, m, shape ``(n, 3)``.
+    name : str
+        Name of the argument in error messages.
+
+    Returns
+    -------
+    ndarray
+        The points, m, float64 of shape ``(n, 3)``.
+
     Raises
     ------
     WoodyError
@@ -64,6 +76,18 @@ def check_points(points, name: str = "points") -> np.ndarray:
 def check_normals(normals, count: int) -> np.ndarray:
     """Validate normals for ``count`` points and return them as unit ``(n, 3)`` float64.
 
+    Parameters
+    ----------
+    normals : array_like
+        One normal per point, shape ``(count, 3)``, any non-zero length.
+    count : int
+        Number of points the normals belong to.
+
+    Returns
+    -------
+    ndarray
+        Unit normals (dimensionless), float64 of shape ``(count, 3)``.
+
     Raises
     ------
     WoodyError
@@ -79,7 +103,26 @@ def check_normals(normals, count: int) -> np.ndarray:
 
 
 def check_viewpoints(viewpoints, count: int) -> np.ndarray | None:
-    """Scanner positions as ``(n, 3)`` float64 (a single ``(3,)`` position is broadcast), or ``None``."""
+    """Scanner positions as ``(n, 3)`` float64 (a single ``(3,)`` position is broadcast), or ``None``.
+
+    Parameters
+    ----------
+    viewpoints : array_like or None
+        Scanner position per point, m, shape ``(count, 3)``, one position of shape
+        ``(3,)`` for all points, or ``None`` when unknown.
+    count : int
+        Number of points.
+
+    Returns
+    -------
+    ndarray or None
+        Viewpoints, m, float64 of shape ``(count, 3)``, or ``None``.
+
+    Raises
+    ------
+    WoodyError
+        If the shape does not match or a coordinate is NaN or infinite.
+    """
     if viewpoints is None:
         return None
     array = np.asarray(viewpoints, dtype=float)

@@ -47,7 +47,22 @@ def orthonormal_frame(normal, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarra
 
 
 def frustum_volume(r0, r1, length):
-    """Volume of frusta of end radii ``r0``, ``r1`` and axis ``length`` (m^3)."""
+    """Volume of frusta of end radii ``r0``, ``r1`` and axis ``length`` (m^3).
+
+    Parameters
+    ----------
+    r0 : float or array_like
+        Radius at the start of each frustum, m.
+    r1 : float or array_like
+        Radius at the end of each frustum, m.
+    length : float or array_like
+        Axis length of each frustum, m.
+
+    Returns
+    -------
+    ndarray
+        Volumes, m^3 (broadcast shape of the arguments).
+    """
     r0, r1 = np.asarray(r0, float), np.asarray(r1, float)
     return np.pi * np.asarray(length, float) * (r0 * r0 + r0 * r1 + r1 * r1) / 3.0
 
@@ -153,7 +168,21 @@ def tube_mesh(centres: np.ndarray, tangents: np.ndarray, radii: np.ndarray, sect
 
 
 def cylinders_mesh(cylinders: list[dict], sections: int = 16):
-    """One closed frustum mesh per cylinder of a cylinder list, concatenated (trimesh.Trimesh)."""
+    """One closed frustum mesh per cylinder of a cylinder list, concatenated (trimesh.Trimesh).
+
+    Parameters
+    ----------
+    cylinders : list of dict
+        Cylinder records (``start``, ``end``, ``radius_m``, optional ``radius_end_m``, all m), as
+        :func:`cylinder_arrays` reads them.
+    sections : int
+        Number of sides of each frustum's polygonal cross-section.
+
+    Returns
+    -------
+    trimesh.Trimesh
+        The concatenated meshes, vertices in m.
+    """
     import trimesh
 
     arr = cylinder_arrays(cylinders)

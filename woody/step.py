@@ -442,6 +442,22 @@ def refine_tuboid(tube: Tuboid, points: np.ndarray, tree: cKDTree, radius_step_m
     when at least 6 points support it, the radius stays within that band
     and the median residual is at most one radius cell; the centres are then
     smoothed along the tuboid and the normals re-derived.
+
+    Parameters
+    ----------
+    tube : Tuboid
+        The tuboid to refine (centres and radii in m).
+    points : ndarray
+        The point cloud, m, shape ``(n, 3)``.
+    tree : cKDTree
+        KD-tree built on ``points``.
+    radius_step_m : float
+        Radius cell size of the snake search, m; sets the band and the loss scale.
+
+    Returns
+    -------
+    Tuboid
+        The refined tuboid (centres and radii in m, unit normals).
     """
     centres, radii = tube.centres.copy(), tube.radii.copy()
     spacing = np.linalg.norm(np.diff(tube.centres, axis=0), axis=1)
@@ -478,6 +494,24 @@ def arc_support(centres: np.ndarray, radii: np.ndarray, points: np.ndarray, tree
     A point is on circle i when it lies within half the centre spacing of
     the circle plane and within ``max(0.1 r, radius_step_m)`` of the
     circle; the circumference is cut in 36 sectors of 10 deg.
+
+    Parameters
+    ----------
+    centres : ndarray
+        Circle centres along the tuboid, m, shape ``(k, 3)``.
+    radii : ndarray
+        Circle radii, m, shape ``(k,)``.
+    points : ndarray
+        The point cloud, m, shape ``(n, 3)``.
+    tree : cKDTree
+        KD-tree built on ``points``.
+    radius_step_m : float
+        Radius cell size, m; the least tolerance around a circle.
+
+    Returns
+    -------
+    float
+        Median covered fraction of the circumference, 0..1.
     """
     normals = windowed_tangents(centres, radii)
     u, v = ring_frames(normals)
@@ -504,6 +538,19 @@ def windowed_tangents(centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
     fitted in that plane sees an ellipse. The centres within one local
     radius along the curve (at least the two neighbours) average the wander
     out; a tube bends on a scale of its radius or more.
+
+    Parameters
+    ----------
+    centres : ndarray
+        Centreline vertices, m, shape ``(k, 3)``.
+    radii : ndarray
+        Local radius at each vertex, m, shape ``(k,)``; the window half-length.
+
+    Returns
+    -------
+    ndarray
+        Unit tangents (dimensionless), shape ``(k, 3)`` (one vertical tangent for
+        fewer than two vertices).
     """
     if len(centres) < 2:
         return np.array([[0.0, 0.0, 1.0]])
