@@ -108,7 +108,21 @@ def compare_runs(rows_a: list[dict], rows_b: list[dict], z: float = 3.0) -> list
 
 
 def format_comparison(entries: list[dict], only_changes: bool = False) -> str:
-    """The comparison as aligned text."""
+    """The comparison as aligned text.
+
+    Parameters
+    ----------
+    entries : list of dict
+        Comparison entries (``variant``, ``metric``, ``n``, ``a``, ``b``,
+        ``change``, ``verdict``), the metrics in their own units.
+    only_changes : bool
+        Show only the entries whose verdict is not ``same``.
+
+    Returns
+    -------
+    str
+        One line per entry under a header; ``runtime_s`` changes as percentages.
+    """
     shown = [e for e in entries if e["verdict"] != "same"] if only_changes else entries
     lines = [("variant", "metric", "n", "A", "B", "change", "verdict")]
     for e in shown:

@@ -72,7 +72,20 @@ def leaf_inputs():
 
 
 def run_perf(sizes, repeat: int = 3) -> dict:
-    """Measure; returns a JSON-ready report (seconds)."""
+    """Measure; returns a JSON-ready report (seconds).
+
+    Parameters
+    ----------
+    sizes : iterable of int
+        Side lengths of the sampled hemispheres, pixels.
+    repeat : int
+        Runs per measurement (the median is kept).
+
+    Returns
+    -------
+    dict
+        Machine description and per size the run times, s.
+    """
     report = {"machine": f"{platform.machine()} {platform.processor() or ''}".strip(), "cpus": os.cpu_count(),
               "omp_threads": os.environ.get("OMP_NUM_THREADS", "unset"), "repeat": repeat, "hemispheres": []}
     for side in sizes:

@@ -37,7 +37,20 @@ def perf_setup(size: int) -> tuple[scenes.Scene, ScanSetup]:
 
 
 def raw_first_hit_rate(scene: scenes.Scene, setup: ScanSetup) -> float:
-    """Rays/s of ``ray_intersect_preliminary`` on the simulator's own sub-rays (same chunks)."""
+    """Rays/s of ``ray_intersect_preliminary`` on the simulator's own sub-rays (same chunks).
+
+    Parameters
+    ----------
+    scene : scenes.Scene
+        The scene to trace (vertices in m).
+    setup : ScanSetup
+        Scanner model, pose (m) and window of the scan.
+
+    Returns
+    -------
+    float
+        Ray-intersection rate, rays/s.
+    """
     import drjit as dr
 
     model, pose, window = setup.model, setup.pose, setup.window

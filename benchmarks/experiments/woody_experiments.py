@@ -53,7 +53,25 @@ SCANNER_DISTANCE_M = 10.0
 
 
 def ring_viewpoints(points: np.ndarray, normals: np.ndarray, azimuths_deg, height_m: float = 1.0) -> np.ndarray:
-    """Position of the scanner that sees each point best, among scanners on a ring around the origin."""
+    """Position of the scanner that sees each point best, among scanners on a ring around the origin.
+
+    Parameters
+    ----------
+    points : ndarray
+        Point coordinates, m, shape ``(n, 3)``.
+    normals : ndarray
+        Unit normal of each point, shape ``(n, 3)``.
+    azimuths_deg : array_like
+        Azimuth of each scanner on the ring, degrees; the ring's radius is
+        :data:`SCANNER_DISTANCE_M`.
+    height_m : float
+        Height of the scanners, m.
+
+    Returns
+    -------
+    ndarray
+        The chosen scanner position per point, m, shape ``(n, 3)``.
+    """
     az = np.radians(np.asarray(azimuths_deg, float))
     scanners = np.column_stack([SCANNER_DISTANCE_M * np.cos(az), SCANNER_DISTANCE_M * np.sin(az),
                                 np.full(len(az), height_m)])
@@ -91,6 +109,20 @@ def _cylinder_kwargs() -> dict:
 
 
 def exp_density(quick: bool, seed: int) -> list[dict]:
+    """STEP on a straight cylinder at 10 point densities (DS1 a); one scored row per density and variant.
+
+    Parameters
+    ----------
+    quick : bool
+        Run two densities only (a smoke test).
+    seed : int
+        Seed of the sampled clouds.
+
+    Returns
+    -------
+    list of dict
+        Rows with the density (pts/cm^2) and the diameter errors (cm).
+    """
     levels = np.geomspace(14.0, 1.4, 10) if not quick else np.array([3.0, 1.4])
     truth = {"cylinders": straight_cylinder()}
     rows = []
@@ -103,6 +135,20 @@ def exp_density(quick: bool, seed: int) -> list[dict]:
 
 
 def exp_occlusion(quick: bool, seed: int) -> list[dict]:
+    """STEP on a straight cylinder with a visible sector of 10 to 360 deg (DS1 b); one row per arc and variant.
+
+    Parameters
+    ----------
+    quick : bool
+        Run five arcs only (a smoke test).
+    seed : int
+        Seed of the sampled clouds.
+
+    Returns
+    -------
+    list of dict
+        Rows with the visible arc (``arc_deg``, degrees) and the diameter errors (cm).
+    """
     arcs = np.arange(10, 361, 10) if not quick else np.array([10, 40, 90, 180, 360])
     truth = {"cylinders": straight_cylinder()}
     rows = []
@@ -115,6 +161,20 @@ def exp_occlusion(quick: bool, seed: int) -> list[dict]:
 
 
 def exp_noise(quick: bool, seed: int) -> list[dict]:
+    """STEP on a straight cylinder with uniform coordinate noise of 0 to 5 cm (DS1 c); one row per level and variant.
+
+    Parameters
+    ----------
+    quick : bool
+        Run three noise levels only (a smoke test).
+    seed : int
+        Seed of the sampled cloud and noise.
+
+    Returns
+    -------
+    list of dict
+        Rows with the noise level (cm) and the diameter errors (cm).
+    """
     levels = np.arange(0.0, 5.01, 0.5) if not quick else np.array([0.0, 1.0, 2.5])
     truth = {"cylinders": straight_cylinder()}
     cloud = sample_cylinders(truth["cylinders"], 3e4, seed=seed)
@@ -128,6 +188,20 @@ def exp_noise(quick: bool, seed: int) -> list[dict]:
 
 
 def exp_tube(quick: bool, seed: int) -> list[dict]:
+    """STEP on a winding tapering tube seen from one or two sides, decimated and noisy (DS2).
+
+    Parameters
+    ----------
+    quick : bool
+        Run the full-density conditions only (a smoke test).
+    seed : int
+        Seed of the sampled clouds and noise.
+
+    Returns
+    -------
+    list of dict
+        One scored row per condition and variant (errors in m).
+    """
     truth = {"cylinders": curved_tube()}
     kwargs = {"cell_m": 0.03, "radius_step_m": 0.01, "r_min_m": 0.04, "r_max_m": 0.35}
     rows = []
@@ -149,6 +223,20 @@ def exp_tube(quick: bool, seed: int) -> list[dict]:
 
 
 def exp_conifer(quick: bool, seed: int) -> list[dict]:
+    """STEP on a conifer stem with branch stubs seen from one side (DS3): taper error and DBH.
+
+    Parameters
+    ----------
+    quick : bool
+        Use a 6 m stem instead of 15 m (a smoke test).
+    seed : int
+        Seed of the stem and its sampled cloud.
+
+    Returns
+    -------
+    list of dict
+        One scored row per variant (errors in m).
+    """
     height = 6.0 if quick else 15.0
     truth = {"cylinders": conifer_stem(height_m=height, seed=seed)}
     cloud = sample_cylinders(truth["cylinders"], 1e4, seed=seed, view=(1.0, 0.0, 0.0))
@@ -165,6 +253,20 @@ def exp_conifer(quick: bool, seed: int) -> list[dict]:
 
 
 def exp_trees(quick: bool, seed: int) -> list[dict]:
+    """Cylinder following and STEP on apple-like and vine-like trees, one- and two-sided sampling.
+
+    Parameters
+    ----------
+    quick : bool
+        Run cylinder following only, without STEP (a smoke test).
+    seed : int
+        Seed of the trees and their sampled clouds.
+
+    Returns
+    -------
+    list of dict
+        One row per tree, sampling and method (``volume_error_pct`` signed, %; times in s).
+    """
     rows = []
     trees = {"apple-like": apple_like_tree(seed), "vine-like": vine_like(seed)}
     samplings = {"one side 0.75 pts/cm2": (0.75e4, (1.0, 0.0, 0.0)), "two sides 3 pts/cm2": (3e4, None)}
@@ -206,6 +308,20 @@ PAPER_MODE = {"direction": "covariance", "axis": "centroid", "inclusion": "max",
 
 
 def exp_directions(quick: bool, seed: int) -> list[dict]:
+    """Axis direction of random cylinder clouds by covariance, iterative search and normals (Méndez M0).
+
+    Parameters
+    ----------
+    quick : bool
+        Use 20 clouds instead of 100 (a smoke test).
+    seed : int
+        Seed of the directions and clouds.
+
+    Returns
+    -------
+    list of dict
+        One row per method: angular errors (degrees) and run time (s).
+    """
     rng = np.random.default_rng(seed)
     count = 20 if quick else 100
     errors = {"covariance": [], "iterative": [], "normals": []}
@@ -253,7 +369,20 @@ _COLUMNS = {
 
 
 def format_table(rows: list[dict], columns: list[str]) -> str:
-    """Rows as a fixed-width text table (floats with 3 significant decimals)."""
+    """Rows as a fixed-width text table (floats with 3 significant decimals).
+
+    Parameters
+    ----------
+    rows : list of dict
+        Table rows.
+    columns : list of str
+        Keys to show, in order; a missing or ``None`` value shows as ``-``.
+
+    Returns
+    -------
+    str
+        The table, one line per row under a header.
+    """
     def cell(value):
         if value is None:
             return "-"
@@ -275,6 +404,18 @@ def goal_lines(name: str, rows: list[dict]) -> list[str]:
     (for occlusion: on the arcs of 40 deg and more), per normals/circles
     variant, with the worst case; ``trees``: cylinder-following |volume
     error| within 10 %, per tree, sampling and mode.
+
+    Parameters
+    ----------
+    name : str
+        Experiment name (one of :data:`EXPERIMENTS`).
+    rows : list of dict
+        The experiment's rows (``diameter_mae_cm`` in cm, ``volume_error_pct`` in %).
+
+    Returns
+    -------
+    list of str
+        One line per checked goal, "met" or "NOT met" with the worst case.
     """
     lines = []
     if name in ("occlusion", "density", "noise"):
@@ -338,7 +479,24 @@ def _plot(name: str, rows: list[dict], out: Path) -> None:
 
 
 def run_all(out: Path, only=None, quick: bool = False, seed: int = 0) -> dict:
-    """Run the selected experiments, print their tables, write JSON and plots under ``out``."""
+    """Run the selected experiments, print their tables, write JSON and plots under ``out``.
+
+    Parameters
+    ----------
+    out : Path
+        Output folder (created if missing).
+    only : iterable of str or None
+        Experiments to run; ``None`` for all of :data:`EXPERIMENTS`.
+    quick : bool
+        Smoke-test sizes.
+    seed : int
+        Seed of every experiment.
+
+    Returns
+    -------
+    dict
+        Rows per experiment name.
+    """
     out.mkdir(parents=True, exist_ok=True)
     results = {}
     for name in only or EXPERIMENTS:

@@ -59,7 +59,20 @@ def _measure(method: str, size: int, queue) -> None:
 
 
 def run_perf(sizes, methods) -> dict:
-    """Measure each method at each point count (one fresh process per run)."""
+    """Measure each method at each point count (one fresh process per run).
+
+    Parameters
+    ----------
+    sizes : iterable of int
+        Point counts of the clouds.
+    methods : iterable of str
+        Methods to measure.
+
+    Returns
+    -------
+    dict
+        Per method and size the wall time (s) and peak memory (MB).
+    """
     from tqdm import tqdm
 
     context = multiprocessing.get_context("spawn")
