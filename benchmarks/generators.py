@@ -51,7 +51,21 @@ LEAF_REFLECTANCE = 0.48
 
 
 def generator(name: str, description: str):
-    """Decorator registering a scene generator under ``name``."""
+    """Decorator registering a scene generator under ``name``.
+
+    Parameters
+    ----------
+    name : str
+        Generator name, unique.
+    description : str
+        One line shown in the list of generators.
+
+    Returns
+    -------
+    callable
+        Decorator that registers a function returning a :class:`Scene` and
+        returns it unchanged.
+    """
 
     def decorator(func: Callable[..., Scene]):
         if name in _GENERATORS:
@@ -297,7 +311,22 @@ def direction_angles_deg(direction) -> tuple[float, float]:
 
 
 def rotate(vector, axis, angle_rad: float) -> np.ndarray:
-    """``vector`` rotated by ``angle_rad`` about the unit ``axis`` (Rodrigues)."""
+    """``vector`` rotated by ``angle_rad`` about the unit ``axis`` (Rodrigues).
+
+    Parameters
+    ----------
+    vector : array_like
+        Vector to rotate, shape ``(3,)`` (any unit).
+    axis : array_like
+        Rotation axis, shape ``(3,)``; normalised here.
+    angle_rad : float
+        Rotation angle, rad (right-handed about ``axis``).
+
+    Returns
+    -------
+    ndarray
+        The rotated vector, in the unit of ``vector``.
+    """
     v, k = np.asarray(vector, float), np.asarray(axis, float) / np.linalg.norm(axis)
     return v * math.cos(angle_rad) + np.cross(k, v) * math.sin(angle_rad) + k * np.dot(k, v) * (1 - math.cos(angle_rad))
 
@@ -308,6 +337,19 @@ def scanner_window(objects: list[SceneObject], margin_deg: float = 0.4) -> dict:
     The margin must exceed the beam footprint radius plus a few angular
     steps, so that every pulse touching an object lies in the window (0.4 deg
     covers the FARO LS880 footprint at 0.6 m and five 0.072 deg steps).
+
+    Parameters
+    ----------
+    objects : list of SceneObject
+        Objects the window must cover (vertices in m, scanner at the origin).
+    margin_deg : float
+        Margin on every side of the window, degrees.
+
+    Returns
+    -------
+    dict
+        Scanner section: ``preset``, ``position`` (m) and ``window`` with
+        ``theta_deg`` and ``psi_deg`` ranges, degrees.
     """
     points = np.vstack([o.vertices for o in objects])
     theta = np.degrees(np.arctan2(points[:, 1], points[:, 0]))
@@ -319,7 +361,24 @@ def scanner_window(objects: list[SceneObject], margin_deg: float = 0.4) -> dict:
 
 def background_wall(objects: list[SceneObject], distance_m: float, reflectance: float,
                     margin_deg: float = 1.0) -> SceneObject:
-    """A wall facing the scanner at ``distance_m`` along +x, wide enough to fill the window behind ``objects``."""
+    """A wall facing the scanner at ``distance_m`` along +x, wide enough to fill the window behind ``objects``.
+
+    Parameters
+    ----------
+    objects : list of SceneObject
+        Objects the wall stands behind (vertices in m, scanner at the origin).
+    distance_m : float
+        Distance of the wall from the scanner along +x, m.
+    reflectance : float
+        Diffuse reflectance of the wall, 0..1.
+    margin_deg : float
+        Angular margin beyond the objects, degrees.
+
+    Returns
+    -------
+    SceneObject
+        A square plane named ``background`` facing -x.
+    """
     points = np.vstack([o.vertices for o in objects])
     half_angle = math.radians(margin_deg) + np.max(np.arccos(points[:, 0] / np.linalg.norm(points, axis=1)))
     half = distance_m * math.tan(min(half_angle, math.radians(80.0))) + 0.05

@@ -55,7 +55,22 @@ def check_heightfield(spec: dict) -> None:
 
 
 def sample(spec: dict, seed: int):
-    """The sampled surface of a height-field case (:class:`leafsfs.synthetic.SyntheticInput`)."""
+    """The sampled surface of a height-field case (:class:`leafsfs.synthetic.SyntheticInput`).
+
+    Parameters
+    ----------
+    spec : dict
+        Scene section of a height-field case (``heightfield``, optional
+        ``surface_params``, ``side`` in pixels, ``alpha_noise_deg`` and
+        ``alpha_bias_deg`` in degrees, ``height_noise`` relative).
+    seed : int
+        Seed of the noise.
+
+    Returns
+    -------
+    leafsfs.synthetic.SyntheticInput
+        Sampled incidence angles (rad), heights and mask with the true heights.
+    """
     from leafsfs.synthetic import sample_surface
     from scenes.surfaces import get_surface
 
@@ -67,7 +82,23 @@ def sample(spec: dict, seed: int):
 
 
 def score_heights(spec: dict, sampled, result) -> dict:
-    """Scores of a height-field reconstruction: the thesis' errors, completeness and redundancy."""
+    """Scores of a height-field reconstruction: the thesis' errors, completeness and redundancy.
+
+    Parameters
+    ----------
+    spec : dict
+        Scene section of the height-field case.
+    sampled : leafsfs.synthetic.SyntheticInput
+        The sampled surface, with its true heights.
+    result : leafsfs.HeightResult
+        The reconstruction of ``sampled``.
+
+    Returns
+    -------
+    dict
+        The case's settings, the relative height errors of
+        :func:`benchmarks.metrics.height_errors` and the redundancy ratios.
+    """
     scores = {"target": spec["heightfield"], "object_type": "heightfield", "side": spec.get("side", 41),
               "alpha_noise_deg": spec.get("alpha_noise_deg", 0.0), "alpha_bias_deg": spec.get("alpha_bias_deg", 0.0),
               "height_noise": spec.get("height_noise", 0.0)}

@@ -331,7 +331,20 @@ def outlier_scores(outlier_before: np.ndarray, kept: np.ndarray, outlier_after: 
 
 
 def ratio(numerator: int, denominator: int) -> float:
-    """``numerator / denominator``, NaN when the denominator is zero."""
+    """``numerator / denominator``, NaN when the denominator is zero.
+
+    Parameters
+    ----------
+    numerator : int
+        Count above the fraction bar.
+    denominator : int
+        Count below it.
+
+    Returns
+    -------
+    float
+        The ratio (dimensionless), or NaN.
+    """
     return numerator / denominator if denominator else math.nan
 
 
@@ -340,6 +353,17 @@ def height_errors(estimate: np.ndarray, truth: np.ndarray, mask: np.ndarray, tol
 
     ``eps = (estimate - truth) / h_tot`` with ``h_tot = h_max - h_min`` of
     the true surface, over the reconstructed pixels of ``mask``.
+
+    Parameters
+    ----------
+    estimate : ndarray
+        Reconstructed heights (NaN where not reconstructed), in the unit of ``truth``.
+    truth : ndarray
+        True heights, same shape and unit.
+    mask : ndarray of bool
+        Pixels of the surface.
+    tolerance : float
+        Relative error counted as within (fraction of ``h_tot``, dimensionless).
 
     Returns
     -------
@@ -363,12 +387,38 @@ def height_errors(estimate: np.ndarray, truth: np.ndarray, mask: np.ndarray, tol
 
 
 def relative_error(estimate: float, truth: float) -> float:
-    """Signed relative error ``(estimate − truth) / truth``."""
+    """Signed relative error ``(estimate − truth) / truth``.
+
+    Parameters
+    ----------
+    estimate : float
+        Estimated value.
+    truth : float
+        True value, same unit, non-zero.
+
+    Returns
+    -------
+    float
+        Relative error (dimensionless).
+    """
     return (estimate - truth) / truth
 
 
 def direction_from_angles(elevation_deg: float, azimuth_deg: float) -> np.ndarray:
-    """Unit vector of a direction given by elevation above the horizontal and azimuth from +x, degrees."""
+    """Unit vector of a direction given by elevation above the horizontal and azimuth from +x, degrees.
+
+    Parameters
+    ----------
+    elevation_deg : float
+        Elevation above the horizontal, degrees.
+    azimuth_deg : float
+        Azimuth from +x towards +y, degrees.
+
+    Returns
+    -------
+    ndarray
+        Unit vector, shape ``(3,)``.
+    """
     el, az = math.radians(elevation_deg), math.radians(azimuth_deg)
     return np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
 

@@ -33,7 +33,20 @@ from benchmarks.suite import Case
 
 def report_document(store: Store, run_id: str) -> dict:
     """The JSON report of a run: ``run``, ``goal``, ``rows`` (suite × variant), ``by_scene``, the thesis'
-    ``validation`` table and ``rppp_groups``, ``cases`` (whole-scan reconstruction per case) and ``sweeps``."""
+    ``validation`` table and ``rppp_groups``, ``cases`` (whole-scan reconstruction per case) and ``sweeps``.
+
+    Parameters
+    ----------
+    store : Store
+        The results store holding the run.
+    run_id : str
+        The run's id.
+
+    Returns
+    -------
+    dict
+        JSON-ready report (metrics in the units of their names).
+    """
     info = store.run_info(run_id)
     rows = store.results(run_id)
     table = summary.summarize(rows, info["suite"])
@@ -180,6 +193,18 @@ def plot_before_after(case_spec: dict, variants: list[dict]) -> Figure:
 
     The case is re-simulated; points are coloured by what the variant left:
     within τ of the truth (green), outliers (red), removed (grey).
+
+    Parameters
+    ----------
+    case_spec : dict
+        Stored specification of the case (re-simulated here).
+    variants : list of dict
+        Variant specifications (``name``, ``params``).
+
+    Returns
+    -------
+    Figure
+        One top-view panel per variant, coordinates in m.
     """
     case = Case.from_dict(case_spec)
     scene, scan = simulate_case(case)
@@ -242,7 +267,24 @@ td:first-child{text-align:left}.goal{padding:0.7em;border-left:4px solid #c33;ba
 
 
 def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Path:
-    """Write the HTML report of a run (figures embedded as PNG); returns the path."""
+    """Write the HTML report of a run (figures embedded as PNG); returns the path.
+
+    Parameters
+    ----------
+    store : Store
+        The results store holding the run.
+    run_id : str
+        The run's id.
+    path : str or Path
+        Output HTML file.
+    before_after : bool
+        Include the before/after figures (re-simulates cases: slower).
+
+    Returns
+    -------
+    Path
+        The written file.
+    """
     document = report_document(store, run_id)
     rows = store.results(run_id)
     leaves = summary.target_scores(rows)

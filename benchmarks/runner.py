@@ -63,6 +63,22 @@ def measured(func, *args):
     every allocation of the process (numpy, Dr.Jit), so it is meaningful
     when one case runs per process (local pools, Dask workers with one
     thread).
+
+    Parameters
+    ----------
+    func : callable
+        Function to call.
+    *args
+        Its positional arguments.
+
+    Returns
+    -------
+    result : object
+        What ``func`` returned.
+    elapsed : float
+        Wall time, s.
+    peak : float or None
+        Peak resident memory above the start, MB; ``None`` where not measurable.
     """
     start_rss = _rss_mb("VmRSS") if _reset_peak_rss() else None
     start = time.perf_counter()
@@ -157,7 +173,20 @@ def case_rows(case: dict, variants: list[dict]):
 
 
 def case_variant(case: Case, spec: dict) -> Variant:
-    """The variant of ``spec`` with the case's own parameters for it applied (by family, then by name)."""
+    """The variant of ``spec`` with the case's own parameters for it applied (by family, then by name).
+
+    Parameters
+    ----------
+    case : Case
+        The case, with per-family and per-variant parameter overrides.
+    spec : dict
+        Variant specification (``name``, ``params``).
+
+    Returns
+    -------
+    Variant
+        The variant with its parameters (in their own units) applied.
+    """
     variant = get_variant(spec["name"]).with_params(**spec["params"])
     return variant.with_params(**case.params.get(variant.family, {})).with_params(**case.params.get(variant.name, {}))
 
@@ -181,17 +210,58 @@ def _heightfield_rows(case: Case, variants: list[dict]):
 
 
 def applies(variant: Variant, case: Case) -> bool:
-    """Whether a variant runs on a case: height-field cases need a method that reconstructs height fields."""
+    """Whether a variant runs on a case: height-field cases need a method that reconstructs height fields.
+
+    Parameters
+    ----------
+    variant : Variant
+        The method variant.
+    case : Case
+        The benchmark case.
+
+    Returns
+    -------
+    bool
+        Whether the variant runs on the case.
+    """
     return variant.heights is not None or not heightfields.is_heightfield(case.scene)
 
 
 def run_case(case: dict, variants: list[dict]) -> list[dict]:
-    """All rows of :func:`case_rows` at once (the unit of work sent to Dask)."""
+    """All rows of :func:`case_rows` at once (the unit of work sent to Dask).
+
+    Parameters
+    ----------
+    case : dict
+        Case specification.
+    variants : list of dict
+        Variant specifications (``name``, ``params``).
+
+    Returns
+    -------
+    list of dict
+        Result rows, one per variant and target (metrics in the units of their names).
+    """
     return list(case_rows(case, variants))
 
 
 def error_row(case: Case, spec: dict, message: str) -> dict:
-    """The row of a variant that could not be run on a case."""
+    """The row of a variant that could not be run on a case.
+
+    Parameters
+    ----------
+    case : Case
+        The case.
+    spec : dict
+        Variant specification (``name``, ``params``).
+    message : str
+        Why the variant could not run (one line).
+
+    Returns
+    -------
+    dict
+        A result row with no targets and the error message.
+    """
     return _row(case, spec, {"targets": []}, None, None, None, message)
 
 
@@ -233,7 +303,22 @@ class RunOutcome:
 
 
 def run_config(suite: Suite, variants: list[Variant]) -> tuple[dict, str]:
-    """Configuration of a run (suite digest, variants and parameters) and its digest."""
+    """Configuration of a run (suite digest, variants and parameters) and its digest.
+
+    Parameters
+    ----------
+    suite : Suite
+        The suite to run.
+    variants : list of Variant
+        The variants to run, with their parameters.
+
+    Returns
+    -------
+    config : dict
+        Suite name, source and digest, case count and variant specifications.
+    digest : str
+        SHA-256 hex digest of ``config``.
+    """
     config = {"suite": suite.name, "suite_source": suite.source, "suite_digest": suite.digest(),
               "cases": len(suite.cases), "variants": variant_specs(variants)}
     return config, hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()

@@ -110,7 +110,22 @@ class LeafTruth(Target):
 
 
 def crop_scan(scan, rows: slice, cols: slice):
-    """The part ``[rows, cols]`` of a scan's grid, as a scan (arrays are views, not copies)."""
+    """The part ``[rows, cols]`` of a scan's grid, as a scan (arrays are views, not copies).
+
+    Parameters
+    ----------
+    scan : Scan
+        The scan to crop.
+    rows : slice
+        Grid rows to keep.
+    cols : slice
+        Grid columns to keep.
+
+    Returns
+    -------
+    Scan
+        The cropped scan (grid, truth and extra layers).
+    """
     window = (rows, cols)
     arrays = {key: getattr(scan, key)[window] for key in GRID_KEYS + TRUTH_KEYS if getattr(scan, key) is not None}
     return dataclasses.replace(scan, **arrays, layers={k: v[window] for k, v in scan.layers.items()})
@@ -139,6 +154,18 @@ def crop_margin_px(scan, distance_m: float) -> int:
     beyond are still mixed for about two radii; a fixed margin would give a
     method only a sliver of pure background near the scanner (about 7 pixels
     per radius at 0.8 m and 0.018 deg), where the footprint spans many pixels.
+
+    Parameters
+    ----------
+    scan : Scan
+        The scan (its scanner gives the beam radius and angular steps).
+    distance_m : float
+        Distance of the leaf from the scanner, m.
+
+    Returns
+    -------
+    int
+        Margin, pixels.
     """
     radius_m = scan.scanner.model.beam_radius_m(distance_m)
     radius_px = radius_m / (distance_m * min(grid_steps(scan)))
@@ -170,7 +197,25 @@ def object_boxes(scan) -> dict[int, tuple[slice, slice]]:
 
 
 def power_share(scan, object_id: int) -> np.ndarray:
-    """Power share of one object in every pulse of a simulated scan (:func:`benchmarks.metrics.leaf_power_share`)."""
+    """Power share of one object in every pulse of a simulated scan (:func:`benchmarks.metrics.leaf_power_share`).
+
+    Parameters
+    ----------
+    scan : Scan
+        A simulated scan with truth and the second-object layers.
+    object_id : int
+        Scene object index.
+
+    Returns
+    -------
+    ndarray
+        Share of the pulse's power on the object, 0..1, one per grid cell.
+
+    Raises
+    ------
+    BenchError
+        If the scan lacks the second-object truth layers.
+    """
     missing = [k for k in SECOND_LAYERS if k not in scan.layers]
     if missing:
         raise BenchError(f"the scan lacks the truth layers {missing} (simulated by an older tlssim): re-simulate it")
@@ -246,7 +291,20 @@ class TruthSurfaces:
         self._prepared: dict[int, metrics.SurfaceDistance] = {}
 
     def distance(self, points: np.ndarray, object_ids: np.ndarray) -> np.ndarray:
-        """Signed distance of each point to the true surface of its object (``object_ids``), m."""
+        """Signed distance of each point to the true surface of its object (``object_ids``), m.
+
+        Parameters
+        ----------
+        points : ndarray
+            Points, m, shape ``(n, 3)``.
+        object_ids : ndarray of int
+            Scene object index of each point, shape ``(n,)``.
+
+        Returns
+        -------
+        ndarray
+            Signed distances, m, shape ``(n,)``.
+        """
         out = np.full(len(points), np.nan)
         for oid in np.unique(object_ids):
             oid = int(oid)
@@ -263,7 +321,25 @@ TARGET_TYPES = ("leaf", "surface")
 
 
 def target_ids(scene, targets: list[str] | None = None) -> list[int]:
-    """Object ids to score: the named ``targets``, or every object of a type in :data:`TARGET_TYPES`."""
+    """Object ids to score: the named ``targets``, or every object of a type in :data:`TARGET_TYPES`.
+
+    Parameters
+    ----------
+    scene : Scene
+        The scene.
+    targets : list of str or None
+        Object names to score; ``None`` for every object of a target type.
+
+    Returns
+    -------
+    list of int
+        Scene object indices.
+
+    Raises
+    ------
+    BenchError
+        If a named target is not in the scene.
+    """
     names = scene.object_names
     if targets is None:
         return [i for i, o in enumerate(scene.objects) if o.type in TARGET_TYPES]
@@ -350,6 +426,18 @@ def prepare_wood(scene, scan) -> list[Target]:
 
     Its points are the pulses it dominates (the per-tree isolation from
     ground-truth labels of the woody spec, C.1), on the whole scan.
+
+    Parameters
+    ----------
+    scene : Scene
+        The simulated scene (woody objects carry ``cylinders`` truth).
+    scan : Scan
+        Its simulated scan, with truth.
+
+    Returns
+    -------
+    list of Target
+        One target per woody object with enough returns.
     """
     valid = scan.valid
     return [Target(oid, obj.name, obj.type, obj.truth, scan, valid & (scan.truth_id == oid))
@@ -359,6 +447,13 @@ def prepare_wood(scene, scan) -> list[Target]:
 
 def score_wood(wood: Target, output: VariantOutput) -> dict:
     """Scores of reconstructed cylinders against a woody object's truth (:func:`woody.score`).
+
+    Parameters
+    ----------
+    wood : Target
+        The woody object and its points.
+    output : VariantOutput
+        A method's output, with ``cylinders`` in its traits.
 
     Returns
     -------
@@ -384,6 +479,13 @@ def score_wood(wood: Target, output: VariantOutput) -> dict:
 def output_distance(leaf: LeafTruth, output: VariantOutput):
     """A variant's output points on a leaf and their signed distance to the truth.
 
+    Parameters
+    ----------
+    leaf : LeafTruth
+        The leaf's pixels, truth surfaces and distances before the method, m.
+    output : VariantOutput
+        A method's output points (``xyz`` in m, NaN where dropped).
+
     Returns
     -------
     points : ndarray, (n, 3)
@@ -404,6 +506,13 @@ def output_distance(leaf: LeafTruth, output: VariantOutput):
 
 def score_leaf(leaf: LeafTruth, output: VariantOutput) -> dict:
     """Scores of one variant's output on one leaf.
+
+    Parameters
+    ----------
+    leaf : LeafTruth
+        The leaf's pixels, truth and distances before the method, m.
+    output : VariantOutput
+        A method's output points (m) and flags.
 
     Returns
     -------
@@ -631,6 +740,18 @@ def trait_errors(truth: dict, traits: dict | None) -> dict:
     (:func:`benchmarks.metrics.aligned_axis_angles`: the midrib's sense
     flipped towards the truth, the azimuth within 180 deg of it), next to
     the true ones, for the regressions of the validation table.
+
+    Parameters
+    ----------
+    truth : dict
+        True leaf traits (``area_m2`` in m^2, angles in degrees).
+    traits : dict or None
+        Estimated traits, same units; ``None`` or empty when the method gives none.
+
+    Returns
+    -------
+    dict
+        Estimates, truths and their errors (m^2, degrees), keys named with units.
     """
     if not traits:
         return {}

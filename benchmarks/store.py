@@ -175,7 +175,28 @@ class Store:
 
     def create_run(self, suite: str, suite_digest: str, config: dict, config_digest: str,
                    commit: str | None = None, notes: dict | None = None) -> str:
-        """Record a new run and return its id (``YYYYmmddTHHMMSS-<hex>``)."""
+        """Record a new run and return its id (``YYYYmmddTHHMMSS-<hex>``).
+
+        Parameters
+        ----------
+        suite : str
+            Suite name.
+        suite_digest : str
+            Digest of the suite's cases.
+        config : dict
+            Run configuration (JSON-ready).
+        config_digest : str
+            Digest of ``config``.
+        commit : str or None
+            Code commit; ``None`` for the current one.
+        notes : dict or None
+            JSON-ready notes.
+
+        Returns
+        -------
+        str
+            The new run's id.
+        """
         run_id = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S") + "-" + secrets.token_hex(3)
         with self._transaction():
             self._db.execute(
@@ -186,14 +207,40 @@ class Store:
         return run_id
 
     def find_resumable(self, config_digest: str, commit: str) -> str | None:
-        """The latest unfinished run with this configuration and code commit, if any."""
+        """The latest unfinished run with this configuration and code commit, if any.
+
+        Parameters
+        ----------
+        config_digest : str
+            Digest of the run configuration.
+        commit : str
+            Code commit.
+
+        Returns
+        -------
+        str or None
+            The run's id, or ``None``.
+        """
         row = self._db.execute(
             "SELECT run_id FROM runs WHERE status = 'running' AND config_digest = ? AND git_commit = ?"
             " ORDER BY created DESC LIMIT 1", (config_digest, commit)).fetchone()
         return None if row is None else row["run_id"]
 
     def add_results(self, run_id: str, rows: list[dict]) -> int:
-        """Store result rows in one transaction; rows already stored are left alone. Returns rows added."""
+        """Store result rows in one transaction; rows already stored are left alone. Returns rows added.
+
+        Parameters
+        ----------
+        run_id : str
+            The run's id.
+        rows : list of dict
+            Result rows (metrics in the units of their names).
+
+        Returns
+        -------
+        int
+            Number of rows added.
+        """
         values = []
         for row in rows:
             row = {**row, "finished": row.get("finished") or utc_now()}
@@ -217,7 +264,15 @@ class Store:
             self._db.execute("UPDATE runs SET status = 'complete', finished = ? WHERE run_id = ?", (utc_now(), run_id))
 
     def set_notes(self, run_id: str, notes: dict) -> None:
-        """Replace a run's notes (JSON-ready)."""
+        """Replace a run's notes (JSON-ready).
+
+        Parameters
+        ----------
+        run_id : str
+            The run's id.
+        notes : dict
+            JSON-ready notes.
+        """
         with self._transaction():
             self._db.execute("UPDATE runs SET notes = ? WHERE run_id = ?", (json.dumps(notes), run_id))
 

@@ -164,6 +164,19 @@ def load_suite(spec: str) -> Suite:
 def parse_suite(data, source: str = "") -> Suite:
     """Build a :class:`Suite` from its parsed YAML document.
 
+    Parameters
+    ----------
+    data : object
+        The parsed YAML document (a mapping with ``name``, ``cases``, optional
+        ``description``).
+    source : str
+        Where the document came from (file path or name), for messages.
+
+    Returns
+    -------
+    Suite
+        The suite, its cases validated.
+
     Raises
     ------
     BenchError

@@ -107,7 +107,20 @@ def _reduction(before, after):
 
 
 def summarize(rows: list[dict], suite: str) -> list[dict]:
-    """One summary row per variant of a run's result rows (variants in first-seen order)."""
+    """One summary row per variant of a run's result rows (variants in first-seen order).
+
+    Parameters
+    ----------
+    rows : list of dict
+        Result rows of a run.
+    suite : str
+        Suite name stored in every summary row.
+
+    Returns
+    -------
+    list of dict
+        Summary rows (metrics in the units of their names).
+    """
     return [_summary_row([r for r in rows if r["variant"] == variant], {"suite": suite})
             for variant in dict.fromkeys(r["variant"] for r in rows)]
 
@@ -121,7 +134,20 @@ def scene_kind(case_spec: dict) -> str:
 
 
 def summarize_by_scene(rows: list[dict], suite: str) -> list[dict]:
-    """One summary row per kind of scene (:func:`scene_kind`) and variant, with a ``scene`` key."""
+    """One summary row per kind of scene (:func:`scene_kind`) and variant, with a ``scene`` key.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Result rows of a run.
+    suite : str
+        Suite name stored in every summary row.
+
+    Returns
+    -------
+    list of dict
+        Summary rows (metrics in the units of their names).
+    """
     kinds = list(dict.fromkeys(scene_kind(r["case_spec"]) for r in rows))
     return [_summary_row(mine, {"suite": suite, "scene": kind})
             for kind in kinds for variant in dict.fromkeys(r["variant"] for r in rows)

@@ -117,7 +117,20 @@ def sweep_of(suite_name: str) -> str:
 
 
 def sweep_value(kind: str, case_spec: dict) -> float:
-    """The swept value of a stored case."""
+    """The swept value of a stored case.
+
+    Parameters
+    ----------
+    kind : str
+        Sweep kind (:func:`sweep_kind`).
+    case_spec : dict
+        Stored case specification.
+
+    Returns
+    -------
+    float
+        The swept value, in the unit of the swept key.
+    """
     spec = sweep_kind(kind)
     return float((case_spec["scene"] if spec.where == "scene" else case_spec["scanner"])[spec.key])
 
@@ -130,6 +143,18 @@ def sweep_table(rows: list[dict], kind: str) -> list[dict]:
     ``rop_before_1cm``, ``sigma_range_m``, ``intensity_dn``,
     ``points_per_cm2``, ``n_points``; ``rop_after:<variant>`` for every
     variant except ``raw``.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Result rows of a sweep run (rows with an error are skipped).
+    kind : str
+        Sweep kind (:func:`sweep_kind`).
+
+    Returns
+    -------
+    list of dict
+        One row per swept value, sorted by value (lengths in m, intensity in DN).
     """
     by_value: dict[float, list[dict]] = {}
     for row in rows:
@@ -161,7 +186,20 @@ def _mean(leaves: list[dict], key: str):
 
 
 def plot_sweep(table: list[dict], kind: str) -> Figure:
-    """Three panels against the swept value: ROP (raw at both τ, and after each variant), range noise, intensity."""
+    """Three panels against the swept value: ROP (raw at both τ, and after each variant), range noise, intensity.
+
+    Parameters
+    ----------
+    table : list of dict
+        Rows of :func:`sweep_table`.
+    kind : str
+        Sweep kind (:func:`sweep_kind`).
+
+    Returns
+    -------
+    Figure
+        The three panels.
+    """
     spec = sweep_kind(kind)
     x = [row["value"] for row in table]
 
@@ -194,7 +232,22 @@ def _footprint_axis(table):
 
 
 def write_sweep(table: list[dict], kind: str, outdir) -> tuple[Path, Path]:
-    """Write ``sweep-<kind>.csv`` and ``sweep-<kind>.png`` into ``outdir``; return their paths."""
+    """Write ``sweep-<kind>.csv`` and ``sweep-<kind>.png`` into ``outdir``; return their paths.
+
+    Parameters
+    ----------
+    table : list of dict
+        Rows of :func:`sweep_table`.
+    kind : str
+        Sweep kind (:func:`sweep_kind`).
+    outdir : str or Path
+        Output folder (created if missing).
+
+    Returns
+    -------
+    tuple of Path
+        The CSV and PNG files.
+    """
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     columns = list(dict.fromkeys(k for row in table for k in row))

@@ -23,6 +23,7 @@ ENABLED = {
                 "synthetic.py", "reconstruct.py", "preprocess.py", "calibration.py", "calibration_plot.py",
                 "cli.py", "errors.py", "params.py", "segment.py", "traits.py", "__init__.py"),
     "woody": None,
+    "benchmarks": None,
 }
 
 # ``name : type`` (several names may share one entry); ``*args`` and ``**kwargs`` may stand alone.
