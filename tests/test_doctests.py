@@ -12,6 +12,7 @@ import importlib
 import pytest
 
 EXAMPLES = {
+    "tlssim.simulate": ("simulate",),
     "leafsfs.engine": ("reconstruct_heights",),
     "woody.step": ("step",),
     "woody.cylinders": ("follow_cylinders",),
