@@ -205,6 +205,29 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
         For a scan without valid pixels, a mask of the wrong shape or type,
         a missing or unreadable calibration, an unknown variant or
         parameters out of range.
+
+    Examples
+    --------
+    A 5 cm pear leaf 1 m in front of the scanner, upright and turned 20 deg
+    from the beam, scanned at 0.1 deg steps (1,369 pulses); every return is
+    the leaf, and the calibration inverts the simulator's radiometry for the
+    leaf's reflectance (0.48):
+
+    >>> from scenes import scene_from_spec
+    >>> from tlssim import setup_from_section, simulate
+    >>> from leafsfs.synthetic import LambertCalibration
+    >>> scene = scene_from_spec({"objects": [
+    ...     {"name": "leaf", "type": "leaf", "preset": "pear", "seed": 7, "length": 0.05,
+    ...      "material": "pear-leaf", "pose": {"center": [1.0, 0, 0], "facing": "scanner", "incidence_deg": 20}}]})
+    >>> setup = setup_from_section({"window": {"theta_deg": [-1.8, 1.8], "psi_deg": [88.2, 91.8],
+    ...                                        "step_deg": 0.1}})
+    >>> scan = simulate(scene, setup, seed=0, progress=False)
+    >>> result = reconstruct(scan, mask=scan.valid, calibration=LambertCalibration(scan.scanner.model, 0.48))
+    >>> [leaf.label for leaf in result.leaves]
+    [1]
+    >>> traits = result.leaves[0].traits
+    >>> round(traits["normal_zenith_deg"]), round(traits["elevation_deg"])  # true: 90 and 0 deg
+    (90, 0)
     """
     params, valid = _check_inputs(scan, variant, params)
     labels = None if mask is None else _labels_from_mask(mask, scan.shape)

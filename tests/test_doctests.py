@@ -14,6 +14,7 @@ import pytest
 EXAMPLES = {
     "tlssim.simulate": ("simulate",),
     "leafsfs.engine": ("reconstruct_heights",),
+    "leafsfs.reconstruct": ("reconstruct",),
     "woody.step": ("step",),
     "woody.cylinders": ("follow_cylinders",),
     "woody.circles": ("fit_circle", "algebraic_circle"),
