@@ -233,14 +233,14 @@ def run_case(case: dict, variants: list[dict]) -> list[dict]:
     Parameters
     ----------
     case : dict
-        Case specification.
+        :meth:`benchmarks.suite.Case.to_dict` of the case.
     variants : list of dict
-        Variant specifications (``name``, ``params``).
+        :func:`variant_specs` of the variants to run.
 
     Returns
     -------
     list of dict
-        Result rows, one per variant and target (metrics in the units of their names).
+        Result rows, one per variant (metrics in the units of their names).
     """
     return list(case_rows(case, variants))
 

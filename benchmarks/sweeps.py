@@ -154,7 +154,7 @@ def sweep_table(rows: list[dict], kind: str) -> list[dict]:
     Returns
     -------
     list of dict
-        One row per swept value, sorted by value (lengths in m, intensity in DN).
+        One row per swept value, sorted by value (each column in the unit its name gives).
     """
     by_value: dict[float, list[dict]] = {}
     for row in rows:

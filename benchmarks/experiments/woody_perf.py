@@ -64,14 +64,15 @@ def run_perf(sizes, methods) -> dict:
     Parameters
     ----------
     sizes : iterable of int
-        Point counts of the clouds.
+        Target point counts of the clouds (the sampled count is near it).
     methods : iterable of str
         Methods to measure.
 
     Returns
     -------
     dict
-        Per method and size the wall time (s) and peak memory (MB).
+        Machine description and ``rows``: per method and size the point count,
+        ``time_s`` (s), ``peak_mb`` (MB) and ``us_per_nlogn`` (µs).
     """
     from tqdm import tqdm
 
