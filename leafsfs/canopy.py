@@ -5,12 +5,14 @@ are not yet leaves: a leaf lies a few centimetres in front of another one,
 its petiole runs into a twig, twigs and branches are surfaces too. Three
 steps, all from range and the scan grid (no truth), separate them:
 
-* :func:`edge_pulses`: pulses whose neighbourhood (about a footprint) is not
-  one plane within the range noise. A footprint across the edge between two
-  leaves a few centimetres apart returns a chain of intermediate ranges
-  whose pulse-to-pulse steps stay within the noise, so such pulses would
-  join the two leaves; left out of the linking they go to the surfaces
-  they straddle by their power shares (:mod:`leafsfs.edges`).
+* :func:`edge_pulses`: pulses on no side of which the neighbourhood (about
+  a footprint) is one plane within the range noise. A footprint across
+  the edge between two leaves a few centimetres apart returns a chain of
+  intermediate ranges whose pulse-to-pulse steps stay within the noise,
+  so such pulses would join the two leaves; left out of the linking they
+  go to the surfaces they straddle by their power shares
+  (:mod:`leafsfs.edges`). A pure pulse next to the edge is no edge pulse:
+  the half of its neighbourhood on its own surface is one plane.
 * :func:`split_necks`: a surface is cut where it narrows below a fraction
   of its own widest part (a petiole or twig attached to a leaf blade, a
   branch leaving the trunk); the test is relative to the surface's own
@@ -74,7 +76,8 @@ def pulse_noise(noise_m: float, intensity: np.ndarray | None, gain_dn: float | N
     return noise_m * np.exp(-NOISE_POWER_EXPONENT * np.clip(level, -3 * gain_dn, 3 * gain_dn) / gain_dn)
 
 
-def plane_fits(range_m: np.ndarray, radius_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def plane_fits(range_m: np.ndarray, radius_px: float,
+               side: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Least-squares plane fitted to the ranges within ``radius_px`` of every pulse.
 
     Parameters
@@ -83,6 +86,10 @@ def plane_fits(range_m: np.ndarray, radius_px: float) -> tuple[np.ndarray, np.nd
         Ranges, m (NaN: no return).
     radius_px : float
         Neighbourhood radius, pixels (at least 1).
+    side : pair of int, optional
+        Only the half of the disc on this side of the pulse: the offsets
+        ``(di, dj)`` with ``di * side[0] + dj * side[1] >= 0`` (the pulse and
+        the diameter through it included; default: the whole disc).
 
     Returns
     -------
@@ -94,19 +101,20 @@ def plane_fits(range_m: np.ndarray, radius_px: float) -> tuple[np.ndarray, np.nd
         Standard deviation of that gradient per metre of range noise
         (``sqrt`` of the larger diagonal term of the inverse normal matrix),
         1 / pixel.
+    deviation : ndarray, 2-D
+        The pulse's own residual divided by ``sqrt(1 - h)`` (``h`` its
+        leverage), m: its standard deviation is the range noise's, so one
+        pulse off the plane of the others shows at its full offset however
+        many pulses share the residuals.
 
     All NaN where fewer than 5 neighbours returned.
     """
-    if radius_px < 1:
-        raise SfsError(f"radius_px must be at least 1, got {radius_px!r}")
-    r = int(math.floor(radius_px))
-    di, dj = np.mgrid[-r:r + 1, -r:r + 1]
-    keep = di ** 2 + dj ** 2 <= radius_px ** 2 + 1e-9
-    offsets = np.stack([di[keep], dj[keep]], axis=1)
+    offsets = _disc_offsets(radius_px, side)
+    r = int(np.abs(offsets).max())
     design = np.stack([np.ones(len(offsets)), offsets[:, 0], offsets[:, 1]], axis=1).astype(float)
     padded = np.pad(range_m, r, constant_values=np.nan)
     centres = np.argwhere(np.isfinite(range_m))
-    out = np.full((3, *range_m.shape), np.nan)
+    out = np.full((4, *range_m.shape), np.nan)
     for start in range(0, len(centres), CHUNK):
         c = centres[start:start + CHUNK]
         h = padded[c[:, None, 0] + r + offsets[None, :, 0], c[:, None, 1] + r + offsets[None, :, 1]]
@@ -123,19 +131,62 @@ def plane_fits(range_m: np.ndarray, radius_px: float) -> tuple[np.ndarray, np.nd
         out[0, rows, cols] = np.sqrt(rss / np.maximum(n[ok] - 3, 1))
         out[1, rows, cols] = np.hypot(beta[:, 1], beta[:, 2])
         out[2, rows, cols] = np.sqrt(np.maximum(inverse[:, 1, 1], inverse[:, 2, 2]))
-    return out[0], out[1], out[2]
+        # the pulse's own relative range is 0 and its design row (1, 0, 0): residual -beta_0, leverage inverse_00
+        out[3, rows, cols] = -beta[:, 0] / np.sqrt(np.maximum(1 - inverse[:, 0, 0], 1e-6))
+    return out[0], out[1], out[2], out[3]
+
+
+def _disc_offsets(radius_px: float, side: tuple[int, int] | None) -> np.ndarray:
+    """Pixel offsets ``(di, dj)`` of the disc (or half disc) of :func:`plane_fits`, (n, 2)."""
+    if radius_px < 1:
+        raise SfsError(f"radius_px must be at least 1, got {radius_px!r}")
+    r = int(math.floor(radius_px))
+    di, dj = np.mgrid[-r:r + 1, -r:r + 1]
+    keep = di ** 2 + dj ** 2 <= radius_px ** 2 + 1e-9
+    if side is not None:
+        keep &= di * side[0] + dj * side[1] >= 0
+    return np.stack([di[keep], dj[keep]], axis=1)
+
+
+def _least_over(image: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Smallest value of ``image`` over the pixel offsets around every pixel (outside the image: ignored)."""
+    r = int(np.abs(offsets).max())
+    padded = np.pad(image, r, constant_values=np.inf)
+    rows, cols = image.shape
+    return np.min([padded[r + i:r + i + rows, r + j:r + j + cols] for i, j in offsets], axis=0)
+
+
+#: Sides of the half discs of :func:`edge_pulses` (every 45 deg: a straight edge is within 22.5 deg of one
+#: diameter, so the half disc away from it reaches at most ``radius sin(22.5 deg)`` (< 1 pixel at 2.5) across it).
+HALF_DISC_SIDES = ((1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1))
 
 
 def edge_pulses(range_m: np.ndarray, radius_px: float, noise_m: np.ndarray | float, factor: float = 2.5,
                 max_slope: np.ndarray | float = math.inf, spacing_m: np.ndarray | float = 1.0) -> np.ndarray:
-    """Pulses whose neighbourhood is not one plausible plane within the range noise (edges, mixed pulses).
+    """Pulses on no side of which the neighbourhood is one plausible plane within the range noise (mixed pulses).
 
     A neighbourhood is implausible when its plane leaves residuals above
-    ``factor`` noise standard deviations (two surfaces in it), or when the
+    ``factor`` noise standard deviations (two surfaces in it), when the
+    pulse itself lies off it by more than ``factor`` standard deviations
+    (:func:`plane_fits`' ``deviation``: a mixed pulse on the rim of one
+    surface's half disc), or when the
     plane is steeper than the surface can be (``max_slope``) by more than
     ``factor`` standard deviations of the fitted slope: in a neighbourhood
     hardly wider than the edge a plane turns the step between two surfaces
-    into a steep ramp instead of leaving residuals.
+    into a steep ramp instead of leaving residuals. A neighbourhood's
+    steepest plausible slope is the least of its pulses' ``max_slope``: the
+    intensity of a mixed pulse, lowered by the part of its footprint on
+    the far surface, says steep whatever the surfaces' slopes; likewise
+    its residuals are held to the noise of its strongest pulse (a mixed
+    pulse's low power widens its own noise), the RMS within ``factor``
+    standard deviations of the chi-square spread of ``n - 3`` residuals.
+
+    The neighbourhoods are the eight half discs of radius ``radius_px``
+    through the pulse (:data:`HALF_DISC_SIDES`): a pure pulse near a
+    surface's outline has one half disc on its own surface, however narrow
+    the surface is in pixels (a leaf of a few footprints at a coarse
+    angular step), and stays out of the edge pulses; a mixed pulse lies off
+    the plane of either side.
 
     Parameters
     ----------
@@ -160,9 +211,17 @@ def edge_pulses(range_m: np.ndarray, radius_px: float, noise_m: np.ndarray | flo
     """
     if not np.all(np.asarray(noise_m) > 0) or not factor > 0:
         raise SfsError(f"noise_m and factor must be positive, got {noise_m!r} and {factor!r}")
-    rms, slope, slope_noise = plane_fits(range_m, radius_px)
-    with np.errstate(invalid="ignore"):
-        plausible = (rms <= factor * noise_m) & (slope <= spacing_m * max_slope + factor * noise_m * slope_noise)
+    plausible = np.zeros(range_m.shape, dtype=bool)
+    for side in HALF_DISC_SIDES:
+        rms, slope, slope_noise, deviation = plane_fits(range_m, radius_px, side)
+        offsets = _disc_offsets(radius_px, side)
+        steepest = _least_over(max_slope, offsets) if np.ndim(max_slope) else max_slope
+        # rms^2 / sigma^2 of a plane is chi-square over its n - 3 degrees of freedom: mean 1, variance 2 / (n - 3)
+        spread = 1 + factor * math.sqrt(2 / max(len(offsets) - 3, 1))
+        least_noise = _least_over(noise_m, offsets) if np.ndim(noise_m) else noise_m
+        with np.errstate(invalid="ignore"):
+            plausible |= (rms ** 2 <= spread * least_noise ** 2) & (np.abs(deviation) <= factor * least_noise) \
+                & (slope <= spacing_m * steepest + factor * noise_m * slope_noise)
     return np.isfinite(range_m) & ~plausible
 
 

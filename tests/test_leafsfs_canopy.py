@@ -27,12 +27,17 @@ def test_plane_fits_recover_slope_and_noise():
     rng = np.random.default_rng(0)
     rows, cols = np.mgrid[0:60, 0:60]
     range_m = 2.0 + 0.003 * rows - 0.004 * cols + 0.001 * rng.standard_normal(rows.shape)
-    rms, slope, slope_noise = plane_fits(range_m, 3.0)
+    rms, slope, slope_noise, deviation = plane_fits(range_m, 3.0)
     inner = (slice(5, -5), slice(5, -5))
     assert abs(np.median(rms[inner]) - 0.001) < 0.0001
     assert abs(np.median(slope[inner]) - 0.005) < 0.0003
     # a 29-pixel disc: the slope's standard deviation is sigma / sqrt(sum of squared row offsets) = sigma / sqrt(68)
     assert np.isclose(slope_noise[30, 30], 1 / math.sqrt(68))
+    # a pulse's own deviation has the range noise's spread; one pulse 1 cm off its plane shows at about 1 cm
+    assert abs(1.4826 * np.median(np.abs(deviation[inner])) - 0.001) < 0.0001
+    spiked = range_m.copy()
+    spiked[30, 30] += 0.01
+    assert abs(plane_fits(spiked, 3.0)[3][30, 30] - 0.01) < 0.004
     with pytest.raises(SfsError):
         plane_fits(range_m, 0.5)
 
@@ -46,8 +51,9 @@ def test_a_step_between_two_surfaces_is_an_edge_a_steep_plane_is_not():
     range_m = share * 2.0 + (1 - share) * 2.03 + 0.0015 * rng.standard_normal(rows.shape)
     max_slope = np.full(range_m.shape, math.tan(math.radians(35)))  # the intensity says: nearly facing the beam
     edges = edge_pulses(range_m, 2.5, 0.0015, 2.5, max_slope=max_slope, spacing_m=spacing)
-    assert edges[:, 38:42].mean() > 0.9  # every row flags the step
-    assert edges[:, 5:30].mean() < 0.01 and edges[:, 50:75].mean() < 0.01
+    assert edges[:, 38:40].mean() > 0.9  # every row flags the step's mixed pulses
+    # and no pure pulse, not even those next to the step (a half disc of their own side is one plane)
+    assert edges[3:-3, 3:38].mean() < 0.01 and edges[3:-3, 40:77].mean() < 0.01
     # a plane at 75 deg incidence: steep, but the intensity says so
     steep = 2.0 + math.tan(math.radians(75)) * spacing * cols + 0.0015 * rng.standard_normal(rows.shape)
     flags = edge_pulses(steep, 2.5, 0.0015, 2.5, max_slope=math.tan(math.radians(85)), spacing_m=spacing)
