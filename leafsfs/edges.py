@@ -92,6 +92,20 @@ class MixedPulses:
         The power share; with the log amplifier's ``gain_dn`` the geometric
         share of the footprint (:func:`geometric_share`). With ``box`` (a
         pair of slices) only the pulses of that window, in its shape.
+
+        Parameters
+        ----------
+        label : int
+            Surface label.
+        gain_dn : float, optional
+            Log-amplifier gain, DN per e-fold (None: the power share).
+        box : tuple of slice, optional
+            Window of the scan grid (None: the whole grid).
+
+        Returns
+        -------
+        ndarray of float, 2-D
+            Share in [0, 1] per pulse.
         """
         box = box or (slice(None), slice(None))
         share = (self.surfaces[box] == label).astype(float)
@@ -393,6 +407,22 @@ def band_pixels(band_m: float, range_m: np.ndarray, surfaces: np.ndarray, step_r
     in front, whose distance sets the footprint's size in pixels; the
     nearest surface gives the widest band (the bracketing test of
     :func:`attribute_mixed` keeps far surfaces from claiming unrelated pulses).
+
+    Parameters
+    ----------
+    band_m : float
+        Band width, m.
+    range_m : ndarray, 2-D
+        Ranges, m.
+    surfaces : ndarray of int, 2-D
+        Surface labels (0: none).
+    step_rad : float
+        Angular step of the scan grid, rad.
+
+    Returns
+    -------
+    int
+        Band width, pixels (at least 2).
     """
     if not surfaces.any():
         return 2
@@ -415,6 +445,20 @@ def geometric_share(power_share: np.ndarray, intensity_a: np.ndarray, intensity_
     ``f = w / (w + (1 - w) q)`` with ``q = exp((I_a - I_b) / gain_dn)`` the
     amplitude ratio of the pure returns (module docstring). Where an
     intensity is unknown (NaN) the power share is returned.
+
+    Parameters
+    ----------
+    power_share : ndarray
+        Share of the returned power from surface ``a``, in [0, 1].
+    intensity_a, intensity_b : ndarray
+        Intensities of pure returns of surfaces ``a`` and ``b``, DN.
+    gain_dn : float
+        Log-amplifier gain, DN per e-fold.
+
+    Returns
+    -------
+    ndarray
+        Geometric share of ``a``'s footprint, in [0, 1].
     """
     q = np.exp((np.asarray(intensity_a, float) - np.asarray(intensity_b, float)) / gain_dn)
     w = np.asarray(power_share, float)

@@ -53,8 +53,27 @@ def link_components(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alp
                     max_slope_deg: float = 80.0, alpha_margin_deg: float = 25.0, noise_m: float = 0.002) -> np.ndarray:
     """Connected components of the valid pixels joined by plausible range steps (labels 1.., 0 = no return).
 
-    ``noise_m`` is the range step allowed on top of the slope's (m); the other
-    parameters are those of :func:`segment_scan`.
+    Parameters
+    ----------
+    range_m : ndarray, 2-D
+        Ranges, m (NaN: no return).
+    theta, psi : ndarray, 2-D
+        Azimuth and zenith of every beam, rad.
+    alpha : ndarray, 2-D, optional
+        Incidence from the intensity, rad: two neighbours may differ by the
+        range step of a surface inclined by ``alpha + alpha_margin_deg``
+        (without it, by ``max_slope_deg``).
+    max_slope_deg : float
+        Steepest surface inclination allowed, degrees, in ]0, 90[.
+    alpha_margin_deg : float
+        Margin added to ``alpha``, degrees.
+    noise_m : float
+        Range step allowed on top of the slope's, m.
+
+    Returns
+    -------
+    ndarray of int, 2-D
+        Component label per pixel (1.., 0 = no return).
     """
     if not 0 < max_slope_deg < 90:
         raise SfsError(f"max_slope_deg must lie in ]0, 90[ degrees, got {max_slope_deg!r}")
@@ -105,8 +124,21 @@ class Segmentation:
 
 
 def angular_step(theta: np.ndarray, psi: np.ndarray, samples: int = 64) -> float:
-    """Median angle between neighbouring beams of a scan grid, rad (over up to ``samples`` evenly spaced row
-    pairs and column pairs: a scan grid's steps vary smoothly)."""
+    """Median angle between neighbouring beams of a scan grid, rad.
+
+    Parameters
+    ----------
+    theta, psi : ndarray, 2-D
+        Azimuth and zenith of every beam, rad.
+    samples : int
+        Evenly spaced row pairs and column pairs measured (a scan grid's
+        steps vary smoothly).
+
+    Returns
+    -------
+    float
+        Angular step, rad.
+    """
     rows = np.unique(np.linspace(0, theta.shape[0] - 2, min(samples, theta.shape[0] - 1)).astype(int))
     cols = np.unique(np.linspace(0, theta.shape[1] - 2, min(samples, theta.shape[1] - 1)).astype(int))
     pairs = (((rows, slice(None)), (rows + 1, slice(None))), ((slice(None), cols), (slice(None), cols + 1)))
@@ -132,12 +164,12 @@ def range_noise(range_m: np.ndarray) -> float:
 
 
 def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha: np.ndarray | None = None, *,
-                 min_pixels: int = 9, max_slope_deg: float = 80.0, alpha_margin_deg: float = 25.0,
-                 noise_m: float | None = None, drop_border: bool = True, band_m: float = 0.01,
-                 min_width_m: float = 0.004, reach_m: float = 0.05,
-                 intensity: np.ndarray | None = None, min_area_m2: float = 1e-4, edge_radius_m: float = 0.0025,
-                 edge_factor: float = 2.5, neck_ratio: float = 0.3, max_aspect: float = 4.0,
-                 min_fill: float = 0.5, gain_dn: float | None = None) -> Segmentation:
+                 min_pixels: int = 9, min_area_m2: float = 1e-4, max_slope_deg: float = 80.0,
+                 alpha_margin_deg: float = 25.0, noise_m: float | None = None, drop_border: bool = True,
+                 band_m: float = 0.01, min_width_m: float = 0.004, reach_m: float = 0.05,
+                 intensity: np.ndarray | None = None, edge_radius_m: float = 0.0025, edge_factor: float = 2.5,
+                 neck_ratio: float = 0.3, gain_dn: float | None = None, max_aspect: float = 4.0,
+                 min_fill: float = 0.5) -> Segmentation:
     """Surfaces, mixed pulses and leaf regions of a scan.
 
     Parameters
@@ -262,6 +294,24 @@ def split_thin_parts(surfaces: np.ndarray, range_m: np.ndarray, step_rad: float,
     corners and tips of the surface itself; a thin part that leaves the
     window is a twig or stem, however few of its pulses the window holds,
     and must not make its leaf a border surface).
+
+    Parameters
+    ----------
+    surfaces : ndarray of int, 2-D
+        Surface labels (0: none).
+    range_m : ndarray, 2-D
+        Ranges, m.
+    step_rad : float
+        Angular step of the scan grid, rad.
+    min_width_m : float
+        Diameter of the opening disc, m (at each surface's median range).
+    min_pixels : int
+        Smallest part split off inside the window, pixels.
+
+    Returns
+    -------
+    ndarray of int, 2-D
+        Surface labels, the split-off parts numbered after the existing ones.
     """
     out = surfaces.copy()
     count = int(surfaces.max())
@@ -292,6 +342,20 @@ def surface_widths(surfaces: np.ndarray, range_m: np.ndarray, step_rad: float) -
 
     The pixel distance transform's maximum, times the pixel spacing at the
     surface's median range.
+
+    Parameters
+    ----------
+    surfaces : ndarray of int, 2-D
+        Surface labels (0: none).
+    range_m : ndarray, 2-D
+        Ranges, m.
+    step_rad : float
+        Angular step of the scan grid, rad.
+
+    Returns
+    -------
+    ndarray of float, (max label + 1,)
+        Width per label, m.
     """
     labels = np.arange(1, int(surfaces.max()) + 1)
     widths = np.zeros(len(labels) + 1)
@@ -305,5 +369,22 @@ def surface_widths(surfaces: np.ndarray, range_m: np.ndarray, step_rad: float) -
 
 def segment_leaves(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha: np.ndarray | None = None,
                    **options) -> np.ndarray:
-    """Label the leaf regions of a scan (1..K, 0 for none): :attr:`Segmentation.leaves` of :func:`segment_scan`."""
+    """Label the leaf regions of a scan (1..K, 0 for none): :attr:`Segmentation.leaves` of :func:`segment_scan`.
+
+    Parameters
+    ----------
+    range_m : ndarray, 2-D
+        Ranges, m (NaN: no return).
+    theta, psi : ndarray, 2-D
+        Azimuth and zenith of every beam, rad.
+    alpha : ndarray, 2-D, optional
+        Incidence from the intensity, rad.
+    **options
+        Keyword arguments of :func:`segment_scan`.
+
+    Returns
+    -------
+    ndarray of int, 2-D
+        Leaf region per pulse.
+    """
     return segment_scan(range_m, theta, psi, alpha, **options).leaves

@@ -18,10 +18,7 @@ PACKAGES = ("scenes", "tlssim", "leafsfs", "woody", "benchmarks")
 ENABLED = {
     "scenes": None,
     "tlssim": None,
-    "leafsfs": ("slope.py", "curves.py", "quantize.py", "engine.py", "fusion.py", "propagate.py", "seed.py",
-                "outputs.py", "baselines.py", "frame.py", "grid.py", "euclid.py", "contour.py", "mesh.py",
-                "synthetic.py", "reconstruct.py", "preprocess.py", "calibration.py", "calibration_plot.py",
-                "cli.py", "errors.py", "params.py", "segment.py", "traits.py", "__init__.py"),
+    "leafsfs": None,
     "woody": None,
     "benchmarks": None,
 }

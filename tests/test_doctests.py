@@ -16,6 +16,7 @@ EXAMPLES = {
     "leafsfs.engine": ("reconstruct_heights",),
     "leafsfs.reconstruct": ("reconstruct",),
     "woody.step": ("step",),
+    "benchmarks.runner": ("execute",),
     "woody.cylinders": ("follow_cylinders",),
     "woody.circles": ("fit_circle", "algebraic_circle"),
     "woody.ground": ("ground_grid",),
