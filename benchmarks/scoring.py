@@ -172,6 +172,13 @@ def crop_margin_px(scan, distance_m: float) -> int:
     return CROP_MARGIN_PX + math.ceil(CROP_MARGIN_FOOTPRINTS * radius_px)
 
 
+def _require_second_layers(scan) -> None:
+    """Raise :class:`BenchError` when ``scan`` lacks the second-object truth layers."""
+    missing = [k for k in SECOND_LAYERS if k not in scan.layers]
+    if missing:
+        raise BenchError(f"the scan lacks the truth layers {missing} (simulated by an older tlssim): re-simulate it")
+
+
 def object_boxes(scan) -> dict[int, tuple[slice, slice]]:
     """Bounding box of every object's pulses in a simulated scan: those it dominates or comes second in (every pulse
     with a power share from it), by object id.
@@ -181,9 +188,7 @@ def object_boxes(scan) -> dict[int, tuple[slice, slice]]:
     BenchError
         If the scan lacks the second-object truth layers.
     """
-    missing = [k for k in SECOND_LAYERS if k not in scan.layers]
-    if missing:
-        raise BenchError(f"the scan lacks the truth layers {missing} (simulated by an older tlssim): re-simulate it")
+    _require_second_layers(scan)
     boxes: dict[int, tuple[slice, slice]] = {}
     for ids in (scan.truth_id, scan.layers["truth_second_id"]):
         for index, box in enumerate(ndimage.find_objects(np.where(ids >= 0, ids + 1, 0))):
@@ -216,9 +221,7 @@ def power_share(scan, object_id: int) -> np.ndarray:
     BenchError
         If the scan lacks the second-object truth layers.
     """
-    missing = [k for k in SECOND_LAYERS if k not in scan.layers]
-    if missing:
-        raise BenchError(f"the scan lacks the truth layers {missing} (simulated by an older tlssim): re-simulate it")
+    _require_second_layers(scan)
     return metrics.leaf_power_share(scan.truth_id, scan.mixed_fraction, scan.layers["truth_second_id"],
                                     scan.layers["second_fraction"], object_id)
 
