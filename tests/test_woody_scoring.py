@@ -96,3 +96,29 @@ def test_step_output_without_orders_has_no_topology_and_bad_input_is_refused():
         score([], TRUTH)
     with pytest.raises(WoodyError, match="lacks"):
         score(TRUTH, [{"start": [0, 0, 0]}])
+
+
+def _budget_class(s, diameter_m):
+    return next(c for c in s["volume_budget"]["by_diameter_class"]
+                if c["diameter_from_m"] <= diameter_m < (c["diameter_to_m"] or np.inf))
+
+
+def test_volume_budget_splits_the_error_into_wider_missed_and_spurious_volume():
+    branch = np.pi * 0.02 ** 2 * 1.0  # each side branch: r 2 cm, 1 m long
+    perfect = score(TRUTH, copy.deepcopy(TRUTH))
+    for diameter, true in ((0.1, np.pi * 0.05 ** 2), (0.04, 2 * branch)):
+        cls = _budget_class(perfect, diameter)
+        assert cls["true_m3"] == pytest.approx(true, rel=1e-6)
+        assert cls["reconstructed_m3"] == pytest.approx(true, rel=0.02) and cls["missed_m3"] == 0
+    assert perfect["volume_budget"]["false_positive_m3"] == 0
+
+    wider = copy.deepcopy(TRUTH)
+    wider[1]["radius_m"] = wider[1]["radius_end_m"] = 0.04  # one branch twice as wide: 4x its volume
+    cls = _budget_class(score(TRUTH, wider), 0.04)
+    assert cls["reconstructed_m3"] == pytest.approx(5 * branch, rel=0.02) and cls["missed_m3"] == 0
+
+    extra = _cyl(3, -1, 1, 3, (5, 5, 0), (5, 5, 1), 0.02)
+    s = score(TRUTH, copy.deepcopy(TRUTH[:2]) + [extra])  # one branch missed, one spurious
+    assert _budget_class(s, 0.04)["missed_m3"] == pytest.approx(branch, rel=0.05)
+    assert _budget_class(s, 0.04)["reconstructed_m3"] == pytest.approx(branch, rel=0.02)
+    assert s["volume_budget"]["false_positive_m3"] == pytest.approx(branch, rel=1e-6)

@@ -19,7 +19,11 @@ Both the truth (``docs/contracts.md``: a woody object's ``truth`` has
   positive;
 - length error of a detected branch: ``|L_rec - L_true| / L_true`` with
   ``L_rec`` the reconstructed length matched to it;
-- volume error: ``(V_rec - V_true) / V_true`` with frustum volumes;
+- volume error: ``(V_rec - V_true) / V_true`` with frustum volumes; the
+  volume budget splits it by truth diameter class (truth volume, the part
+  of it missed, the reconstructed volume matched to the class) and gives
+  the false-positive volume, to tell over-wide cylinders from missed or
+  spurious branches;
 - taper: diameter error of the stem (the branch of the root cylinder) in
   height bins above its base; ``taper_ok_height_m`` is the height up to which
   every bin stays within ``taper_tolerance_m``;
@@ -277,9 +281,34 @@ def score(truth, reconstruction, *, step_m: float = 0.01, min_tolerance_m: float
     out["volume_true_m3"], out["volume_rec_m3"] = v_true, v_rec
     out["volume_error"] = (v_rec - v_true) / v_true if v_true > 0 else float("nan")
 
+    out["volume_budget"] = _volume_budget(T, gt, hit, rec, back, bounds)
     out["taper"] = _taper(T, gt, match, hit, height_bin_m, taper_tolerance_m)
     out["topology"] = _topology(T, R, rec_cyl, rec, back, detected) if rec_cyl else None
     return out
+
+
+def _volume_budget(T: dict, gt: dict, hit: np.ndarray, rec: dict, back: dict, bounds: list) -> dict:
+    """Where a volume error comes from: per truth diameter class, the truth volume, the part of it on unmatched
+    centreline (missed), and the reconstructed volume matched to the class; and the false-positive volume.
+
+    Volumes are summed over the centreline samples (``pi r^2`` times the piece length, m^3), hidden samples included
+    on both sides, so that the totals approach the cylinders' volumes as the step shrinks.
+    """
+    true_volume = np.pi * gt["radius"] ** 2 * gt["length"]
+    rec_volume = np.pi * rec["radius"] ** 2 * rec["length"]
+    matched = back["row"] >= 0
+    true_diameter = 2 * gt["radius"]
+    rec_class_diameter = np.where(matched, T["r0"][back["row"]] + T["r1"][back["row"]], np.nan)
+    classes = []
+    for lo, hi in zip(bounds[:-1], bounds[1:]):
+        cls = (true_diameter >= lo) & (true_diameter < hi)
+        rec_cls = matched & (rec_class_diameter >= lo) & (rec_class_diameter < hi)
+        if cls.any() or rec_cls.any():
+            classes.append({"diameter_from_m": lo, "diameter_to_m": None if np.isinf(hi) else hi,
+                            "true_m3": float(true_volume[cls].sum()),
+                            "missed_m3": float(true_volume[cls & ~hit & ~gt["hidden"]].sum()),
+                            "reconstructed_m3": float(rec_volume[rec_cls].sum())})
+    return {"by_diameter_class": classes, "false_positive_m3": float(rec_volume[~matched].sum())}
 
 
 def _taper(T: dict, gt: dict, match: dict, hit: np.ndarray, bin_m: float, tolerance_m: float) -> dict:
