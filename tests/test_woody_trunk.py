@@ -6,7 +6,7 @@ import pytest
 from woody import follow_cylinders
 from woody.dbh import model_diameter_at
 from woody.geometry import cylinders_volume
-from woody.synthetic import sample_cylinders
+from woody.synthetic import polyline_cylinders, sample_cylinders
 from woody.trunk import follow_trunk, follow_tree
 
 
@@ -71,3 +71,17 @@ def test_degenerate_clouds_end_in_a_result_or_a_woody_error_at_once():
             step(cloud)
         with pytest.raises(WoodyError):
             measure_dbh(cloud)
+
+
+def test_all_parts_follows_every_connected_part_of_a_cloud_without_stem():
+    # Two lying branch pieces (r 1.5 cm) 30 cm apart, both below 0.5 m: no stem, two connected parts.
+    first = polyline_cylinders(np.array([[0.0, 0, 0.0], [0.5, 0, 0.1]]), np.array([0.015, 0.015]), first_id=0,
+                               parent=-1, order=1, branch=0)
+    second = polyline_cylinders(np.array([[0.8, 0, 0.15], [1.3, 0, 0.25]]), np.array([0.015, 0.015]), first_id=1,
+                                parent=-1, order=1, branch=1)
+    cloud = sample_cylinders(first + second, 2e4, seed=4)
+    lowest = follow_tree(cloud.points)
+    both = follow_tree(cloud.points, all_parts=True)
+    assert (lowest.labels >= 0).mean() < 0.6  # growth from the lowest point never reaches the second part
+    assert (both.labels >= 0).mean() > 0.95 and both.stats["parts"] == 2
+    assert both.volume == pytest.approx(cloud.truth["volume_m3"], rel=0.2)

@@ -243,7 +243,7 @@ def _claim(points, tree, centres, radii, members, tolerance, residual):
 
 
 def follow_tree(points, ground_z: float | None = None, ground_clearance_m: float = 0.1, progress: bool = False,
-                **follow):
+                all_parts: bool = False, **follow):
     """Cylinder following with the trunk followed first, from the ground up, by stacked circle fits.
 
     The trunk (:func:`follow_trunk`) is branch 0; cylinder following
@@ -254,7 +254,9 @@ def follow_tree(points, ground_z: float | None = None, ground_clearance_m: float
     starts within two trunk radii of the trunk's surface becomes a child of
     the trunk. A cloud without a stem (fitted over at least four slabs, from
     1.3, 0.9 or 0.5 m above the ground) is reconstructed by cylinder
-    following alone.
+    following alone, from its lowest point, which reaches only the part of
+    the cloud connected to it; with ``all_parts`` each connected part is
+    followed from its own lowest point (ground left in), each a root branch.
 
     Parameters
     ----------
@@ -266,6 +268,11 @@ def follow_tree(points, ground_z: float | None = None, ground_clearance_m: float
         Points this close above the ground are ground, m.
     progress : bool
         Show cylinder following's progress bar.
+    all_parts : bool
+        Without a stem, follow every connected part of the cloud, not only
+        the lowest (occlusion cuts a single scan of a leafless tree into
+        many parts; on a leafy crown the parts' first cylinders swallow
+        leaves and twigs, see the README).
     **follow
         Settings of :func:`woody.cylinders.follow_cylinders` (e.g.
         ``precision_m``, ``section_radii``).
@@ -274,7 +281,9 @@ def follow_tree(points, ground_z: float | None = None, ground_clearance_m: float
     -------
     woody.cylinders.FollowResult
         Branch 0 is the trunk (one section per pair of circles);
-        ``stats["trunk"]`` gives its circles' count, height and the ground.
+        ``stats["trunk"]`` gives its circles' count, height and the ground,
+        ``stats["parts"]`` the number of connected parts followed (with a
+        trunk or ``all_parts``).
     """
     from woody.cylinders import FollowResult, follow_cylinders
     from woody.ground import ground_grid
@@ -284,8 +293,14 @@ def follow_tree(points, ground_z: float | None = None, ground_clearance_m: float
         trunk = follow_trunk(points, ground_z=ground_z)
     except WoodyError:
         trunk = None
+    labels = np.full(len(points), -1, np.int64)
     if trunk is None or len(trunk.radii) < MIN_TRUNK_CIRCLES:
-        return follow_cylinders(points, progress=progress, **follow)
+        if not all_parts:
+            return follow_cylinders(points, progress=progress, **follow)
+        branches, stats = _follow_parts(points, np.arange(len(points)), None, labels, [], progress, follow)
+        if not branches:  # every part below MIN_COMPONENT_POINTS: the cloud as one
+            return follow_cylinders(points, progress=progress, **follow)
+        return FollowResult(branches, labels, stats)
     heights = points[:, 2] - ground_z if ground_z is not None else ground_grid(points).heights(points)
     rest = np.flatnonzero(~trunk.members & (heights > ground_clearance_m))
     sections = [(a.tolist(), b.tolist(), float(0.5 * (ra + rb))) for a, b, ra, rb in
@@ -296,11 +311,23 @@ def follow_tree(points, ground_z: float | None = None, ground_clearance_m: float
                     "direction": axis.tolist(), "radius_m": float(np.median(trunk.radii)),
                     "radius_max_m": float(trunk.radii.max()), "n_points": int(trunk.members.sum()),
                     "sections": sections}
-    labels = np.full(len(points), -1, np.int64)
     labels[trunk.members] = 0
-    branches, stats = [trunk_record], {}
+    branches, stats = _follow_parts(points, rest, trunk, labels, [trunk_record], progress, follow)
+    stats = {**stats, "trunk": {"circles": len(trunk.radii), "base": base.tolist(), "top": top.tolist(),
+                                "ground_z_m": trunk.ground_z_m, "points": int(trunk.members.sum())}}
+    return FollowResult(branches, labels, stats)
+
+
+def _follow_parts(points, rest, trunk, labels, branches, progress, follow):
+    """Cylinder following on each connected part of ``points[rest]`` from its own lowest point; a part's root
+    branch that starts within two trunk radii of the trunk's surface becomes a child of the trunk (branch 0).
+    Fills ``labels`` and returns the branch records (``branches`` first) and the first part's statistics with the
+    number of parts."""
+    from woody.cylinders import follow_cylinders
+
+    stats = {}
     components = _components(points[rest]) if len(rest) >= MIN_COMPONENT_POINTS else []
-    for component in components:  # each part the trunk cut off grows from its own lowest point
+    for component in components:
         chosen = rest[component]
         result = follow_cylinders(points[chosen], progress=progress, **follow)
         stats = result.stats if not stats else stats
@@ -313,17 +340,15 @@ def follow_tree(points, ground_z: float | None = None, ground_clearance_m: float
                 record["parent"] = b["parent"] + offset
                 record["order"] = depth[b["parent"]] + 1
             else:
-                distance = _distance_to_trunk(np.asarray(b["start"]), trunk)
-                attached = distance <= 2.0 * float(np.median(trunk.radii))
+                attached = trunk is not None and \
+                    _distance_to_trunk(np.asarray(b["start"]), trunk) <= 2.0 * float(np.median(trunk.radii))
                 record["parent"] = 0 if attached else -1
                 record["order"] = 2 if attached else 1
                 if attached:
-                    trunk_record["children"].append(record["id"])
+                    branches[0]["children"].append(record["id"])
             depth[b["id"]] = record["order"]
             branches.append(record)
-    stats = {**stats, "trunk": {"circles": len(trunk.radii), "base": base.tolist(), "top": top.tolist(),
-                                "ground_z_m": trunk.ground_z_m, "points": int(trunk.members.sum())}}
-    return FollowResult(branches, labels, stats)
+    return branches, {**stats, "parts": len(components)}
 
 
 def _components(points: np.ndarray) -> list[np.ndarray]:
