@@ -236,7 +236,7 @@ def _area_axes(axes, leaves: list[dict], variants: list[str]) -> None:
     positions = np.arange(len(variants))[::-1]
     shown = [(errors, pos) for (errors, _, _), pos in zip(data, positions) if errors]
     if shown:
-        axes.boxplot([e for e, _ in shown], positions=[pos for _, pos in shown], vert=False, widths=0.6,
+        axes.boxplot([e for e, _ in shown], positions=[pos for _, pos in shown], orientation="horizontal", widths=0.6,
                      flierprops={"markersize": 2})
     values = np.concatenate([e for e, _ in shown]) if shown else np.zeros(1)
     limit = max(15.0, float(np.percentile(np.abs(values), 95)) * 1.2)
