@@ -82,6 +82,11 @@ def test_every_command_is_a_known_program_and_every_mapping_is_used():
     first_lines = [text.splitlines()[0] for kind, text in steps() if kind == "python"]
     stale = set(MAPPING) - set(listed) - set(first_lines)
     assert not stale, f"docs_commands.yaml lists commands the docs no longer have: {stale}"
+    for command, entry in MAPPING.items():
+        assert entry.get("why"), f"docs_commands.yaml: `{command}` has no reason"
+        if command in listed:  # the small equivalent runs the same program and sub-command
+            program, word = command.split()[:2]
+            assert any(run.split()[0] == program and word in run.split() for run in entry.get("run", [command])), command
 
 
 def make_commands(target: str) -> list[str]:
