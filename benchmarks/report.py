@@ -18,6 +18,7 @@ several commits, the goal's metrics across commits (:mod:`benchmarks.history`).
 from __future__ import annotations
 
 import base64
+import dataclasses
 import html
 import io
 import math
@@ -30,7 +31,7 @@ from benchmarks import heightfields, metrics, scoring, summary, sweeps
 from benchmarks.history import history_figures
 from benchmarks.generators import build_scene
 from benchmarks.registry import get_variant
-from benchmarks.runner import simulate_case
+from benchmarks.runner import scan_setup, simulate_case
 from benchmarks.store import Store
 from benchmarks.suite import Case
 from benchmarks.summary import GOAL_AREA_REL_ERR, GOAL_ROP_REDUCTION
@@ -283,7 +284,7 @@ def plot_goal_figure(table: list[dict], leaves: list[dict]) -> Figure:
                  label=f"goal: {GOAL_ROP_REDUCTION:.0%} reduction")
     for r, pos, top in zip(rows, positions, before):
         if r["rop_reduction"] is not None:
-            left.annotate(f"−{r['rop_reduction']:.0%}", (top, pos), xytext=(3, 0), textcoords="offset points",
+            left.annotate(f"{-r['rop_reduction']:+.0%}".replace("-", "−"), (top, pos), xytext=(3, 0), textcoords="offset points",
                           va="center", fontsize=7)
     left.set_yticks(positions, variants, fontsize=8)
     left.set_ylim(-0.7, len(rows) - 0.3)
@@ -432,39 +433,36 @@ PREVIEW_PULSES = 60_000
 PREVIEWS_PER_KIND, PREVIEWS_MAX = 3, 18
 
 
-def preview_case(case_spec: dict, n_pulses: int | None, max_pulses: int = PREVIEW_PULSES) -> Case:
-    """The case of a per-case picture: the stored case, its step coarsened so that its scan has about
-    ``max_pulses`` pulses at most.
+def preview_scan(case_spec: dict, max_pulses: int = PREVIEW_PULSES):
+    """The scan of a per-case picture: the case's scan, at a coarser step where it has more than ``max_pulses``
+    pulses.
 
     Parameters
     ----------
     case_spec : dict
-        Stored specification of the case.
-    n_pulses : int or None
-        Pulses of the case's scan as run (stored with its results; None: unknown, the case is kept).
+        Stored specification of the case (re-simulated, deterministic).
     max_pulses : int
         Largest number of pulses of the picture's scan.
 
     Returns
     -------
-    Case
-        The case to simulate (the same case when it is small enough).
+    scan : tlssim.Scan
+    n_pulses : int
+        Pulses of the case's own scan.
     """
+    from tlssim.simulate import simulate
+
     case = Case.from_dict(case_spec)
-    if not n_pulses or n_pulses <= max_pulses:
-        return case
-    from tlssim.simulate import setup_from_section
-
-    step = case.scanner.get("step_deg") or max(setup_from_section({**build_scene(case.scene).scanner,
-                                                                    **case.scanner}).window.step_deg)
-    step *= math.sqrt(n_pulses / max_pulses)
-    scanner = {**case.scanner, "step_deg": step}
-    if "window" in case.scanner:
-        scanner["window"] = {**case.scanner["window"], "step_deg": step}
-    return Case.from_dict({**case_spec, "scanner": scanner})
+    scene = build_scene(case.scene)
+    setup = scan_setup(case, scene)
+    rows, columns = setup.window.shape
+    if rows * columns > max_pulses:
+        step = max(setup.window.step_deg) * math.sqrt(rows * columns / max_pulses)
+        setup = dataclasses.replace(setup, window=dataclasses.replace(setup.window, step_deg=step))
+    return simulate(scene, setup, seed=case.seed, progress=False), rows * columns
 
 
-def plot_case_preview(case_spec: dict, n_pulses: int | None = None, max_pulses: int = PREVIEW_PULSES) -> Figure:
+def plot_case_preview(case_spec: dict, max_pulses: int = PREVIEW_PULSES) -> Figure:
     """A small picture of one case's scan: range and intensity images (rows = zenith, columns = azimuth), the
     pulses farther than 1 cm from the true range of their main object (the outliers a method must fix) in red.
 
@@ -472,18 +470,15 @@ def plot_case_preview(case_spec: dict, n_pulses: int | None = None, max_pulses: 
     ----------
     case_spec : dict
         Stored specification of the case (re-simulated here, deterministic).
-    n_pulses : int, optional
-        Pulses of the case's scan as run (:func:`preview_case`).
     max_pulses : int
-        Largest number of pulses of the picture's scan.
+        Largest number of pulses of the picture's scan (:func:`preview_scan`).
 
     Returns
     -------
     Figure
         Two image panels: range (m) and intensity (DN).
     """
-    case = preview_case(case_spec, n_pulses, max_pulses)
-    _, scan = simulate_case(case)
+    scan, n_pulses = preview_scan(case_spec, max_pulses)
     figure = Figure(figsize=(6.6, 2.4), layout="constrained")
     extent = np.degrees([np.nanmin(scan.theta), np.nanmax(scan.theta), np.nanmax(scan.psi), np.nanmin(scan.psi)])
     panels = []
@@ -502,16 +497,16 @@ def plot_case_preview(case_spec: dict, n_pulses: int | None = None, max_pulses: 
         overlay[outlier] = (0.9, 0.1, 0.1, 1.0)
         panels[1].imshow(overlay, extent=extent, aspect="auto", interpolation="nearest")
         panels[1].set_title(f"red: {int(outlier.sum()):,} pulses > 1 cm from the true range", fontsize=8)
-    coarse = case.scanner != Case.from_dict(case_spec).scanner
     step = np.degrees(np.nanmedian(np.abs(np.diff(scan.theta, axis=1)))) if scan.shape[1] > 1 else float("nan")
-    figure.suptitle(f"{case.name}: {scan.shape[0]} × {scan.shape[1]} pulses at {step:.3f} deg"
+    coarse = scan.shape[0] * scan.shape[1] < n_pulses
+    figure.suptitle(f"{case_spec['name']}: {scan.shape[0]} × {scan.shape[1]} pulses at {step:.3f} deg"
                     + (f" (coarsened for this picture from {n_pulses:,} pulses)" if coarse else ""), fontsize=9)
     return figure
 
 
-def preview_cases(rows: list[dict]) -> tuple[list[tuple[dict, int | None]], int]:
-    """The cases that get a picture, with the pulses of their scan as run: up to :data:`PREVIEWS_PER_KIND` per
-    kind of scene, :data:`PREVIEWS_MAX` in all; also the number of cases of the run.
+def preview_cases(rows: list[dict]) -> tuple[list[dict], int]:
+    """The cases that get a picture: up to :data:`PREVIEWS_PER_KIND` per kind of scene, :data:`PREVIEWS_MAX` in
+    all; also the number of cases of the run.
 
     Parameters
     ----------
@@ -520,22 +515,17 @@ def preview_cases(rows: list[dict]) -> tuple[list[tuple[dict, int | None]], int]
 
     Returns
     -------
-    chosen : list of (dict, int or None)
-        Case specifications and pulse counts.
+    chosen : list of dict
+        Case specifications.
     n_cases : int
     """
     specs = {r["case_name"]: r["case_spec"] for r in rows}
-    pulses: dict[str, int] = {}
-    for r in rows:
-        n = None if r["error"] else r["metrics"].get("case", {}).get("n_pulses")
-        if n:
-            pulses[r["case_name"]] = max(pulses.get(r["case_name"], 0), n)
     chosen, per_kind = [], {}
-    for name, spec in specs.items():
+    for spec in specs.values():
         kind = summary.scene_kind(spec)
         if per_kind.get(kind, 0) < PREVIEWS_PER_KIND and len(chosen) < PREVIEWS_MAX:
             per_kind[kind] = per_kind.get(kind, 0) + 1
-            chosen.append((spec, pulses.get(name)))
+            chosen.append(spec)
     return chosen, len(specs)
 
 
@@ -731,8 +721,8 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
         parts.append(f"<p class='meta'>Range and intensity of {len(chosen)} of the {n_cases} cases (up to "
                      f"{PREVIEWS_PER_KIND} per kind of scene); red: pulses more than 1 cm from the true range of their "
                      "main object.</p><div class='pictures'>")
-        for spec, n_pulses in chosen:
-            parts.append(f"<figure>{_image(spec['name'], plot_case_preview(spec, n_pulses))}"
+        for spec in chosen:
+            parts.append(f"<figure>{_image(spec['name'], plot_case_preview(spec))}"
                          f"<figcaption>{html.escape(spec['name'])} ({html.escape(summary.scene_kind(spec))})"
                          "</figcaption></figure>")
         parts.append("</div>")

@@ -38,11 +38,19 @@ def blocks() -> list[tuple[str, str, str]]:
 
 
 def commands(text: str) -> list[str]:
-    """The command lines of a shell block: comments and ``.venv/bin/`` dropped, comment-only lines skipped."""
-    lines = []
+    """The commands of a shell block: comments and ``.venv/bin/`` dropped, comment-only lines skipped, lines
+    continued by a backslash joined."""
+    lines, pending = [], ""
     for line in text.splitlines():
-        command = line.split(" #", 1)[0].strip().removeprefix(".venv/bin/")
-        if command and not command.startswith("#"):
+        part = line.split(" #", 1)[0].strip()
+        if part.startswith("#"):
+            continue
+        if part.endswith("\\"):
+            pending += part[:-1].strip() + " "
+            continue
+        command = (pending + part).strip().removeprefix(".venv/bin/")
+        pending = ""
+        if command:
             lines.append(command)
     return lines
 
@@ -97,7 +105,8 @@ def make_commands(target: str) -> list[str]:
 
 
 def test_make_bench_runs_the_main_job():
-    assert make_commands("bench") == ["tlsbench main -o bench-out"]
+    assert "tlsbench main -o bench-out" in make_commands("bench")
+    assert commands("a \\\n  b   # comment\n# only a comment\n.venv/bin/c d") == ["a b", "c d"]
 
 
 @pytest.mark.parametrize("command", sorted({c for kind, c in steps() if kind == "command" and not c.startswith("make ")}
