@@ -727,7 +727,7 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
                          "</figcaption></figure>")
         parts.append("</div>")
     parts += ["<h2>By kind of scene</h2>", "<div class='wide'>",
-              _table(document["by_scene"], ["scene", "variant", "n_targets", "n_errors", "rop_before", "rop_after",
+              _table([r for r in document["by_scene"] if r["n_targets"] or r["n_errors"]], ["scene", "variant", "n_targets", "n_errors", "rop_before", "rop_after",
                                             "rop_reduction", "outliers_restored", "good_points_lost",
                                             "area_rel_err_median", "area_rel_err_bias", "runtime_s"]), "</div>"]
     if document["validation"]:
