@@ -137,3 +137,26 @@ def test_cli_list_and_quick_run(tmp_path, capsys):
     assert "ch5-vase" in (tmp_path / "reproduction.html").read_text()
     assert main(["reproduce", "nothing-like-this", "--no-store", "-o", str(tmp_path)]) == 2
     assert "no reproduction experiment 'nothing-like-this'" in capsys.readouterr().err
+
+
+def _tube_row(views, completeness, mae):
+    return {"views": views, "kept": 1.0, "noise_cm": 0.0, "cap": 0, "radius_mae_cm": mae,
+            "completeness": completeness, "tuboids": 3}
+
+
+def test_woody_rows_from_the_experiment_rows(monkeypatch):
+    from benchmarks.reproduce import woody_papers
+
+    monkeypatch.setattr(woody_papers.woody, "exp_tube", lambda quick, seed: [
+        _tube_row("two views", 0.95, 0.4), _tube_row("one view", 0.80, 0.9)])
+    rows = woody_papers.ds2(True, 0)
+    claim = [r for r in rows if r.holds is not None]
+    assert len(rows) == 3 and len(claim) == 1 and claim[0].verdict == WITHIN
+    monkeypatch.setattr(woody_papers.woody, "exp_tube", lambda quick, seed: [
+        _tube_row("two views", 0.70, 0.4), _tube_row("one view", 0.80, 0.9)])
+    assert [r.verdict for r in woody_papers.ds2(True, 0) if r.holds is not None] == [OUTSIDE]
+    step = [{"normals": "pca", "circles": "refit", "arc_deg": arc, "diameter_mae_cm": mae, "tuboids": 1,
+             "completeness": 1.0} for arc, mae in ((10, 5.0), (40, 0.5), (90, 1.5))]
+    monkeypatch.setattr(woody_papers.woody, "exp_occlusion", lambda quick, seed: step)
+    # arcs under 40 deg are reported, not judged
+    assert [r.verdict for r in woody_papers.ds1b(True, 0)] == [REPORTED, WITHIN, OUTSIDE]

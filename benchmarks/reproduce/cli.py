@@ -20,7 +20,8 @@ from benchmarks.reproduce.page import write_page
 from benchmarks.store import Store
 
 #: Modules that register experiments, in the order of the page.
-MODULES = ("benchmarks.reproduce.sensors2011", "benchmarks.reproduce.thesis_ch5", "benchmarks.reproduce.thesis_ch2")
+MODULES = ("benchmarks.reproduce.sensors2011", "benchmarks.reproduce.thesis_ch5", "benchmarks.reproduce.thesis_ch2",
+           "benchmarks.reproduce.woody_papers")
 
 
 def load_experiments() -> dict:
