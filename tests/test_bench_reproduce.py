@@ -118,11 +118,13 @@ def test_ch5_experiments_quick_table_shapes():
     for rule in thesis_ch5.RULES:
         signed = [r for r in bias if r.key.startswith(f"{rule}/bias") and r.key.endswith("signed")]
         assert [r.x for r in signed] == list(thesis_ch5.BIASES_DEG)
-        assert sum(r.key.startswith(rule) and r.holds is not None for r in bias) == 3
+        assert sum(r.key.startswith(rule) and r.holds is not None for r in bias) == 7
     assert len({r.key for r in bias}) == len(bias)
     signed = {r.key: r.ours for r in bias}
     # the thesis' upper-bound rule takes the steepest alpha of each domain: the descent from the summit is too steep
     assert signed["upper/bias +0/signed"] < signed["median/bias +0/signed"] - 5
+    # and the lower-bound rule (the inner curve's alpha) too shallow
+    assert signed["lower/bias +0/signed"] > signed["median/bias +0/signed"] + 2
     assert [r.x for r in vase if r.holds is None] == [20.0, 10.0, 5.0]
     assert all(r.claim and r.source for r in bias + vase if r.holds is not None)
 
