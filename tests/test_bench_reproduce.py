@@ -125,7 +125,7 @@ def test_ch5_experiments_quick_table_shapes():
     assert signed["upper/bias +0/signed"] < signed["median/bias +0/signed"] - 5
     # and the lower-bound rule (the inner curve's alpha) too shallow
     assert signed["lower/bias +0/signed"] > signed["median/bias +0/signed"] + 2
-    assert [r.x for r in vase if r.holds is None] == [20.0, 10.0, 5.0]
+    assert [r.x for r in vase if r.holds is None] == [20.0, 10.0, 5.0] * len(thesis_ch5.RULES)
     assert all(r.claim and r.source for r in bias + vase if r.holds is not None)
 
 
@@ -162,3 +162,11 @@ def test_woody_rows_from_the_experiment_rows(monkeypatch):
     monkeypatch.setattr(woody_papers.woody, "exp_occlusion", lambda quick, seed: step)
     # arcs under 40 deg are reported, not judged
     assert [r.verdict for r in woody_papers.ds1b(True, 0)] == [REPORTED, WITHIN, OUTSIDE]
+
+
+def test_fit_law_recovers_known_exponents():
+    area = np.repeat([625.0, 1681.0, 3364.0, 10000.0], 3)
+    eps = np.tile([0.05, 0.1, 0.2], 4)
+    seconds = 2e-4 * area**1.37 / eps**1.12 + 0.5
+    p, q = thesis_ch5.fit_law(area, eps, seconds)
+    assert p == pytest.approx(1.37, abs=0.05) and q == pytest.approx(1.12, abs=0.05)

@@ -266,10 +266,13 @@ def _smoothing_rows(rule: str, side: int, passes, seed: int) -> list[Row]:
 @register("ch5-size", "Thesis ch.5 Fig. 11: hemisphere error against matrix size and quantisation percentile",
           description="Radius-20 hemisphere at 25-58 px, 5/10/20 % quantisation, with and without +3.5 deg bias, "
                       "both domain-alpha rules, no noise.",
-          findings="The thesis' rule (small matrix: large percentile) is a statement about its figures; where ours "
-                   "disagrees the row says so. A small matrix with a 5 % percentile has domains one or two pixels "
-                   "wide, which our discrete curves (Braquelaire-Vialard tangents on pixel contours) follow "
-                   "better than the thesis' polygonal curves did: a difference of implementation, measured here.")
+          findings="Under the lower-bound rule (the one that reproduces the bias study) '10 % unbiased gives the "
+                   "errors of 20 % with +3.5 deg' holds (largest gap 0.8 % of h_tot), as it must if the thesis' "
+                   "alpha was low by about half a domain; under the median and upper rules it does not. The rule "
+                   "'a small matrix needs a large percentile' fails under every rule: at 25 px our 5 % "
+                   "quantisation is better than 20 %. Our domains one or two pixels wide still give usable curves "
+                   "(Braquelaire-Vialard tangents on pixel contours, opened regions), where the thesis reports "
+                   "polygonal iso-alpha curves at 25-41 px: a difference of implementation, not explained further.")
 def size(quick: bool, seed: int) -> list[Row]:
     """Rows of the size/percentile study.
 
@@ -314,11 +317,13 @@ def size(quick: bool, seed: int) -> list[Row]:
 
 @register("ch5-vase", "Thesis ch.5 Fig. 13: vase col error against the quantisation percentile",
           description="The vase neck (eqs 3.5-3.6, domain divided by 10, prop-sfs A21) at 60 px, 20/10/5 % "
-                      "quantisation, 20 % seed, median rule.",
-          findings="Issue 12 measured the vase col error growing as the percentile falls (35.9/60.9/108 % at "
-                   "20/10/5 %). The thesis attributes its own corner divergence at 5 % to mismanaged toggle points; "
-                   "a row outside here points at our toggle handling at the col (a saddle whose greatest-slope "
-                   "orientation flips), not at the quantisation.")
+                      "quantisation, 20 % seed, the three domain-alpha rules.",
+          findings="Outside under every rule: our vase col error grows as the percentile falls (median rule "
+                   "35.9/60.9/108 % at 20/10/5 %, lower-bound rule 19.9/39.3/68.8 %; the upper bound fails "
+                   "everywhere, 439 %), where the thesis says a smaller percentile lowers the local error. The "
+                   "thesis itself blames its corner divergence at 5 % on toggle points mismanaged at the col; ours "
+                   "accumulates error over more annuli across the col, where the greatest-slope orientation flips. "
+                   "Counted as a defect of ours (toggle handling at saddles), not fixed here.")
 def vase(quick: bool, seed: int) -> list[Row]:
     """Rows of the vase-col study.
 
@@ -330,14 +335,47 @@ def vase(quick: bool, seed: int) -> list[Row]:
         Unused (no noise).
     """
     side = 40 if quick else 60
-    runs = {eps: reconstruct("vase", side, eps_alpha=eps, seed=seed) for eps in (0.2, 0.1, 0.05)}
-    rows = [Row(f"eps {eps:g}/|error|", "mean |error| (eq 3.2)", "% of h_tot", 100 * s["abs_eps_mean"], x=100 * eps,
-                source="ours (thesis Fig. 13)") for eps, s in runs.items()]
-    errors = [runs[eps]["abs_eps_mean"] for eps in (0.2, 0.1, 0.05)]
-    rows.append(Row("smaller percentile, lower error", "claim", "% of h_tot", 100 * errors[-1],
-                    source="thesis ch.5 §3.3.4", holds=_monotone(errors),
-                    claim="a smaller percentile lowers the local error (20 -> 10 -> 5 %)"))
+    rows = []
+    for rule in RULES:
+        runs = {eps: reconstruct("vase", side, eps_alpha=eps, rule=rule, seed=seed) for eps in (0.2, 0.1, 0.05)}
+        rows += [Row(f"{rule}/eps {eps:g}/|error|", "mean |error| (eq 3.2)", "% of h_tot", 100 * s["abs_eps_mean"],
+                     x=100 * eps, series=rule, source="ours (thesis Fig. 13)") for eps, s in runs.items()]
+        errors = [runs[eps]["abs_eps_mean"] for eps in (0.2, 0.1, 0.05)]
+        rows.append(Row(f"{rule}/smaller percentile, lower error", "claim", "% of h_tot", 100 * errors[-1],
+                        source="thesis ch.5 §3.3.4", holds=_monotone(errors), series=rule,
+                        claim="a smaller percentile lowers the local error (20 -> 10 -> 5 %)"))
     return rows
+
+
+def fit_law(area, eps, seconds) -> tuple[float, float]:
+    """Exponents ``p, q`` of ``t = A a^p / eps^q + C`` fitted to timings (the form of the thesis' eq 3.10).
+
+    For each trial constant ``C`` below the shortest time, ``log(t - C)`` is
+    fitted linearly in ``log a`` and ``log eps``; the ``C`` with the least
+    squared error in ``t`` wins.
+
+    Parameters
+    ----------
+    area : ndarray
+        Matrix sizes a_tot, pixels.
+    eps : ndarray
+        Quantisation percentiles (fractions).
+    seconds : ndarray
+        Run times, s.
+
+    Returns
+    -------
+    p, q : float
+        Exponents of a_tot and of 1/eps.
+    """
+    design = np.column_stack([np.ones_like(area), np.log(area), np.log(eps)])
+    best = (np.inf, math.nan, math.nan)
+    for constant in np.linspace(0.0, 0.95 * float(np.min(seconds)), 40):
+        coef = np.linalg.lstsq(design, np.log(seconds - constant), rcond=None)[0]
+        error = float(np.sum((np.exp(design @ coef) + constant - seconds) ** 2))
+        if error < best[0]:
+            best = (error, float(coef[1]), float(-coef[2]))
+    return best[1], best[2]
 
 
 @register("ch5-complexity", "Thesis ch.5 §3.4: complexity law t = 0.022 a_tot^1.37 / eps^1.12 + 14",
@@ -345,10 +383,10 @@ def vase(quick: bool, seed: int) -> list[Row]:
                       "percentiles 5/10/15/20 %; the shortest of repeated runs (the thesis kept the shortest of 4); "
                       "log t = c + p log a_tot - q log eps fitted on ours.",
           findings="The law's unit, machine and constant are not stated (prop-sfs A15): only its exponents are "
-                   "compared. Our propagation visits each domain's curve once, so time grows with the number of "
-                   "pixels about linearly and with the number of domains (1/eps) less than linearly; exponents "
-                   "outside the tolerance say the thesis' implementation scaled worse (its point redundancy grows "
-                   "with size, ch.7).")
+                   "compared, fitted with a constant term as in the law. Our time grows less than the thesis' with "
+                   "the matrix size: the propagation visits each annulus once and the pre-processing is "
+                   "vectorised, where the thesis' output (and so its time) grew with point redundancy (ch.7). A "
+                   "smaller exponent is not a defect; the row is outside because the law does not describe ours.")
 def complexity(quick: bool, seed: int) -> list[Row]:
     """Rows of the complexity law (fitted exponents against the published ones, times against the law's shape).
 
@@ -366,14 +404,13 @@ def complexity(quick: bool, seed: int) -> list[Row]:
             t = min(reconstruct("hemisphere", s, eps_alpha=eps, seed=seed)["seconds"] for _ in range(repeat))
             samples.append((s * s, eps, t))
     a, eps, t = (np.array(v, float) for v in zip(*samples))
-    design = np.column_stack([np.ones_like(a), np.log(a), np.log(eps)])
-    coef = np.linalg.lstsq(design, np.log(t), rcond=None)[0]
+    p, q = fit_law(a, eps, t)
     tol = ("0.5: the law is a shape target (prop-sfs A15, §9.8: exponents of the same sign and similar size); "
            "its constant 14 and unit are not comparable")
-    rows = [Row("exponent of a_tot", "fitted exponent", "", float(coef[1]), 1.37, 0.5, tol,
-                "thesis ch.5 eq 3.10", x=1, series="exponents"),
-            Row("exponent of 1/eps", "fitted exponent", "", float(-coef[2]), 1.12, 0.5, tol,
-                "thesis ch.5 eq 3.10", x=2, series="exponents")]
+    rows = [Row("exponent of a_tot", "fitted exponent", "", p, 1.37, 0.5, tol, "thesis ch.5 eq 3.10", x=1,
+                series="exponents", note="fitted with a constant term, as the law has"),
+            Row("exponent of 1/eps", "fitted exponent", "", q, 1.12, 0.5, tol, "thesis ch.5 eq 3.10", x=2,
+                series="exponents", note="fitted with a constant term, as the law has")]
     for (area, e, seconds) in samples:
         law = 0.022 * area**1.37 / (100 * e) ** 1.12 + 14
         rows.append(Row(f"side {int(round(math.sqrt(area)))}/eps {e:g}", "time, ours (s) against the law (its unit)",
