@@ -78,6 +78,12 @@ def test_registry_select_and_duplicates():
     assert [e.name for e in core.select(["ch5-*"])][:2] == ["ch5-alpha-bias", "ch5-smoothing"]
     with pytest.raises(BenchError, match="no reproduction experiment"):
         core.select(["no-such"])
+    # heavy experiments leave --quick unless named one by one
+    assert "step-ds1a" in {e.name for e in core.select(None)} - {e.name for e in core.select(None, quick=True)}
+    assert [e.name for e in core.select(["step-ds1a"], quick=True)] == ["step-ds1a"]
+    assert [e.name for e in core.select(["mendez-*"], quick=True)] == ["mendez-table6"]
+    with pytest.raises(BenchError, match="heavy"):
+        core.select(["step-*"], quick=True)
     with pytest.raises(BenchError, match="twice"):
         core.register("ch5-vase", "again")(lambda quick, seed: [])
 

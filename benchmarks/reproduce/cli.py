@@ -39,7 +39,8 @@ def add_parser(sub) -> None:
                                    "CSV, PNG and reproduction.html, and store the rows.")
     p.add_argument("names", nargs="*", metavar="NAME", help="experiments to run (default: all)")
     p.add_argument("--list", action="store_true", help="list the registered experiments and exit")
-    p.add_argument("--quick", action="store_true", help="tiny versions (tests, make bench)")
+    p.add_argument("--quick", action="store_true",
+                   help="tiny versions (tests, make bench); heavy experiments only when named one by one")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulations (default 0)")
     p.add_argument("-o", "--output", default="reproduction", help="output directory (default reproduction)")
     p.add_argument("--db", default="results.sqlite", help="results database (default results.sqlite)")
@@ -63,7 +64,7 @@ def run_experiments(names: list[str] | None, quick: bool, seed: int, echo=print)
     """
     load_experiments()
     outcomes = []
-    for experiment in select(names):
+    for experiment in select(names, quick):
         start = time.perf_counter()
         outcome = Outcome(experiment)
         try:
@@ -83,7 +84,7 @@ def run(args) -> int:
     """The command (see the module docstring); exit status 1 when an experiment failed."""
     if args.list:
         for experiment in load_experiments().values():
-            print(f"{experiment.name:28s} {experiment.title}")
+            print(f"{experiment.name:24s} {'heavy ' if experiment.heavy else '      '}{experiment.title}")
         return 0
     outcomes = run_experiments(args.names, args.quick, args.seed)
     out = Path(args.output)

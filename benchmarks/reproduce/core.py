@@ -133,6 +133,9 @@ class Experiment:
         What is simulated and how ours is measured.
     findings : str
         Where ours departs from the source and why (measured), shown on the page.
+    heavy : bool
+        Too slow for ``--quick`` even in its tiny form (minutes per run on
+        two shared cores): ``--quick`` runs it only when named.
     """
 
     name: str
@@ -140,13 +143,14 @@ class Experiment:
     run: Callable[[bool, int], list[Row]]
     description: str = ""
     findings: str = ""
+    heavy: bool = False
 
 
 #: Registered experiments by name, in registration order.
 EXPERIMENTS: dict[str, Experiment] = {}
 
 
-def register(name: str, title: str, description: str = "", findings: str = ""):
+def register(name: str, title: str, description: str = "", findings: str = "", heavy: bool = False):
     """Decorator registering ``run(quick, seed) -> list[Row]`` as the experiment ``name``.
 
     Parameters
@@ -159,22 +163,26 @@ def register(name: str, title: str, description: str = "", findings: str = ""):
         What is simulated and measured.
     findings : str
         Explanations of the differences from the source.
+    heavy : bool
+        Left out of ``--quick`` unless named (see :class:`Experiment`).
     """
     def wrap(function):
         if name in EXPERIMENTS:
             raise BenchError(f"reproduction experiment {name!r} is registered twice")
-        EXPERIMENTS[name] = Experiment(name, title, function, description, findings)
+        EXPERIMENTS[name] = Experiment(name, title, function, description, findings, heavy)
         return function
     return wrap
 
 
-def select(names: list[str] | None) -> list[Experiment]:
+def select(names: list[str] | None, quick: bool = False) -> list[Experiment]:
     """The experiments named (all, in registration order, when ``names`` is empty).
 
     Parameters
     ----------
     names : list of str or None
-        Experiment names, or prefixes ending in ``*`` (``woody-*``).
+        Experiment names, or prefixes ending in ``*`` (``step-*``).
+    quick : bool
+        Leave out the heavy experiments that are not named exactly.
 
     Raises
     ------
@@ -182,12 +190,14 @@ def select(names: list[str] | None) -> list[Experiment]:
         For a name that matches no registered experiment.
     """
     if not names:
-        return list(EXPERIMENTS.values())
+        return [e for e in EXPERIMENTS.values() if not (quick and e.heavy)]
     chosen: dict[str, Experiment] = {}
     for name in names:
-        matches = [e for n, e in EXPERIMENTS.items() if n == name or name.endswith("*") and n.startswith(name[:-1])]
+        matches = [e for n, e in EXPERIMENTS.items() if n == name or name.endswith("*") and n.startswith(name[:-1])
+                   and not (quick and e.heavy)]
         if not matches:
-            raise BenchError(f"no reproduction experiment {name!r}; known: {', '.join(EXPERIMENTS)}")
+            raise BenchError(f"no reproduction experiment {name!r}" + (" outside the heavy ones (name them one by "
+                             "one with --quick)" if quick else "") + f"; known: {', '.join(EXPERIMENTS)}")
         chosen.update({e.name: e for e in matches})
     return list(chosen.values())
 

@@ -9,7 +9,8 @@ state, and the rows test what the papers' text claims. Where no claim
 exists, the project's goal fixed beforehand (diameter error below 1 cm
 while at least 40 deg of arc is visible) is tested and named as such.
 DS4 (the SimpleTree open data) needs real clouds that are not in the
-project and is not reproduced.
+project and is not reproduced. Every experiment but Table 6 is heavy
+(minutes even in its quick form): ``--quick`` runs them only when named.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ def _step_rows(rows: list[dict], key: str, unit: str, goal_from: float = -np.inf
           description="Cylinder r = 0.5 m, L = 2 m, 10 densities 14-1.4 pts/cm^2, Hough cells 2 cm / 1 cm, "
                       "oracle and PCA normals, Hough-space and re-fitted circles.",
           findings="The paper's radius errors are in a figure kept out of the spec; our rows test the project's "
-                   "goal instead (named as such in each row).")
+                   "goal instead (named as such in each row).", heavy=True)
 def ds1a(quick: bool, seed: int) -> list[Row]:
     """Rows of DS1 (a) (diameter MAE per density and variant).
 
@@ -58,7 +59,7 @@ def ds1a(quick: bool, seed: int) -> list[Row]:
 @register("step-ds1b", "STEP DS1 (b), Fig. 4: radius error against the visible sector (occlusion)",
           description="Cylinder r = 0.5 m seen over a sector of 10-360 deg, 3 pts/cm^2.",
           findings="Below 40 deg of arc a circle is poorly constrained (the project's goal starts at 40 deg); the "
-                   "narrow arcs are reported, not judged.")
+                   "narrow arcs are reported, not judged.", heavy=True)
 def ds1b(quick: bool, seed: int) -> list[Row]:
     """Rows of DS1 (b) (diameter MAE per visible arc and variant; judged from 40 deg).
 
@@ -74,7 +75,7 @@ def ds1b(quick: bool, seed: int) -> list[Row]:
 
 @register("step-ds1c", "STEP DS1 (c), Fig. 4: diameter error against coordinate noise 0-5 cm",
           description="Cylinder r = 0.5 m, 3 pts/cm^2, uniform coordinate noise 0-5 cm (0-10 % of the radius).",
-          findings="The paper's figure is held back; the rows test the project's goal.")
+          findings="The paper's figure is held back; the rows test the project's goal.", heavy=True)
 def ds1c(quick: bool, seed: int) -> list[Row]:
     """Rows of DS1 (c) (diameter MAE per noise level and variant).
 
@@ -92,7 +93,7 @@ def ds1c(quick: bool, seed: int) -> list[Row]:
           description="Winding tapering tube, front/back views, decimated to 75-10 % and with 1-4 cm noise, with "
                       "and without a cap of 10 tuboids (PCA normals, re-fitted circles).",
           findings="Results are figures in the paper; the row tests its statement that two-view clouds are more "
-                   "resilient than single-view ones (completeness and radius error).")
+                   "resilient than single-view ones (completeness and radius error).", heavy=True)
 def ds2(quick: bool, seed: int) -> list[Row]:
     """Rows of DS2 (radius MAE and completeness per condition; the two-view claim).
 
@@ -127,7 +128,7 @@ def ds2(quick: bool, seed: int) -> list[Row]:
           description="A 15 m conifer stem with 15 cm branch stubs sampled from one side; taper error in 10 cm bins "
                       "and the DBH.",
           findings="The paper's taper error (with its 0.4 cm bark bias) is a figure kept out of the spec; the row "
-                   "tests its statement that accuracy falls in the upper stem.")
+                   "tests its statement that accuracy falls in the upper stem.", heavy=True)
 def ds3(quick: bool, seed: int) -> list[Row]:
     """Rows of DS3 (DBH error, taper-ok height, the upper-stem claim).
 
@@ -186,7 +187,7 @@ def table6(quick: bool, seed: int) -> list[Row]:
                       "reads it and literally as printed ('paper' mode).",
           findings="Table 8's results are held back; its model properties are compared to show how far our "
                    "synthetic trees are from the paper's SIMLIDAR trees (the scene, not the method). The paper's "
-                   "text reports over-branching and an over-estimated volume; the claim rows test that on ours.")
+                   "text reports over-branching and an over-estimated volume; the claim rows test that on ours.", heavy=True)
 def table8(quick: bool, seed: int) -> list[Row]:
     """Rows of Table 8 (model properties, volume error, branches; the over-branching claim).
 
