@@ -43,7 +43,9 @@ def add_parser(sub) -> None:
                    help="tiny versions (tests, make bench); heavy experiments only when named one by one")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulations (default 0)")
     p.add_argument("-o", "--output", default="reproduction", help="output directory (default reproduction)")
-    p.add_argument("--db", default="results.sqlite", help="results database (default results.sqlite)")
+    p.add_argument("--db", default="reproduction.sqlite",
+                   help="results database (default reproduction.sqlite: a store of its own, so that the suites' "
+                        "'latest' run stays a suite run; compare two runs with tlsbench compare A B --db ...)")
     p.add_argument("--no-store", action="store_true", help="do not write the rows to the results store")
     p.set_defaults(func=run)
 

@@ -16,6 +16,7 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 from matplotlib.figure import Figure
 
 from benchmarks.reproduce.core import OUTSIDE, REPORTED, WITHIN, Experiment, Outcome, Row, count_within
@@ -106,7 +107,8 @@ def plot_rows(experiment: Experiment, rows: list[Row]) -> Figure:
 
     Ours is drawn as a line per series; the published values as open
     markers with the tolerance as error bars; rows outside are crossed in
-    red. Rows without an abscissa are placed by their order.
+    red. Rows without an abscissa are placed by their order; claim rows are
+    left to the table unless there is nothing else.
 
     Parameters
     ----------
@@ -119,6 +121,8 @@ def plot_rows(experiment: Experiment, rows: list[Row]) -> Figure:
     -------
     matplotlib.figure.Figure
     """
+    plotted = [r for r in rows if r.claim == ""]  # claims mix units: they stay in the table
+    rows = plotted or rows
     quantities = list(dict.fromkeys(r.quantity for r in rows))
     columns = min(3, max(1, len(quantities)))
     lines = math.ceil(len(quantities) / columns) if quantities else 1
@@ -131,7 +135,9 @@ def plot_rows(experiment: Experiment, rows: list[Row]) -> Figure:
             part = [r for r in chosen if r.series == series]
             xs = [r.x if r.x is not None else i for i, r in enumerate(part)]
             color = f"C{index % 10}"
-            axes.plot(xs, [r.ours for r in part], "-o", color=color, ms=4, label=f"ours {series}".strip())
+            order = np.argsort(xs, kind="stable") if all(r.x is not None for r in part) else np.arange(len(xs))
+            axes.plot(np.asarray(xs, float)[order], np.asarray([r.ours for r in part], float)[order], "-o",
+                      color=color, ms=4, label=f"ours {series}".strip())
             published = [(x, r) for x, r in zip(xs, part) if r.published is not None]
             if published:
                 axes.errorbar([x for x, _ in published], [r.published for _, r in published],
@@ -143,8 +149,7 @@ def plot_rows(experiment: Experiment, rows: list[Row]) -> Figure:
         axes.set_title(quantity, fontsize=8)
         axes.set_ylabel(chosen[0].unit, fontsize=8)
         axes.tick_params(labelsize=7)
-        if len(chosen) > 1:
-            axes.legend(fontsize=6)
+        axes.legend(fontsize=6)
     return figure
 
 

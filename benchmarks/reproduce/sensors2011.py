@@ -67,10 +67,10 @@ def table2(quick: bool, seed: int) -> list[Row]:
     rows = [Row("99 %/raw at 3.56 m", "raw DN at 3.56 m", "DN", float(curve(curve.reference_distance_m)),
                 F99_REF_DN, 2.0, "2 DN: the simulator's reference DN is set to the paper's f99(d_ref); what is left "
                 "is the fit of the piecewise curve", "Sensors 2011 distance correction: f99(3.56 m) = 1781.45 DN",
-                x=0.99, series="99 % Spectralon")]
+                x=0.99)]
     for material, rho, shift, shift_sd, raw, rmse in TABLE2:
         ours = stats[min(stats, key=lambda r: abs(r - rho))]
-        common = dict(x=rho, series=material)
+        common = dict(x=rho)
         rows += [
             Row(f"{material}/mean shift", "(i) mean shift", "DN", ours["mean_shift_dn"], shift, 2 * shift_sd,
                 _SHIFT_TOL, f"{SOURCE} (i)", **common),
