@@ -176,3 +176,13 @@ def test_fit_law_recovers_known_exponents():
     seconds = 2e-4 * area**1.37 / eps**1.12 + 0.5
     p, q = thesis_ch5.fit_law(area, eps, seconds)
     assert p == pytest.approx(1.37, abs=0.05) and q == pytest.approx(1.12, abs=0.05)
+
+
+def test_insitu_claims_on_known_distributions(monkeypatch):
+    rng = np.random.default_rng(0)
+    skewed = rng.exponential(4.0, 4000) - 1.0  # skewness 2, median about +1.8 deg
+    monkeypatch.setattr(sensors2011, "leaf_delta_alpha", lambda d, seed: skewed + (0.0 if d < 2 else 5.0))
+    rows = sensors2011.insitu(quick=True, seed=0)
+    verdicts = {r.key: r.verdict for r in rows if r.holds is not None}
+    assert verdicts == {"1.5 m/skewed and shifted": WITHIN, "3 m/skewed and shifted": WITHIN,
+                        "no clear difference between distances": OUTSIDE}

@@ -13,10 +13,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmarks.experiments.calibration import simulate_tables
+import scenes
+from benchmarks.experiments.calibration import simulate_tables, simulated_calibration
 from benchmarks.reproduce.core import Row, register
 from leafsfs.calibration import fit_calibration, panel_statistics, reference_curve_from_table
+from tlssim.calibration import patch_incidence
 from tlssim.scanner import get_preset
+from tlssim.simulate import setup_from_section, simulate
 
 SOURCE = "Sensors 2011 Table 2"
 #: Table 2 of the paper: material, reflectance, mean shift, s.d. of shift, raw DN at 3.56 m, RMSE after correction.
@@ -156,4 +159,80 @@ def goniometer(quick: bool, seed: int) -> list[Row]:
     rows.append(Row("inversion RMS below 60 deg", "inversion error (single returns)", "deg",
                     float(np.sqrt(np.mean(error**2))) if len(error) else float("nan"),
                     source="ours only (for the page)"))
+    return rows
+
+
+def leaf_delta_alpha(distance_m: float, seed: int) -> np.ndarray:
+    """Per-point ``delta alpha = alpha_I - alpha_LSR`` (eq 5) on the built-in ``leaf-<d>m`` scan, degrees.
+
+    ``alpha_I`` inverts each pure return's intensity with the simulated
+    calibration of the faro-ls880 preset; ``alpha_LSR`` is the incidence of
+    the plane fitted to the whole leaf (:func:`tlssim.calibration.patch_incidence`).
+
+    Parameters
+    ----------
+    distance_m : float
+        Distance of the built-in leaf scene (1.5, 3 or 5 m).
+    seed : int
+        Seed of the scan and of the calibration scans.
+
+    Returns
+    -------
+    ndarray
+        Delta alpha of the leaf's pure returns (less than 5 % of the power from elsewhere), degrees.
+    """
+    model = get_preset("faro-ls880")
+    calibration = simulated_calibration(model, seed)
+    scene = scenes.build(f"leaf-{distance_m:g}m")
+    scan = simulate(scene, setup_from_section(scene.scanner), seed=seed, progress=False)
+    leaf = scan.object_names.index("leaf")
+    pure = scan.valid & (scan.truth_id == leaf) & (np.nan_to_num(scan.mixed_fraction, nan=1.0) < 0.05)
+    alpha_lsr = patch_incidence(scan.xyz[pure])
+    alpha_i = calibration.alpha(scan.intensity[pure], scan.range[pure])
+    return np.degrees(alpha_i - alpha_lsr)
+
+
+@register("sensors2011-insitu", "Sensors 2011 sec. 3.3 (eq 5): delta alpha on whole leaves at 1.5, 3 and 5 m",
+          description="The built-in curved 9 cm pear leaf at 20 deg incidence (leaf-1.5m, leaf-3m, leaf-5m), the "
+                      "simulated calibration inverted on its pure returns, delta alpha = alpha_I - alpha_LSR per "
+                      "point against the plane fitted to the whole leaf.",
+          findings="The paper's in-situ results are qualitative: whole leaves with a simple curvature give a skewed, "
+                   "shifted delta-alpha distribution, and the distance correction leaves no clear difference "
+                   "between distances. Thresholds for 'skewed' (|skewness| > 0.3), 'shifted' (|median| > 1 deg) and "
+                   "'no clear difference' (medians within 3 deg) are our assumptions, stated in the rows. Measured: "
+                   "on our procedural leaf the distribution is symmetric and centred (skewness -0.04 to -0.08, "
+                   "median within 0.1 deg at 1.5 and 3 m) with an s.d. of about 10.6 deg: single-return intensity "
+                   "noise through the flat part of the I-alpha curve dominates the leaf's gentle curvature, and "
+                   "the simulator has no in-canopy offset (tls-physics §6 item 12, off by default); at 5 m the "
+                   "median moves to -3.3 deg. Outside: a modelling difference (leaf shape and noise), not fixed.")
+def insitu(quick: bool, seed: int) -> list[Row]:
+    """Rows of the in-situ delta-alpha analysis (median, s.d., skewness per distance; the paper's claims).
+
+    Parameters
+    ----------
+    quick : bool
+        1.5 and 3 m only.
+    seed : int
+        Seed of the scans.
+    """
+    distances = (1.5, 3.0) if quick else (1.5, 3.0, 5.0)
+    rows, medians = [], []
+    for d in distances:
+        delta = leaf_delta_alpha(d, seed)
+        median = float(np.median(delta))
+        skew = float(np.mean((delta - delta.mean()) ** 3) / np.std(delta) ** 3) if len(delta) > 2 else float("nan")
+        medians.append(median)
+        rows += [Row(f"{d:g} m/median", "median delta alpha", "deg", median, x=d, source="ours (paper's figure)",
+                     note=f"{len(delta)} pure returns"),
+                 Row(f"{d:g} m/s.d.", "s.d. of delta alpha", "deg", float(np.std(delta)), x=d,
+                     source="ours (paper's figure)"),
+                 Row(f"{d:g} m/skewed and shifted", "claim", "skewness", skew, x=d,
+                     source="Sensors 2011 sec. 3.3.3 (entire leaves on tree 9)",
+                     claim="a curved leaf gives a skewed (|skewness| > 0.3), shifted (|median| > 1 deg) delta-alpha "
+                           "distribution", holds=bool(abs(skew) > 0.3 and abs(median) > 1.0),
+                     note=f"median {median:+.2f} deg")]
+    rows.append(Row("no clear difference between distances", "claim", "deg", float(np.ptp(medians)),
+                    source="Sensors 2011 sec. 3.3.2 (flat parts, 15 trees)", holds=bool(np.ptp(medians) < 3.0),
+                    claim="the distance correction leaves no clear difference between distances (ours: medians "
+                          "within 3 deg)"))
     return rows
