@@ -16,7 +16,6 @@ from pathlib import Path
 
 from benchmarks.reproduce.core import EXPERIMENTS, Outcome, count_within, select
 from benchmarks.reproduce.output import format_rows, store_outcomes, summary_line, write_csv, write_png
-from benchmarks.reproduce.page import write_page
 from benchmarks.store import Store
 
 #: Modules that register experiments, in the order of the page.
@@ -88,6 +87,8 @@ def run(args) -> int:
         for experiment in load_experiments().values():
             print(f"{experiment.name:24s} {'heavy ' if experiment.heavy else '      '}{experiment.title}")
         return 0
+    from benchmarks.reproduce.page import write_page  # imports benchmarks.report and its modules: only when run
+
     outcomes = run_experiments(args.names, args.quick, args.seed)
     out = Path(args.output)
     for outcome in outcomes:
