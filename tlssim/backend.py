@@ -303,12 +303,7 @@ class TraceScene:
         first_prim = dr.gather(mi.UInt32, prim, pulse_start + mi.UInt32(dr.select(has, first, 0)), has)
         central_t = dr.gather(mi.Float, t, pulse_start)
         axis = dr.gather(mi.Vector3f, ray.d, pulse_start)
-        returns64 = [(mi.Float64(p), mi.Float64(d)) for p, d in returns]
-        sums = [dr.block_sum(sum(p for p, _ in returns64), count, mode="symbolic")]
-        for freq in model.mod_freqs_hz:
-            phases = [(p, d * (4.0 * math.pi * freq / SPEED_OF_LIGHT_M_S)) for p, d in returns64]
-            sums += [dr.block_sum(sum(p * dr.cos(phase) for p, phase in phases), count, mode="symbolic"),
-                     dr.block_sum(sum(p * dr.sin(phase) for p, phase in phases), count, mode="symbolic")]
+        sums = self._phasor_sums(model, returns, pulse_start, count)
         dr.eval(first, low, high, first_prim, central_t, axis, *sums)
 
         shape = (len(theta), count)
@@ -327,6 +322,33 @@ class TraceScene:
             prim=np.asarray(prim).reshape(shape),
             _device_arrays=(t, obj, power, prim),
         )
+
+    @staticmethod
+    def _phasor_sums(model, returns, pulse_start, count):
+        """Per-pulse sums of the returned power and of its phasor at every modulation frequency (float64).
+
+        The sub-rays of a pulse are added in their order ``k = 0 .. S-1`` by
+        explicit gathers: ``dr.block_sum`` (Dr.Jit 1.5) rounds differently
+        depending on where a block falls in the array, so a pulse's sums
+        would depend on which other pulses share its wavefront, and a tiled
+        scan would not give the bytes of the whole one.
+        """
+        import drjit as dr
+        import mitsuba as mi
+
+        dr.eval(*(value for pair in returns for value in pair))
+        wavenumbers = [4.0 * math.pi * freq / SPEED_OF_LIGHT_M_S for freq in model.mod_freqs_hz]
+        sums = [mi.Float64(0.0) for _ in range(1 + 2 * len(wavenumbers))]
+        for k in range(count):
+            for power, distance in returns:
+                p = mi.Float64(dr.gather(mi.Float, power, pulse_start + k))
+                d = mi.Float64(dr.gather(mi.Float, distance, pulse_start + k))
+                sums[0] += p
+                for i, wavenumber in enumerate(wavenumbers):
+                    sin, cos = dr.sincos(d * wavenumber)
+                    sums[1 + 2 * i] += p * cos
+                    sums[2 + 2 * i] += p * sin
+        return sums
 
     def _first_hits(self, ray, active=True):
         """Distance and triangle of the first hit of every ray, evaluated once.
