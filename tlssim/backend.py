@@ -38,6 +38,10 @@ BACKENDS = ("auto", "llvm", "cuda")
 #: Fractional part of the golden ratio: spreads the sub-rays of a pulse over its integration time.
 _GOLDEN = 0.5 * (math.sqrt(5.0) - 1.0)
 
+#: Largest zenith shift of the scan smear whose sine and cosine are taken from their Taylor series, rad
+#: (to the 5th and 6th order: the first term left out, |x|^7/5040 and x^8/40320, stays below 2e-8 at 0.3 rad).
+SMALL_ANGLE_RAD = 0.3
+
 #: Distance a transmitted sub-ray is moved past the surface it crossed before it is traced on, m.
 TRANSMISSION_OFFSET_M = 1e-4
 
@@ -124,6 +128,13 @@ class SubrayHits:
     power: np.ndarray
     prim: np.ndarray
     _device_arrays: tuple = ()
+
+
+def _small_angle_sincos(x):
+    """Sine and cosine of small angles (``|x| <= SMALL_ANGLE_RAD``) by their Taylor series, in a few multiplies."""
+    x2 = x * x
+    return (x * (1.0 + x2 * (-1.0 / 6.0 + x2 * (1.0 / 120.0))),
+            1.0 + x2 * (-0.5 + x2 * (1.0 / 24.0 + x2 * (-1.0 / 720.0))))
 
 
 class TraceScene:
@@ -217,22 +228,24 @@ class TraceScene:
         import mitsuba as mi
 
         count = beam.count
+        # Sines and cosines once per pulse (a kernel of n lanes), gathered by its S sub-rays.
+        th, ps, sp = (mi.Float(np.asarray(a, np.float32)) for a in (theta, psi, spin))
+        per_pulse = [dr.sin(th), dr.cos(th), dr.sin(ps), dr.cos(ps), dr.cos(sp), dr.sin(sp)]
+        dr.eval(*per_pulse)
         index = dr.arange(mi.UInt32, len(theta) * count)
         pulse = index // count
         k = index - pulse * count
-        th = dr.gather(mi.Float, mi.Float(np.asarray(theta, np.float32)), pulse)
-        ps = dr.gather(mi.Float, mi.Float(np.asarray(psi, np.float32)), pulse)
+        st, ct, s_psi, c_psi, cs, sn = (dr.gather(mi.Float, value, pulse) for value in per_pulse)
         if smear_rad > 0:
             instant = dr.gather(mi.Float, mi.Float(np.asarray(time_shift, np.float32)), pulse) + mi.Float(k) * _GOLDEN
-            ps += dr.select(k == 0, 0.0, (instant - dr.floor(instant) - 0.5) * smear_rad)
-        sp = dr.gather(mi.Float, mi.Float(np.asarray(spin, np.float32)), pulse)
+            shift = dr.select(k == 0, 0.0, (instant - dr.floor(instant) - 0.5) * smear_rad)
+            sin_shift, cos_shift = _small_angle_sincos(shift) if smear_rad <= 2 * SMALL_ANGLE_RAD else dr.sincos(shift)
+            s_psi, c_psi = s_psi * cos_shift + c_psi * sin_shift, c_psi * cos_shift - s_psi * sin_shift
         u0 = dr.gather(mi.Float, mi.Float(beam.u.astype(np.float32)), k)
         v0 = dr.gather(mi.Float, mi.Float(beam.v.astype(np.float32)), k)
         weight = dr.gather(mi.Float, mi.Float(beam.weight.astype(np.float32)), k)
-        cs, sn = dr.cos(sp), dr.sin(sp)
         u, v = cs * u0 - sn * v0, sn * u0 + cs * v0
 
-        st, ct, s_psi, c_psi = dr.sin(th), dr.cos(th), dr.sin(ps), dr.cos(ps)
         axis = mi.Vector3f(s_psi * ct, s_psi * st, c_psi)
         e_psi = mi.Vector3f(c_psi * ct, c_psi * st, -s_psi)
         e_theta = mi.Vector3f(-st, ct, 0.0)

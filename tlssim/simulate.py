@@ -214,7 +214,7 @@ def column_draws(seed: int, c0: int, c1: int, rows: int, smear: bool) -> dict[st
     order: the spin of each pulse's sub-ray layout (rad, uniform in
     [0, 2 pi)), the instants of the scan smear (uniform in [0, 1), only when
     the model smears), then the detector's amplitude and range noise
-    (standard normal, float32). A column's draws therefore do not depend on
+    (standard normal); all float32, the precision the tracer takes. A column's draws therefore do not depend on
     which other columns are simulated with it: a scan cut into tiles of
     whole columns gives the same bytes whatever the tile size.
 
@@ -235,15 +235,16 @@ def column_draws(seed: int, c0: int, c1: int, rows: int, smear: bool) -> dict[st
         ``spin``, ``instants`` (or ``None``), ``amplitude_noise``, ``range_noise``.
     """
     n = c1 - c0
-    draws = {"spin": np.empty((n, rows)), "instants": np.empty((n, rows)) if smear else None,
+    draws = {"spin": np.empty((n, rows), np.float32), "instants": np.empty((n, rows), np.float32) if smear else None,
              "amplitude_noise": np.empty((n, rows), np.float32), "range_noise": np.empty((n, rows), np.float32)}
     for i in range(n):
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(c0 + i,)))
-        draws["spin"][i] = rng.uniform(0.0, 2.0 * math.pi, rows)
+        rng.random(rows, dtype=np.float32, out=draws["spin"][i])
+        draws["spin"][i] *= np.float32(2.0 * math.pi)
         if smear:
-            draws["instants"][i] = rng.uniform(0.0, 1.0, rows)
-        draws["amplitude_noise"][i] = rng.standard_normal(rows, dtype=np.float32)
-        draws["range_noise"][i] = rng.standard_normal(rows, dtype=np.float32)
+            rng.random(rows, dtype=np.float32, out=draws["instants"][i])
+        rng.standard_normal(rows, dtype=np.float32, out=draws["amplitude_noise"][i])
+        rng.standard_normal(rows, dtype=np.float32, out=draws["range_noise"][i])
     return draws
 
 
