@@ -20,6 +20,10 @@ def add_parser(sub) -> None:
     p.add_argument("--scanner", default=None, help="scanner preset (default: the scene's, else faro-ls880)")
     p.add_argument("--subrays", type=int, default=None, help="sub-rays per pulse (default: the preset's, 19)")
     p.add_argument("--step-deg", type=float, default=None, help="angular step, deg (default: the scene's)")
+    p.add_argument("--theta-deg", type=float, nargs=2, default=None, metavar=("LO", "HI"),
+                   help="azimuth range of the window, deg (default: the scene's)")
+    p.add_argument("--psi-deg", type=float, nargs=2, default=None, metavar=("LO", "HI"),
+                   help="zenith range of the window, deg (default: the scene's)")
     p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same bytes)")
     p.add_argument("--backend", choices=BACKENDS, default="auto",
                    help="ray-tracing backend (auto: CUDA when a GPU is usable, else LLVM)")
@@ -36,9 +40,14 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     scene = scenes.load(args.scene)
     overrides = {} if args.subrays is None else {"n_subrays": args.subrays}
+    section = dict(scene.scanner)
+    window = dict(section.get("window") or {})
+    for key, value in (("theta_deg", args.theta_deg), ("psi_deg", args.psi_deg), ("step_deg", args.step_deg)):
+        if value is not None:
+            window[key] = value
     if args.step_deg is not None:
         overrides["step_deg"] = args.step_deg
-    setup = setup_from_section(scene.scanner, preset=args.scanner, **overrides)
+    setup = setup_from_section({**section, "window": window}, preset=args.scanner, **overrides)
     if args.tile_cols is not None or args.memory_budget is not None:
         if args.ply:
             raise ScanError("--ply is for scans in memory; export a tiled scan with `tlssim export DIR OUT.las`")
