@@ -221,6 +221,9 @@ class Scan:
             required arrays (the message names the file and the problem).
         """
         path = Path(path)
+        if path.is_dir():
+            raise ScanError(f"{path}: is a directory; a tiled scan is opened with tlssim.tiled.open_tiled "
+                            "(or open_scan, which takes either)")
         if not path.is_file():
             raise ScanError(f"{path}: no such scan file")
         try:
