@@ -2,8 +2,9 @@
 
 The contract between simulation and reconstruction (:class:`Scan`,
 :class:`ScannerPose`, :class:`ScanWindow`, :class:`ScannerModel` and the scan
-file formats of :mod:`tlssim.formats`) imports without the simulator: the
-simulator's names (:func:`simulate`, :class:`ScanSetup`,
+file formats of :mod:`tlssim.formats`, the tiled scans of
+:mod:`tlssim.tiled`) imports without the simulator: the simulator's names
+(:func:`simulate`, :func:`simulate_tiled`, :class:`ScanSetup`,
 :func:`setup_from_section`) load Mitsuba, Dr.Jit and the scene library on
 first use.
 """
@@ -16,12 +17,14 @@ from tlssim.errors import ScanError
 from tlssim.pattern import ScannerPose, ScanWindow
 from tlssim.scan import Scan, ScannerDescription
 from tlssim.scanner import ScannerModel, get_preset, preset_names, register_preset
+from tlssim.tiled import TiledScan, open_scan, open_tiled
 
 #: Names served from :mod:`tlssim.simulate`, imported on first access (PEP 562).
-_SIMULATOR_NAMES = ("ScanSetup", "setup_from_section", "simulate")
+_SIMULATOR_NAMES = ("ScanSetup", "setup_from_section", "simulate", "simulate_tiled")
 
 __all__ = ["Scan", "ScanError", "ScannerDescription", "ScanSetup", "ScannerModel", "ScannerPose", "ScanWindow", "get_preset",
-           "preset_names", "register_preset", "setup_from_section", "simulate"]
+           "preset_names", "register_preset", "setup_from_section", "simulate", "simulate_tiled", "TiledScan", "open_scan",
+           "open_tiled"]
 
 
 def __getattr__(name: str):

@@ -38,6 +38,10 @@ BACKENDS = ("auto", "llvm", "cuda")
 #: Fractional part of the golden ratio: spreads the sub-rays of a pulse over its integration time.
 _GOLDEN = 0.5 * (math.sqrt(5.0) - 1.0)
 
+#: Largest zenith shift of the scan smear whose sine and cosine are taken from their Taylor series, rad
+#: (to the 5th and 6th order: the first term left out, |x|^7/5040 and x^8/40320, stays below 2e-8 at 0.3 rad).
+SMALL_ANGLE_RAD = 0.3
+
 #: Distance a transmitted sub-ray is moved past the surface it crossed before it is traced on, m.
 TRANSMISSION_OFFSET_M = 1e-4
 
@@ -124,6 +128,13 @@ class SubrayHits:
     power: np.ndarray
     prim: np.ndarray
     _device_arrays: tuple = ()
+
+
+def _small_angle_sincos(x):
+    """Sine and cosine of small angles (``|x| <= SMALL_ANGLE_RAD``) by their Taylor series, in a few multiplies."""
+    x2 = x * x
+    return (x * (1.0 + x2 * (-1.0 / 6.0 + x2 * (1.0 / 120.0))),
+            1.0 + x2 * (-0.5 + x2 * (1.0 / 24.0 + x2 * (-1.0 / 720.0))))
 
 
 class TraceScene:
@@ -217,22 +228,24 @@ class TraceScene:
         import mitsuba as mi
 
         count = beam.count
+        # Sines and cosines once per pulse (a kernel of n lanes), gathered by its S sub-rays.
+        th, ps, sp = (mi.Float(np.asarray(a, np.float32)) for a in (theta, psi, spin))
+        per_pulse = [dr.sin(th), dr.cos(th), dr.sin(ps), dr.cos(ps), dr.cos(sp), dr.sin(sp)]
+        dr.eval(*per_pulse)
         index = dr.arange(mi.UInt32, len(theta) * count)
         pulse = index // count
         k = index - pulse * count
-        th = dr.gather(mi.Float, mi.Float(np.asarray(theta, np.float32)), pulse)
-        ps = dr.gather(mi.Float, mi.Float(np.asarray(psi, np.float32)), pulse)
+        st, ct, s_psi, c_psi, cs, sn = (dr.gather(mi.Float, value, pulse) for value in per_pulse)
         if smear_rad > 0:
             instant = dr.gather(mi.Float, mi.Float(np.asarray(time_shift, np.float32)), pulse) + mi.Float(k) * _GOLDEN
-            ps += dr.select(k == 0, 0.0, (instant - dr.floor(instant) - 0.5) * smear_rad)
-        sp = dr.gather(mi.Float, mi.Float(np.asarray(spin, np.float32)), pulse)
+            shift = dr.select(k == 0, 0.0, (instant - dr.floor(instant) - 0.5) * smear_rad)
+            sin_shift, cos_shift = _small_angle_sincos(shift) if smear_rad <= 2 * SMALL_ANGLE_RAD else dr.sincos(shift)
+            s_psi, c_psi = s_psi * cos_shift + c_psi * sin_shift, c_psi * cos_shift - s_psi * sin_shift
         u0 = dr.gather(mi.Float, mi.Float(beam.u.astype(np.float32)), k)
         v0 = dr.gather(mi.Float, mi.Float(beam.v.astype(np.float32)), k)
         weight = dr.gather(mi.Float, mi.Float(beam.weight.astype(np.float32)), k)
-        cs, sn = dr.cos(sp), dr.sin(sp)
         u, v = cs * u0 - sn * v0, sn * u0 + cs * v0
 
-        st, ct, s_psi, c_psi = dr.sin(th), dr.cos(th), dr.sin(ps), dr.cos(ps)
         axis = mi.Vector3f(s_psi * ct, s_psi * st, c_psi)
         e_psi = mi.Vector3f(c_psi * ct, c_psi * st, -s_psi)
         e_theta = mi.Vector3f(-st, ct, 0.0)
@@ -303,12 +316,7 @@ class TraceScene:
         first_prim = dr.gather(mi.UInt32, prim, pulse_start + mi.UInt32(dr.select(has, first, 0)), has)
         central_t = dr.gather(mi.Float, t, pulse_start)
         axis = dr.gather(mi.Vector3f, ray.d, pulse_start)
-        returns64 = [(mi.Float64(p), mi.Float64(d)) for p, d in returns]
-        sums = [dr.block_sum(sum(p for p, _ in returns64), count, mode="symbolic")]
-        for freq in model.mod_freqs_hz:
-            phases = [(p, d * (4.0 * math.pi * freq / SPEED_OF_LIGHT_M_S)) for p, d in returns64]
-            sums += [dr.block_sum(sum(p * dr.cos(phase) for p, phase in phases), count, mode="symbolic"),
-                     dr.block_sum(sum(p * dr.sin(phase) for p, phase in phases), count, mode="symbolic")]
+        sums = self._phasor_sums(model, returns, pulse_start, count)
         dr.eval(first, low, high, first_prim, central_t, axis, *sums)
 
         shape = (len(theta), count)
@@ -327,6 +335,33 @@ class TraceScene:
             prim=np.asarray(prim).reshape(shape),
             _device_arrays=(t, obj, power, prim),
         )
+
+    @staticmethod
+    def _phasor_sums(model, returns, pulse_start, count):
+        """Per-pulse sums of the returned power and of its phasor at every modulation frequency (float64).
+
+        The sub-rays of a pulse are added in their order ``k = 0 .. S-1`` by
+        explicit gathers: ``dr.block_sum`` (Dr.Jit 1.5) rounds differently
+        depending on where a block falls in the array, so a pulse's sums
+        would depend on which other pulses share its wavefront, and a tiled
+        scan would not give the bytes of the whole one.
+        """
+        import drjit as dr
+        import mitsuba as mi
+
+        dr.eval(*(value for pair in returns for value in pair))
+        wavenumbers = [4.0 * math.pi * freq / SPEED_OF_LIGHT_M_S for freq in model.mod_freqs_hz]
+        sums = [mi.Float64(0.0) for _ in range(1 + 2 * len(wavenumbers))]
+        for k in range(count):
+            for power, distance in returns:
+                p = mi.Float64(dr.gather(mi.Float, power, pulse_start + k))
+                d = mi.Float64(dr.gather(mi.Float, distance, pulse_start + k))
+                sums[0] += p
+                for i, wavenumber in enumerate(wavenumbers):
+                    sin, cos = dr.sincos(d * wavenumber)
+                    sums[1 + 2 * i] += p * cos
+                    sums[2 + 2 * i] += p * sin
+        return sums
 
     def _first_hits(self, ray, active=True):
         """Distance and triangle of the first hit of every ray, evaluated once.

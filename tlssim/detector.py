@@ -102,12 +102,36 @@ def detect(model: ScannerModel, returns: PulseReturns, rng: np.random.Generator)
     intensity_dn : ndarray, float32
         Intensity, NaN where there is no return.
     """
+    shape = np.shape(returns.amplitude)
+    amplitude_noise = rng.standard_normal(shape, dtype=np.float32)
+    return detect_with_noise(model, returns, amplitude_noise, rng.standard_normal(shape, dtype=np.float32))
+
+
+def detect_with_noise(model: ScannerModel, returns: PulseReturns, amplitude_noise: np.ndarray,
+                      range_noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`detect` with the standard-normal noise draws given.
+
+    Parameters
+    ----------
+    model : ScannerModel
+        Scanner model (amplifier, noise, threshold, range limits, filter).
+    returns : PulseReturns
+        Summed returns of the pulses on the (psi, theta) grid (rows = psi).
+    amplitude_noise, range_noise : ndarray
+        Standard-normal draws, one per pulse (shape of the grid), scaled by
+        the amplitude and range noise of each pulse.
+
+    Returns
+    -------
+    range_m : ndarray, float64
+        Measured distance, m, NaN where there is no return.
+    intensity_dn : ndarray, float32
+        Intensity, DN, NaN where there is no return.
+    """
     signal = returns.amplitude if model.intensity_signal == "phasor" else returns.power
-    shape = np.shape(signal)
-    noisy = signal + amplitude_noise_std(model, signal) * rng.standard_normal(shape, dtype=np.float32)
+    noisy = signal + amplitude_noise_std(model, signal) * amplitude_noise
     with np.errstate(invalid="ignore"):
-        range_m = returns.distance_m + range_noise_std(model, returns.amplitude) * rng.standard_normal(
-            shape, dtype=np.float32)
+        range_m = returns.distance_m + range_noise_std(model, returns.amplitude) * range_noise
         valid = (signal > 0) & (noisy >= detection_threshold(model))
         valid &= (range_m >= model.min_range_m) & (range_m <= model.max_range_m)
     range_m = average_along_psi(np.where(valid, range_m, np.nan), model.range_filter_length)

@@ -34,7 +34,7 @@ from __future__ import annotations
 import json
 import zipfile
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -174,6 +174,25 @@ class Scan:
         """Whether the scan carries ground-truth arrays (simulated scans do)."""
         return self.truth_id is not None
 
+    def crop(self, rows: slice, cols: slice) -> "Scan":
+        """The part ``[rows, cols]`` of the grid as a scan (grid, truth and layers are views, not copies).
+
+        Parameters
+        ----------
+        rows : slice
+            Grid rows (zenith) to keep.
+        cols : slice
+            Grid columns (azimuth) to keep.
+
+        Returns
+        -------
+        Scan
+            The cropped scan, with the same pose, scanner, names and meta.
+        """
+        window = (rows, cols)
+        arrays = {key: getattr(self, key)[window] for key in GRID_KEYS + TRUTH_KEYS if getattr(self, key) is not None}
+        return replace(self, **arrays, layers={k: v[window] for k, v in self.layers.items()}, meta=dict(self.meta))
+
     def points(self) -> np.ndarray:
         """Returned points as an ``(n, 3)`` array, world frame, m."""
         return self.xyz[self.valid]
@@ -202,6 +221,9 @@ class Scan:
             required arrays (the message names the file and the problem).
         """
         path = Path(path)
+        if path.is_dir():
+            raise ScanError(f"{path}: is a directory; a tiled scan is opened with tlssim.tiled.open_tiled "
+                            "(or open_scan, which takes either)")
         if not path.is_file():
             raise ScanError(f"{path}: no such scan file")
         try:

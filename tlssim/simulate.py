@@ -8,30 +8,37 @@ distance (:mod:`tlssim.ranging`), and the sub-ray returns give the truth
 (dominant object, mixed fraction, incidence). The detector chain then turns
 the summed returns into range and intensity (:mod:`tlssim.detector`).
 
-Random streams: ``SeedSequence(seed).spawn(2)`` gives the beam stream (the
-rotation of each pulse's sub-ray layout, then the instants of the scan
-smear) and the detector stream (amplitude and range noise).
+Random streams: every azimuth column has its own counter-based stream,
+``SeedSequence(seed, spawn_key=(column,))``, that draws the rotation of each
+pulse's sub-ray layout, the instants of the scan smear and the detector's
+amplitude and range noise (:func:`column_draws`). A scan can therefore be
+simulated in tiles of whole columns (:func:`simulate_columns`,
+:func:`simulate_tiled`) with the same bytes as in one piece.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 import warnings
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from tqdm.auto import tqdm
 
 from scenes.scene import Scene
 from tlssim.backend import SubrayHits, TraceScene, select_backend
-from tlssim.beam import sample_beam
+from tlssim.beam import BeamSamples, sample_beam
 from tlssim.bsdf import reflectance_table
-from tlssim.detector import PulseReturns, detect
+from tlssim.detector import PulseReturns, detect_with_noise
 from tlssim.errors import ScanError
 from tlssim.pattern import ScannerPose, ScanWindow, grid_directions, rotation_from_yaw_pitch_roll
 from tlssim.ranging import unwrap_distance
 from tlssim.scan import Scan, ScannerDescription
 from tlssim.scanner import ScannerModel, get_preset
+from tlssim.tiled import INDEX, TiledScan, add_tile, available_memory_bytes, open_tiled, start_tiled
 
 #: Default number of sub-rays traced per wavefront (bounds memory).
 CHUNK_SUBRAYS = 1 << 21
@@ -134,19 +141,145 @@ def simulate(scene: Scene, setup: ScanSetup, seed: int = 0, backend: str = "auto
     >>> round(float(np.median(scan.range)), 2)  # m
     2.5
     """
-    model, pose, window = setup.model, setup.pose, setup.window
+    model, window = setup.model, setup.window
     window.check_within(model)
     check_scan_memory(window.shape)
-    used_backend = select_backend(backend)
-    traced = trace_scene(scene, model, pose)
-    beam = sample_beam(model.n_subrays, model.beam_profile)
+    job = prepare_scan(scene, setup, backend)
+    with tqdm(total=job.rows * job.cols, unit="pulse", unit_scale=True, disable=not progress,
+              desc=f"scan {scene.name or 'scene'}") as bar:
+        return simulate_columns(job, 0, job.cols, seed, chunk_subrays, bar.update)
 
+
+@dataclass(frozen=True)
+class ScanJob:
+    """A scene uploaded for one scan set-up: what every tile of the scan shares.
+
+    Attributes
+    ----------
+    scene : Scene
+        What is scanned.
+    setup : ScanSetup
+        Scanner model, pose and window.
+    traced : TraceScene
+        The scene on the ray-tracing backend.
+    beam : BeamSamples
+        Sub-ray layout of every pulse.
+    backend : str
+        Backend used (``"llvm"`` or ``"cuda"``).
+    """
+
+    scene: Scene
+    setup: ScanSetup
+    traced: TraceScene
+    beam: BeamSamples
+    backend: str
+
+    @property
+    def rows(self) -> int:
+        """Zenith rows of the window."""
+        return self.setup.window.shape[0]
+
+    @property
+    def cols(self) -> int:
+        """Azimuth columns of the window."""
+        return self.setup.window.shape[1]
+
+
+def prepare_scan(scene: Scene, setup: ScanSetup, backend: str = "auto") -> ScanJob:
+    """Select the backend and upload ``scene`` for ``setup`` (no tracing yet).
+
+    Parameters
+    ----------
+    scene : Scene
+        What to scan.
+    setup : ScanSetup
+        Scanner model, pose and window.
+    backend : {"auto", "llvm", "cuda"}
+        Ray-tracing backend (``auto``: CUDA when a GPU is usable).
+
+    Returns
+    -------
+    ScanJob
+        The uploaded scene with the scan's beam, ready for :func:`simulate_columns`.
+    """
+    used = select_backend(backend)
+    return ScanJob(scene, setup, trace_scene(scene, setup.model, setup.pose),
+                   sample_beam(setup.model.n_subrays, setup.model.beam_profile), used)
+
+
+def column_draws(seed: int, c0: int, c1: int, rows: int, smear: bool) -> dict[str, np.ndarray]:
+    """The random draws of the pulses of columns ``c0:c1``, one counter-based stream per column.
+
+    Column ``c`` draws from ``SeedSequence(seed, spawn_key=(c,))``, in this
+    order: the spin of each pulse's sub-ray layout (rad, uniform in
+    [0, 2 pi)), the instants of the scan smear (uniform in [0, 1), only when
+    the model smears), then the detector's amplitude and range noise
+    (standard normal); all float32, the precision the tracer takes. A column's draws therefore do not depend on
+    which other columns are simulated with it: a scan cut into tiles of
+    whole columns gives the same bytes whatever the tile size.
+
+    Parameters
+    ----------
+    seed : int
+        Seed of the scan.
+    c0, c1 : int
+        First and past-the-last column.
+    rows : int
+        Pulses per column.
+    smear : bool
+        Whether the model smears the beam (draws the instants).
+
+    Returns
+    -------
+    dict of str to ndarray, shape (c1 - c0, rows)
+        ``spin``, ``instants`` (or ``None``), ``amplitude_noise``, ``range_noise``.
+    """
+    n = c1 - c0
+    draws = {"spin": np.empty((n, rows), np.float32), "instants": np.empty((n, rows), np.float32) if smear else None,
+             "amplitude_noise": np.empty((n, rows), np.float32), "range_noise": np.empty((n, rows), np.float32)}
+    for i in range(n):
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(c0 + i,)))
+        rng.random(rows, dtype=np.float32, out=draws["spin"][i])
+        draws["spin"][i] *= np.float32(2.0 * math.pi)
+        if smear:
+            rng.random(rows, dtype=np.float32, out=draws["instants"][i])
+        rng.standard_normal(rows, dtype=np.float32, out=draws["amplitude_noise"][i])
+        rng.standard_normal(rows, dtype=np.float32, out=draws["range_noise"][i])
+    return draws
+
+
+def simulate_columns(job: ScanJob, c0: int, c1: int, seed: int = 0, chunk_subrays: int = CHUNK_SUBRAYS,
+                     progress=None) -> Scan:
+    """Simulate the columns ``c0:c1`` of a scan (all zenith rows): one tile of a tiled scan.
+
+    Every column draws from its own random stream (:func:`column_draws`) and
+    the detector's range filter runs along the zenith within a column, so
+    the tile holds exactly the bytes of the same columns of the whole scan.
+
+    Parameters
+    ----------
+    job : ScanJob
+        The uploaded scene and set-up (:func:`prepare_scan`).
+    c0, c1 : int
+        First and past-the-last azimuth column of the window.
+    seed : int
+        Seed of the scan.
+    chunk_subrays : int
+        Sub-rays per wavefront (memory bound: about 100 bytes each).
+    progress : callable, optional
+        Called with the number of pulses traced after each wavefront.
+
+    Returns
+    -------
+    Scan
+        The tile: ``rows x (c1 - c0)`` pulses with their truth; ``meta["columns"]`` is ``[c0, c1]``.
+    """
+    model, pose, window = job.setup.model, job.setup.pose, job.setup.window
     theta_axis, psi_axis = window.angles()
+    theta_axis = theta_axis[c0:c1]
     rows, cols = len(psi_axis), len(theta_axis)
-    beam_rng, detector_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
-    spin = beam_rng.uniform(0.0, 2.0 * math.pi, size=(cols, rows))
     smear_rad = model.smear_fraction * math.radians(window.step_deg[1])
-    instants = beam_rng.uniform(0.0, 1.0, size=(cols, rows)) if smear_rad > 0 else None
+    draws = column_draws(seed, c0, c1, rows, smear_rad > 0)
 
     # Column-major (theta, psi) accumulators, transposed to (psi, theta) at the end.
     distance = np.full((cols, rows), np.nan)
@@ -154,28 +287,30 @@ def simulate(scene: Scene, setup: ScanSetup, seed: int = 0, backend: str = "auto
     power = np.zeros((cols, rows))
     truth = {key: np.full((cols, rows) + shape, fill, dtype) for key, shape, fill, dtype in _TRUTH_LAYOUT}
 
-    cols_per_chunk = max(1, chunk_subrays // (rows * beam.count))
-    with tqdm(total=rows * cols, unit="pulse", unit_scale=True, disable=not progress,
-              desc=f"scan {scene.name or 'scene'}") as bar:
-        for c0 in range(0, cols, cols_per_chunk):
-            c1 = min(cols, c0 + cols_per_chunk)
-            theta = np.repeat(theta_axis[c0:c1], rows)
-            psi = np.tile(psi_axis, c1 - c0)
-            hits = traced.trace(model, beam, pose, theta, psi, spin[c0:c1].ravel(), smear_rad,
-                                None if instants is None else instants[c0:c1].ravel())
-            dist, amp = _pulse_returns(hits, model)
-            distance[c0:c1] = dist.reshape(c1 - c0, rows)
-            amplitude[c0:c1] = amp.reshape(c1 - c0, rows)
-            power[c0:c1] = hits.total_power.reshape(c1 - c0, rows)
-            for key, value in pulse_truth(hits, traced.face_normals).items():
-                truth[key][c0:c1] = value.reshape((c1 - c0, rows) + value.shape[1:])
-            bar.update(len(theta))
+    cols_per_chunk = max(1, chunk_subrays // (rows * job.beam.count))
+    for a in range(0, cols, cols_per_chunk):
+        b = min(cols, a + cols_per_chunk)
+        theta = np.repeat(theta_axis[a:b], rows)
+        psi = np.tile(psi_axis, b - a)
+        hits = job.traced.trace(model, job.beam, pose, theta, psi, draws["spin"][a:b].ravel(), smear_rad,
+                                None if draws["instants"] is None else draws["instants"][a:b].ravel())
+        dist, amp = _pulse_returns(hits, model)
+        distance[a:b] = dist.reshape(b - a, rows)
+        amplitude[a:b] = amp.reshape(b - a, rows)
+        power[a:b] = hits.total_power.reshape(b - a, rows)
+        for key, value in pulse_truth(hits, job.traced.face_normals).items():
+            truth[key][a:b] = value.reshape((b - a, rows) + value.shape[1:])
+        del hits
+        if progress is not None:
+            progress(len(theta))
 
     def grid(a):
         return np.ascontiguousarray(np.swapaxes(a, 0, 1))
 
     returns = PulseReturns(distance_m=grid(distance), amplitude=grid(amplitude), power=grid(power))
-    range_m, intensity = detect(model, returns, detector_rng)
+    del distance, amplitude, power
+    range_m, intensity = detect_with_noise(model, returns, grid(draws["amplitude_noise"]), grid(draws["range_noise"]))
+    del returns, draws
     theta_grid, psi_grid = np.meshgrid(theta_axis, psi_axis)
     layers = {key: grid(truth.pop(key)) for key in _TRUTH_LAYERS}
     return Scan(
@@ -186,11 +321,135 @@ def simulate(scene: Scene, setup: ScanSetup, seed: int = 0, backend: str = "auto
         xyz=pose.position + range_m[..., None] * grid_directions(theta_axis, psi_axis, pose.rotation),
         pose=pose,
         scanner=ScannerDescription(model, window),
-        object_names=scene.object_names,
-        meta={"scene": scene.name, "seed": int(seed), "backend": used_backend, "frame": "world"},
+        object_names=job.scene.object_names,
+        meta={"scene": job.scene.name, "seed": int(seed), "backend": job.backend, "frame": "world",
+              **({} if (c0, c1) == (0, job.cols) else {"columns": [int(c0), int(c1)]})},
         layers=layers,
         **{key: grid(value) for key, value in truth.items()},
     )
+
+
+#: Memory budget of a tiled scan when no tile size is given, bytes.
+TILE_BUDGET_BYTES = 2 * 1024**3
+
+
+def tile_columns(shape: tuple[int, int], budget_bytes: int = TILE_BUDGET_BYTES,
+                 chunk_subrays: int = CHUNK_SUBRAYS) -> int:
+    """Columns per tile so that simulating one tile stays within a memory budget.
+
+    The budget holds one tile (:data:`BYTES_PER_PULSE` per pulse) and one
+    wavefront (about 100 bytes per sub-ray); the scene comes on top.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        Grid shape ``(rows, cols)`` of the scan, pulses.
+    budget_bytes : int
+        Memory for the tile and the wavefront, bytes.
+    chunk_subrays : int
+        Sub-rays per wavefront.
+
+    Returns
+    -------
+    int
+        Columns per tile, between 1 and ``cols``.
+
+    Raises
+    ------
+    ScanError
+        If not even one column fits the budget.
+    """
+    rows, cols = int(shape[0]), int(shape[1])
+    room = budget_bytes - 100 * chunk_subrays
+    if room < rows * BYTES_PER_PULSE:
+        raise ScanError(f"a memory budget of {budget_bytes / 1e9:.2f} GB cannot hold one column of {rows} pulses "
+                        f"and a wavefront of {chunk_subrays:,} sub-rays; give at least "
+                        f"{(rows * BYTES_PER_PULSE + 100 * chunk_subrays) / 1e9:.2f} GB")
+    return max(1, min(cols, room // (rows * BYTES_PER_PULSE)))
+
+
+def scan_fingerprint(scene: Scene, setup: ScanSetup, seed: int, backend: str) -> str:
+    """SHA-256 identifying a scan: the scene's mesh and materials, the scanner, pose, window, seed and backend.
+
+    Parameters
+    ----------
+    scene : Scene
+        What is scanned.
+    setup : ScanSetup
+        Scanner model, pose and window.
+    seed : int
+        Seed of the scan.
+    backend : str
+        Backend used (``"llvm"`` or ``"cuda"``: their float rounding differs).
+    """
+    digest = hashlib.sha256()
+    vertices, faces, face_object = scene.merged_mesh()
+    for array in (vertices, faces, face_object):
+        digest.update(np.ascontiguousarray(array).tobytes())
+    described = {"objects": [[o.name, o.type, o.material.reflectance, o.material.transmittance] for o in scene.objects],
+                 "scanner": ScannerDescription(setup.model, setup.window).to_dict(),
+                 "position": np.asarray(setup.pose.position).tolist(),
+                 "rotation": np.asarray(setup.pose.rotation).tolist(), "seed": int(seed), "backend": backend}
+    digest.update(json.dumps(described, sort_keys=True).encode())
+    return digest.hexdigest()
+
+
+def simulate_tiled(scene: Scene, setup: ScanSetup, path, seed: int = 0, tile_cols: int | None = None,
+                   budget_bytes: int = TILE_BUDGET_BYTES, backend: str = "auto", progress: bool = True,
+                   chunk_subrays: int = CHUNK_SUBRAYS) -> TiledScan:
+    """Simulate a scan tile by tile into a directory (:mod:`tlssim.tiled`); resumes an interrupted one.
+
+    Only one tile is in memory at a time. The tiles hold the same bytes
+    whatever their size (:func:`column_draws`): ``simulate`` of the whole
+    window gives the same arrays. Where ``path`` holds an interrupted write
+    of the same scan, the tiles that check (size and SHA-256 in the index)
+    are kept and only the others are simulated.
+
+    Parameters
+    ----------
+    scene : Scene
+        What to scan.
+    setup : ScanSetup
+        Scanner model, pose and window.
+    path : str or Path
+        Output directory.
+    seed : int
+        Seed of every random draw (same seed, same bytes).
+    tile_cols : int, optional
+        Columns per tile (default: the interrupted write's, else from ``budget_bytes``).
+    budget_bytes : int
+        Memory budget of one tile when ``tile_cols`` is not given, bytes (:func:`tile_columns`).
+    backend : {"auto", "llvm", "cuda"}
+        Ray-tracing backend.
+    progress : bool
+        Show a progress bar.
+    chunk_subrays : int
+        Sub-rays per wavefront.
+
+    Returns
+    -------
+    TiledScan
+        The finished scan, opened lazily.
+    """
+    window = setup.window
+    window.check_within(setup.model)
+    job = prepare_scan(scene, setup, backend)
+    theta_axis, psi_axis = window.angles()
+    header = {"shape": [job.rows, job.cols], "scanner": ScannerDescription(setup.model, window).to_dict(),
+              "scanner_position": np.asarray(setup.pose.position, float).tolist(),
+              "scanner_rotation": np.asarray(setup.pose.rotation, float).tolist(),
+              "object_names": scene.object_names, "theta_columns": theta_axis.tolist(), "psi_rows": psi_axis.tolist(),
+              "has_truth": True,
+              "meta": {"scene": scene.name, "seed": int(seed), "backend": job.backend, "frame": "world"}}
+    fingerprint = scan_fingerprint(scene, setup, seed, job.backend)
+    if tile_cols is None and not (Path(path) / INDEX).is_file():
+        tile_cols = tile_columns(window.shape, budget_bytes, chunk_subrays)
+    index, todo = start_tiled(path, header, fingerprint, tile_cols)
+    with tqdm(total=sum(c1 - c0 for c0, c1 in todo) * job.rows, unit="pulse", unit_scale=True,
+              disable=not progress, desc=f"scan {scene.name or 'scene'} ({len(todo)} tiles)") as bar:
+        for c0, c1 in todo:
+            add_tile(path, index, c0, simulate_columns(job, c0, c1, seed, chunk_subrays, bar.update))
+    return open_tiled(path)
 
 
 #: Memory the simulator holds per pulse, bytes: the column-major accumulators and truth layers, their
@@ -226,8 +485,9 @@ def check_scan_memory(shape: tuple[int, int], available_bytes: int | None = None
     pulses = int(shape[0]) * int(shape[1])
     need = pulses * BYTES_PER_PULSE
     if available_bytes is None:
-        available_bytes = _available_memory_bytes()
-    advice = "use a larger step_deg or a smaller window"
+        available_bytes = available_memory_bytes()
+    advice = ("simulate it in tiles on disk (`tlssim scan SCENE -o DIR --memory-budget GB`, or simulate_tiled), "
+              "or use a larger step_deg or a smaller window")
     if available_bytes is not None and need > available_bytes:
         raise ScanError(f"a scan of {shape[0]} x {shape[1]} = {pulses:,} pulses needs about {need / 1e9:,.1f} GB, "
                         f"more than the {available_bytes / 1e9:,.1f} GB available: {advice}")
@@ -235,16 +495,6 @@ def check_scan_memory(shape: tuple[int, int], available_bytes: int | None = None
         warnings.warn(f"a scan of {shape[0]} x {shape[1]} = {pulses:,} pulses will hold about {need / 1e9:,.1f} GB "
                       f"in memory ({advice} to lower it)", stacklevel=3)
     return need
-
-
-def _available_memory_bytes() -> int | None:
-    try:
-        for line in open("/proc/meminfo", encoding="ascii"):
-            if line.startswith("MemAvailable:"):
-                return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        return None
-    return None
 
 
 def trace_scene(scene: Scene, model: ScannerModel, pose: ScannerPose) -> TraceScene:

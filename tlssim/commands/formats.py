@@ -7,8 +7,8 @@ import json
 
 def add_parser(sub) -> None:
     p = sub.add_parser("export", help="write a scan as E57, PTX, LAS or LAZ",
-                       description="Convert an NPZ scan to the format of OUTPUT's extension (.e57, .ptx, .las, .laz).")
-    p.add_argument("scan", help="scan file (.npz)")
+                       description="Convert an NPZ scan or a tiled scan directory to the format of OUTPUT's extension (.e57, .ptx, .las, .laz).")
+    p.add_argument("scan", help="scan file (.npz) or tiled scan directory (streamed to PTX and LAS/LAZ)")
     p.add_argument("output", help="output file (.e57, .ptx, .las or .laz)")
     p.set_defaults(func=run_export)
     p = sub.add_parser("import", help="read an E57, PTX, LAS or LAZ scan into NPZ",
@@ -21,11 +21,11 @@ def add_parser(sub) -> None:
 
 def run_export(args) -> int:
     from tlssim.formats import export_scan
-    from tlssim.scan import Scan
+    from tlssim.tiled import open_scan
 
-    scan = Scan.load(args.scan)
+    scan = open_scan(args.scan)
     path = export_scan(scan, args.output)
-    print(json.dumps({"output": str(path), "shape": list(scan.shape), "returns": int(scan.valid.sum())}))
+    print(json.dumps({"output": str(path), "shape": list(scan.shape)}))
     return 0
 
 

@@ -27,10 +27,14 @@ from pathlib import Path
 from tlssim.errors import ScanError
 from tlssim.formats import e57, las, ptx
 from tlssim.scan import Scan
+from tlssim.tiled import TiledScan
 
 #: Writer and reader of every supported extension.
 FORMATS = {".e57": (e57.write, e57.read), ".ptx": (ptx.write, ptx.read),
            ".las": (las.write, las.read), ".laz": (las.write, las.read)}
+
+#: Extensions whose writer streams a tiled scan tile by tile.
+STREAMED = (".ptx", ".las", ".laz")
 
 
 def _codec(path: Path):
@@ -40,12 +44,17 @@ def _codec(path: Path):
     return FORMATS[suffix]
 
 
-def export_scan(scan: Scan, path) -> Path:
+def export_scan(scan: Scan | TiledScan, path) -> Path:
     """Write ``scan`` in the format of ``path``'s extension (``.e57``, ``.ptx``, ``.las``, ``.laz``).
+
+    A tiled scan (:mod:`tlssim.tiled`) is streamed tile by tile to PTX and
+    LAS/LAZ, with the bytes of the same scan in memory; E57 is written from
+    the whole scan in memory (``pye57.E57.write_scan_raw`` takes all points
+    at once).
 
     Parameters
     ----------
-    scan : Scan
+    scan : Scan or TiledScan
         The scan to write.
     path : str or Path
         Output file; its extension picks the format. Missing folders are created.
@@ -57,6 +66,8 @@ def export_scan(scan: Scan, path) -> Path:
     """
     path = Path(path)
     writer, _ = _codec(path)
+    if isinstance(scan, TiledScan) and path.suffix.lower() not in STREAMED:
+        scan = scan.load()
     path.parent.mkdir(parents=True, exist_ok=True)
     writer(scan, path)
     return path

@@ -10,9 +10,12 @@ import numpy as np
 from tlssim.errors import ScanError
 from tlssim.pattern import ScannerPose
 from tlssim.scan import TRUTH_KEYS, Scan, ScannerDescription
+from tlssim.tiled import TiledScan, scan_tiles
 
 #: Coordinate resolution of the written files, m.
 SCALE_M = 1e-5
+#: Bits of an extra-bytes descriptor's ``options`` that say its min and max statistics are set (LAS 1.4).
+_STATS_OPTIONS = 0b110
 #: VLR that carries the scan's metadata as JSON.
 VLR_USER_ID, VLR_RECORD_ID = "tlslab", 1
 #: Extra dimensions: grid position and angles, then the truth arrays (normals split per axis).
@@ -22,42 +25,62 @@ _TRUTH_DIMS = (("truth_range", np.float64), ("truth_id", np.int32), ("mixed_frac
                ("truth_normal_z", np.float32))
 
 
-def write(scan: Scan, path: Path) -> None:
-    """Write the returned points (world frame) as LAS, or LAZ for a ``.laz`` path.
+def write(scan: Scan | TiledScan, path: Path) -> None:
+    """Write the returned points (world frame) as LAS, or LAZ for a ``.laz`` path, tile by tile.
+
+    A :class:`~tlssim.tiled.TiledScan` is streamed: one tile in memory at a
+    time, and the file has the same bytes as that of the scan in memory.
 
     Parameters
     ----------
-    scan : Scan
+    scan : Scan or TiledScan
         The scan to write; coordinates in m.
     path : Path
         Output ``.las`` or ``.laz`` file.
     """
     import laspy
 
-    valid = scan.valid
-    row, col = np.nonzero(valid)
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.offsets = scan.pose.position
     header.scales = np.full(3, SCALE_M)
     dims = _GRID_DIMS + (_TRUTH_DIMS if scan.has_truth else ())
     header.add_extra_dims([laspy.ExtraBytesParams(name=name, type=dtype) for name, dtype in dims])
+    for descriptor in header.vlrs.get("ExtraBytesVlr")[0].extra_bytes_structs:
+        # No min/max statistics: laspy 2.7 takes them from the first point of each written chunk
+        # (wrong values that would also depend on the tile size).
+        descriptor.options &= ~_STATS_OPTIONS
     rows, cols = scan.shape
-    meta = {"shape": [rows, cols], "theta_columns": np.nanmedian(scan.theta, axis=0).tolist(),
-            "psi_rows": np.nanmedian(scan.psi, axis=1).tolist(), "scanner_position": scan.pose.position.tolist(),
+    if isinstance(scan, TiledScan):
+        theta_columns, psi_rows = scan.theta_columns, scan.psi_rows
+    else:
+        theta_columns, psi_rows = np.nanmedian(scan.theta, axis=0), np.nanmedian(scan.psi, axis=1)
+    meta = {"shape": [rows, cols], "theta_columns": theta_columns.tolist(),
+            "psi_rows": psi_rows.tolist(), "scanner_position": scan.pose.position.tolist(),
             "scanner_rotation": scan.pose.rotation.tolist(), "scanner": scan.scanner.to_dict(),
             "meta": scan.meta, "object_names": scan.object_names}
     header.vlrs.append(laspy.VLR(user_id=VLR_USER_ID, record_id=VLR_RECORD_ID, description="tlssim scan",
                                  record_data=json.dumps(meta).encode()))
-    points = laspy.LasData(header)
-    points.x, points.y, points.z = scan.xyz[valid].T
-    points.intensity = np.round(scan.intensity[valid]).astype(np.uint16)
-    values = {"row": row, "col": col, "theta": scan.theta[valid], "psi": scan.psi[valid]}
-    if scan.has_truth:
-        values.update({key: getattr(scan, key)[valid] for key in TRUTH_KEYS if key != "truth_normal"})
-        values.update({f"truth_normal_{a}": scan.truth_normal[valid][:, i] for i, a in enumerate("xyz")})
+    with laspy.open(str(path), mode="w", header=header) as writer:
+        for col0, tile in scan_tiles(scan):
+            writer.write_points(_tile_points(tile, col0, header, dims))
+
+
+def _tile_points(tile: Scan, col0: int, header, dims) -> "laspy.ScaleAwarePointRecord":
+    """The returned points of one tile (whose first column is ``col0`` of the scan) as LAS records, column-major."""
+    import laspy
+
+    col, row = np.nonzero(tile.valid.T)  # column by column, as the scanner records them
+    cells = (row, col)
+    points = laspy.ScaleAwarePointRecord.zeros(len(row), header=header)
+    points.x, points.y, points.z = tile.xyz[cells].T
+    points.intensity = np.round(tile.intensity[cells]).astype(np.uint16)
+    values = {"row": row, "col": col + col0, "theta": tile.theta[cells], "psi": tile.psi[cells]}
+    if tile.has_truth:
+        values.update({key: getattr(tile, key)[cells] for key in TRUTH_KEYS if key != "truth_normal"})
+        values.update({f"truth_normal_{a}": tile.truth_normal[cells][:, i] for i, a in enumerate("xyz")})
     for name, dtype in dims:
         points[name] = values[name].astype(dtype)
-    points.write(str(path))
+    return points
 
 
 #: Sizes in the LAS public header (LAS 1.0-1.4 specifications): the header, a VLR's and an EVLR's own header, bytes.

@@ -18,16 +18,20 @@ from tlssim.errors import ScanError
 from tlssim.formats.grid import angles_of, complete_angles, local_points, scan_from_local
 from tlssim.pattern import ScannerPose
 from tlssim.scan import Scan
+from tlssim.tiled import TiledScan, scan_tiles
 
 HEADER_LINES = 10
 
 
-def write(scan: Scan, path: Path) -> None:
-    """Write the grid as PTX (coordinates to 1 µm, intensity to 1e-6 of the full scale).
+def write(scan: Scan | TiledScan, path: Path) -> None:
+    """Write the grid as PTX (coordinates to 1 µm, intensity to 1e-6 of the full scale), tile by tile.
+
+    PTX lists the grid column by column, so a :class:`~tlssim.tiled.TiledScan`
+    is streamed one tile in memory at a time, with the bytes of the scan in memory.
 
     Parameters
     ----------
-    scan : Scan
+    scan : Scan or TiledScan
         The scan to write; coordinates in m, intensity in DN.
     path : Path
         Output ``.ptx`` file.
@@ -35,14 +39,15 @@ def write(scan: Scan, path: Path) -> None:
     rows, cols = scan.shape
     full_scale = float(scan.scanner.assumed_model.intensity_max_dn)
     rotation, position = scan.pose.rotation, scan.pose.position
-    local = np.where(scan.valid[..., None], local_points(scan), 0.0)
-    intensity = np.where(scan.valid, scan.intensity / full_scale, 0.0)
-    table = np.concatenate([local, intensity[..., None]], axis=-1).transpose(1, 0, 2).reshape(-1, 4)
     header = [f"{cols}", f"{rows}", _row(position)] + [_row(rotation[:, i]) for i in range(3)]
     header += [_row(np.append(rotation[:, i], 0.0)) for i in range(3)] + [_row(np.append(position, 1.0))]
     with open(path, "w") as handle:
         handle.write("\n".join(header) + "\n")
-        np.savetxt(handle, table, fmt="%.6f")
+        for _, tile in scan_tiles(scan):
+            local = np.where(tile.valid[..., None], local_points(tile), 0.0)
+            intensity = np.where(tile.valid, tile.intensity / full_scale, 0.0)
+            table = np.concatenate([local, intensity[..., None]], axis=-1).transpose(1, 0, 2).reshape(-1, 4)
+            np.savetxt(handle, table, fmt="%.6f")
 
 
 def read(path: Path, intensity_max_dn: float = 2047.0) -> Scan:
