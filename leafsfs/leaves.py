@@ -112,11 +112,15 @@ class Segmentation:
         Surface label of each leaf region (``leaf_surfaces[k - 1]`` for region ``k``).
     mixed : MixedPulses
         The surfaces (large linked components) and the attribution of the mixed pulses.
+    footprint_px : float
+        Neighbourhood radius of the edge test, pixels: how far from a
+        surface's outline a footprint reaches past it.
     """
 
     leaves: np.ndarray
     leaf_surfaces: np.ndarray
     mixed: MixedPulses
+    footprint_px: float = MIN_EDGE_RADIUS_PX
 
     def region_surface(self, label: int) -> int:
         """Surface label of leaf region ``label``."""
@@ -241,8 +245,8 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     sigma = sigma if np.isfinite(sigma) and sigma > 0 else NOISE_FLOOR_M
     step = angular_step(theta, psi)
     linked = range_m
+    radius = max(MIN_EDGE_RADIUS_PX, edge_radius_m / (float(np.nanmedian(range_m)) * step))
     if edge_factor > 0:
-        radius = max(MIN_EDGE_RADIUS_PX, edge_radius_m / (float(np.nanmedian(range_m)) * step))
         limit = math.radians(max_slope_deg)
         slope = np.tan(limit if alpha is None else
                        np.minimum(np.nan_to_num(alpha, nan=limit) + math.radians(alpha_margin_deg), limit))
@@ -273,7 +277,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     leaf_surfaces = np.nonzero(leaf)[0]
     relabel = np.zeros(len(leaf), dtype=int)
     relabel[leaf_surfaces] = np.arange(1, len(leaf_surfaces) + 1)
-    return Segmentation(np.where(mixed.thin, 0, relabel[mixed.owner]), leaf_surfaces, mixed)
+    return Segmentation(np.where(mixed.thin, 0, relabel[mixed.owner]), leaf_surfaces, mixed, radius)
 
 
 def _border_labels(surfaces: np.ndarray) -> np.ndarray:
