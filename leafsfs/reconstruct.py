@@ -458,7 +458,8 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
         for k in np.unique(labels[labels > 0]):
             main = _main_surface(mixed.surfaces, labels == k)
             paired = (mixed.surfaces == 0) & (mixed.pair == main).any(axis=-1)
-            shares.add(k, whole, np.where(paired, mixed.share_of(main, gain), (labels == k).astype(float)))
+            own = rim_shares(labels == k, scan.intensity, gain, segmentation.footprint_px)
+            shares.add(k, whole, np.where(paired, mixed.share_of(main, gain), own))
             background |= unreliable & (labels == k) & (mixed.owner > 0) & (mixed.owner != main)
         labels = np.where(background, 0, labels)
     out_range[background] = mixed.owner_range()[background]
