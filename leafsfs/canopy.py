@@ -379,8 +379,7 @@ def wood_surfaces(surfaces: np.ndarray, range_m: np.ndarray, theta: np.ndarray, 
 
 
 
-def rim_shares(region: np.ndarray, intensity: np.ndarray, gain_dn: float, rim_px: float,
-               reference: np.ndarray | None = None) -> np.ndarray:
+def rim_shares(region: np.ndarray, intensity: np.ndarray, gain_dn: float, rim_px: float) -> np.ndarray:
     """Share of each pulse's footprint on a region, from its intensity deficit at the region's outline (1 inside).
 
     Where nothing returns beside a leaf (sky, or a surface too far to mix
@@ -391,12 +390,7 @@ def rim_shares(region: np.ndarray, intensity: np.ndarray, gain_dn: float, rim_px
     ``I_full + gain_dn ln(share)`` (tls-physics: received power
     proportional to the lit area of a Lambertian surface). ``I_full`` is
     taken from the region's pulses deeper than ``rim_px`` from its outline
-    (averaged over 5 x 5 of them, the nearest), which lie wholly on it, and
-    only from those whose intensity says their incidence (``reference``:
-    within the calibration's validity limit, about 60 deg; beyond it a
-    small turn of the surface changes the intensity by more than a
-    footprint's share would, and a grazing leaf keeps its outline pulses
-    whole).
+    (averaged over 5 x 5 of them, the nearest), which lie wholly on it.
     Counted whole, such pulses dilate the leaf's area by about its
     perimeter times a footprint radius (+10 to +15 % on 3-6 cm pear leaves
     at 4 m and 0.018 deg).
@@ -412,22 +406,17 @@ def rim_shares(region: np.ndarray, intensity: np.ndarray, gain_dn: float, rim_px
     rim_px : float
         Depth from the region's outline within which a footprint may reach
         past it, pixels (a footprint radius).
-    reference : ndarray of bool, 2-D, optional
-        Pulses whose intensity may serve as the full-footprint reference
-        (default: all).
 
     Returns
     -------
     ndarray of float, 2-D
         Share in [0, 1] per pulse (0 off the region; 1 where the region has
-        no reference pulse deeper than ``rim_px``).
+        no pulse deeper than ``rim_px``, no reference intensity).
     """
     if not gain_dn > 0 or not rim_px >= 0:
         raise SfsError(f"gain_dn must be positive and rim_px non-negative, got {gain_dn!r} and {rim_px!r}")
     depth = ndimage.distance_transform_edt(np.pad(region, 1))[1:-1, 1:-1]
     interior = region & (depth > rim_px) & np.isfinite(intensity)
-    if reference is not None:
-        interior &= reference
     share = region.astype(float)
     if not interior.any():
         return share

@@ -233,7 +233,7 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
     labels = None if mask is None else _labels_from_mask(mask, scan.shape)
     calibration = resolve_calibration(calibration)
     alpha, reliable = scan_alpha(scan.intensity, scan.range, calibration)
-    regions = _leaf_regions(scan, alpha, labels, valid, reliable)
+    regions = _leaf_regions(scan, alpha, labels, valid)
     inliers = params.inliers if params.inliers != "auto" else ("refine" if variant == "fused" else "keep")
     grids = _Grids(range=regions.range, corrected=regions.background.copy(),
                    candidates=np.zeros(scan.shape, dtype=int), spread=np.full(scan.shape, np.nan),
@@ -409,8 +409,7 @@ def _check_inputs(scan: Scan, variant: str, params: SfsParams | None) -> tuple[S
     return params, valid
 
 
-def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, valid: np.ndarray,
-                  reliable: np.ndarray) -> _Regions:
+def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, valid: np.ndarray) -> _Regions:
     """Leaf regions, their footprint shares and the background pulses of a scan.
 
     Parameters
@@ -424,10 +423,6 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
         :func:`leafsfs.leaves.segment_scan`.
     valid : ndarray of bool
         Pixels with a range and an intensity.
-    reliable : ndarray of bool
-        Pixels whose intensity-derived incidence is within the calibration's
-        validity limit: the reference of the outline pulses' shares
-        (:func:`leafsfs.canopy.rim_shares`).
 
     Raises
     ------
@@ -449,7 +444,7 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
             box = extents[surface]
             share = mixed.share_of(surface, gain, box)
             # Pure pulses at the outline with nothing beside the leaf count for the part of their footprint on it.
-            rim = rim_shares(labels[box] == k, scan.intensity[box], gain, segmentation.footprint_px, reliable[box])
+            rim = rim_shares(labels[box] == k, scan.intensity[box], gain, segmentation.footprint_px)
             shares.add(k, box, np.where(share >= 1, np.minimum(share, rim), share))
         # Mixed pulses dominated by a surface that is not a leaf (the wall behind) take its distance; so do those of
         # a thin part attached to a leaf (a petiole), at the distance where it is attached when it dominates them.
@@ -463,7 +458,7 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
         for k in np.unique(labels[labels > 0]):
             main = _main_surface(mixed.surfaces, labels == k)
             paired = (mixed.surfaces == 0) & (mixed.pair == main).any(axis=-1)
-            own = rim_shares(labels == k, scan.intensity, gain, segmentation.footprint_px, reliable)
+            own = rim_shares(labels == k, scan.intensity, gain, segmentation.footprint_px)
             shares.add(k, whole, np.where(paired, mixed.share_of(main, gain), own))
             background |= unreliable & (labels == k) & (mixed.owner > 0) & (mixed.owner != main)
         labels = np.where(background, 0, labels)

@@ -215,9 +215,6 @@ def test_rim_shares_read_the_footprint_share_from_the_intensity_deficit():
     intensity[5, 10] = 1500.0
     assert rim_shares(region, intensity, gain, 2.5)[5, 10] == 1.0
     assert np.all(rim_shares(region, intensity, gain, 30.0)[region] == 1.0)
-    # nor one whose deep pulses are no reference (their intensity beyond the calibration's validity)
-    assert np.all(rim_shares(region, intensity, gain, 2.5, reference=np.zeros_like(region))[region] == 1.0)
-    assert np.allclose(rim_shares(region, intensity, gain, 2.5, reference=region)[outline & (intensity < 1400)], 0.4)
     with pytest.raises(SfsError):
         rim_shares(region, intensity, 0.0, 2.5)
 
