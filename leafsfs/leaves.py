@@ -113,8 +113,12 @@ class Segmentation:
     mixed : MixedPulses
         The surfaces (large linked components) and the attribution of the mixed pulses.
     footprint_px : float
-        Footprint radius at the scan's median range, pixels (at least 1):
-        how far inside a surface's outline a footprint reaches past it.
+        How far inside a surface's outline a pulse's footprint may reach
+        past it, pixels (at least 1): two footprint radii at the scan's
+        median range, one for the outermost pulses the range test keeps
+        (about a radius outside the surface's edge) and one inside the
+        edge, beyond which less than 3 % of a Gaussian footprint lies
+        across it.
     """
 
     leaves: np.ndarray
@@ -223,7 +227,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         Neighbourhood of the edge test (:func:`leafsfs.canopy.edge_pulses`),
         m at the scan's median range, at least :data:`MIN_EDGE_RADIUS_PX` (assumption:
         2.5 mm, a FARO-class footprint radius at 4 m); also the footprint
-        radius of :attr:`Segmentation.footprint_px` (at least a pixel).
+        radius of :attr:`Segmentation.footprint_px`.
     edge_factor : float
         Residual RMS of an edge pulse's neighbourhood, in range-noise
         standard deviations (0: no edge test).
@@ -279,7 +283,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     leaf_surfaces = np.nonzero(leaf)[0]
     relabel = np.zeros(len(leaf), dtype=int)
     relabel[leaf_surfaces] = np.arange(1, len(leaf_surfaces) + 1)
-    return Segmentation(np.where(mixed.thin, 0, relabel[mixed.owner]), leaf_surfaces, mixed, max(1.0, footprint))
+    return Segmentation(np.where(mixed.thin, 0, relabel[mixed.owner]), leaf_surfaces, mixed, max(1.0, 2 * footprint))
 
 
 def _border_labels(surfaces: np.ndarray) -> np.ndarray:

@@ -229,5 +229,5 @@ def test_a_leaf_with_nothing_behind_it_is_not_dilated_by_its_footprint():
     scan = tlssim.simulate(scene, tlssim.setup_from_section(scene.scanner), seed=0, progress=False)
     result = reconstruct(scan, variant="fused", calibration=simulated_calibration(scan.scanner.model))
     (leaf,) = result.leaves
-    # +2.6 %; counted whole, the outline pulses add about the perimeter times a footprint radius (+15 %)
+    # +0.2 %; counted whole, the outline pulses add about the perimeter times a footprint radius (+15 %)
     assert abs(leaf.traits["area_m2"] / scene.objects[0].truth["area_m2"] - 1) < 0.05
