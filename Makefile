@@ -19,6 +19,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(VENV)/bin/tlsbench main -o $(BENCH_OUT)
+	$(VENV)/bin/tlsbench reproduce --quick -o $(BENCH_OUT)/reproduction --db $(BENCH_OUT)/reproduction.sqlite
 
 clean:
 	rm -rf $(VENV) $(BENCH_OUT) .pytest_cache

@@ -13,6 +13,8 @@
 - ``tlsbench history METRIC [--variant V] [--suite S] [--db DB]`` shows a metric across the stored commits (PNG);
 - ``tlsbench experiment NAME`` and ``tlsbench perf NAME`` run the experiments and performance harnesses of
   :mod:`benchmarks.experiments`;
+- ``tlsbench reproduce [NAME ...] [--list] [--quick]`` reproduces the sources' published tables and figures
+  (:mod:`benchmarks.reproduce`), writes ``reproduction.html`` and ends with ``N/M rows within tolerance``;
 - ``tlsbench list`` shows suites, variants, scene generators and sweeps.
 """
 
@@ -31,6 +33,7 @@ from benchmarks.baseline import TIMING_BAND
 from benchmarks.errors import BenchError
 from benchmarks.experiments.cli import add_parsers as add_experiment_parsers
 from benchmarks.generators import describe_generators
+from benchmarks.reproduce.cli import add_parser as add_reproduce_parser
 from benchmarks.runner import MEMORY_LIMIT_GB, TIMEOUT_S, execute
 from benchmarks.store import Store
 from benchmarks.suite import load_suite, suite_names
@@ -152,6 +155,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_history)
 
     add_experiment_parsers(sub)
+    add_reproduce_parser(sub)
 
     p = sub.add_parser("list", help="list suites, variants, scene generators and sweeps")
     p.set_defaults(func=cmd_list)

@@ -42,6 +42,10 @@ METRICS = {
     "abs_eps_mean": MetricRule("lower", 0.002),
     "within_5pct": MetricRule("higher", 0.005),
     "runtime_s": MetricRule("lower", math.log(1.25), log=True),
+    # rows of ``tlsbench reproduce`` (benchmarks.reproduce.output): a row leaving its tolerance, or drifting
+    # a quarter of its tolerance further from the published value
+    "within_tolerance": MetricRule("higher", 0.0),
+    "tolerance_ratio": MetricRule("lower", 0.25),
 }
 
 

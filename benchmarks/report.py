@@ -1,20 +1,24 @@
 """Reports of a stored run: a JSON document and a self-contained HTML page.
 
 :func:`report_document` gives the machine-readable report (``tlsbench report
-RUN --json``): run information, the goal status and one summary row per
-suite × variant (:func:`benchmarks.summary.summarize`), plus the tables of
-the sweeps attached to the run. :func:`write_html` writes the page a person
-reads: the headline table, the full variant × metric table, ROP against
-distance per variant, area-error distributions, before/after point clouds of
-one leaf (re-simulated from its case, which is deterministic), the sweep
-plots and, where the store holds runs of the suite at several commits, the
-goal's metrics across commits (:mod:`benchmarks.history`), every figure
-embedded as a PNG.
+RUN --json``): run information, the goals of the open issues with our numbers
+(:func:`goal_banner`), one summary row per suite × variant
+(:func:`benchmarks.summary.summarize`), plus the tables of the sweeps
+attached to the run. :func:`write_html` writes the page a person reads, one
+file with every figure embedded as a PNG: first the goal banner, ROP before
+and after with the area errors of the found leaves per variant, and the
+headline table (headers with units); then per-case pictures (before/after on
+one leaf, re-simulated from its case, which is deterministic, and a range and
+intensity image of each case); then the tables by kind of scene, the thesis'
+validation table, ROP against distance per kind of scene, estimated against
+true areas, the sweep plots and, where the store holds runs of the suite at
+several commits, the goal's metrics across commits (:mod:`benchmarks.history`).
 """
 
 from __future__ import annotations
 
 import base64
+import dataclasses
 import html
 import io
 import math
@@ -25,14 +29,103 @@ from matplotlib.figure import Figure
 
 from benchmarks import heightfields, metrics, scoring, summary, sweeps
 from benchmarks.history import history_figures
+from benchmarks.generators import build_scene
 from benchmarks.registry import get_variant
-from benchmarks.runner import simulate_case
+from benchmarks.runner import scan_setup, simulate_case
 from benchmarks.store import Store
 from benchmarks.suite import Case
+from benchmarks.summary import GOAL_AREA_REL_ERR, GOAL_ROP_REDUCTION
+
+
+#: Scenes of the canopy goal (issue 16): trees and orchard rows with leaves.
+CANOPY_SCENES = ("leafy-tree", "orchard-row", "tree")
+#: The canopy goal's checks (issue 16): (label, summary or validation key, "min"/"max", threshold, format).
+CANOPY_CHECKS = (("ROP red.", "rop_reduction", "min", 0.90, "{:.0%}"),
+                 ("ROP red. 1 cm", "rop_reduction_1cm", "min", 0.90, "{:.0%}"),
+                 ("good lost", "good_points_lost", "max", 0.01, "{:.1%}"),
+                 ("found", "found_visible", "min", 0.90, "{:.0%}"),
+                 ("median |area err|", "area_rel_err_median", "max", GOAL_AREA_REL_ERR, "{:.1%}"),
+                 ("area R²", "area_r2", "min", 0.95, "{:.2f}"),
+                 ("elev. err", "elevation_err_median_deg", "max", 5.0, "{:.1f}°"),
+                 ("azim. err", "azimuth_err_median_deg", "max", 10.0, "{:.1f}°"))
+
+
+def _passes(value, side: str, threshold: float) -> bool:
+    return value is not None and (value >= threshold if side == "min" else value <= threshold)
+
+
+def _checked(row: dict, checks) -> tuple[int, str]:
+    """How many of ``checks`` a row passes, and its numbers (``label value``, a check it misses marked ✗)."""
+    passed, text = 0, []
+    for label, key, side, threshold, fmt in checks:
+        ok = _passes(row.get(key), side, threshold)
+        passed += ok
+        text.append(f"{label} {summary._fmt(row.get(key), fmt)}{'' if ok else ' ✗'}")
+    return passed, ", ".join(text)
+
+
+def _best(rows: list[dict], checks) -> dict:
+    """Goal entry fields of the row passing most checks (ties: the best in the first check)."""
+    _, key, side, _, _ = checks[0]
+
+    def rank(row):
+        value = row.get(key)
+        return _checked(row, checks)[0], -math.inf if value is None else (value if side == "min" else -value)
+
+    row = max(rows, key=rank)
+    passed, text = _checked(row, checks)
+    return {"status": "met" if passed == len(checks) else "not met", "measured": f"{row['variant']}: {text}"}
+
+
+def goal_banner(rows: list[dict], table: list[dict]) -> list[dict]:
+    """The goals of the open issues that a run measures, each with our number and whether it is met.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Result rows of the run.
+    table : list of dict
+        Their summary rows (:func:`benchmarks.summary.summarize`).
+
+    Returns
+    -------
+    list of dict
+        One entry per goal: ``issue``, ``goal``, ``measured`` (the best variant's numbers, a missed check marked
+        ✗) and ``status`` (``met``, ``not met`` or ``not measured``: the run has no case or variant for it).
+    """
+    def entry(issue, goal, candidates, checks, note=""):
+        result = {"issue": issue, "goal": goal, "status": "not measured", "measured": f"not measured by this run{note}"}
+        candidates = [r for r in candidates if any(r.get(key) is not None for _, key, *_ in checks)]
+        if candidates:
+            result.update(_best(candidates, checks))
+            result["measured"] += note
+        return result
+
+    prop_sfs = [r for r in table if r["family"] == "prop-sfs"]
+    goals = [entry("project (issue 7)", f"a PROP-SFS variant with ROP reduction ≥ {GOAL_ROP_REDUCTION:.0%} and "
+                   f"median |area error| ≤ {GOAL_AREA_REL_ERR:.0%} over the suite", prop_sfs,
+                   (("ROP red.", "rop_reduction", "min", GOAL_ROP_REDUCTION, "{:.0%}"),
+                    ("median |area err|", "area_rel_err_median", "max", GOAL_AREA_REL_ERR, "{:.1%}")))]
+    canopy = [r for r in rows if summary.scene_kind(r["case_spec"]) in CANOPY_SCENES]
+    cases = sorted({r["case_name"] for r in canopy})
+    validation = {v["variant"]: v for v in summary.validation_table(canopy)}
+    canopy_rows = [{**row, "area_r2": validation.get(row["variant"], {}).get("area_r2")}
+                   for row in summary.summarize(canopy, "canopy") if row["family"] == "prop-sfs"]
+    goals.append(entry("canopy (issue 16)", "tree and orchard canopies (at 0.018 deg in the issue): ROP reduction "
+                       "≥ 90 % (3σ and 1 cm), ≤ 1 % good points lost, ≥ 90 % of the visible leaves found, median "
+                       "|area error| ≤ 5 %, area R² ≥ 0.95, elevation ≤ 5°, azimuth ≤ 10°", canopy_rows, CANOPY_CHECKS,
+                       f" (cases: {', '.join(cases)})" if cases else ""))
+    goals.append(entry("woody (issue 11)", "STEP median diameter error ≤ 1 cm",
+                       [r for r in table if r["variant"] == "step"],
+                       (("diameter err", "diameter_err_median_m", "max", 0.01, "{:.4f} m"),)))
+    goals.append(entry("woody (issue 11)", "cylinder following median |volume error| ≤ 10 %",
+                       [r for r in table if r["variant"].startswith("cylinders")],
+                       (("|volume err|", "volume_rel_err", "max", 0.10, "{:.1%}"),)))
+    return goals
 
 
 def report_document(store: Store, run_id: str) -> dict:
-    """The JSON report of a run: ``run``, ``goal``, ``rows`` (suite × variant), ``by_scene``, the thesis'
+    """The JSON report of a run: ``run``, ``goal``, ``goals`` (:func:`goal_banner`), ``rows`` (suite × variant), ``by_scene``, the thesis'
     ``validation`` table and ``rppp_groups``, ``cases`` (whole-scan reconstruction per case) and ``sweeps``.
 
     Parameters
@@ -53,6 +146,7 @@ def report_document(store: Store, run_id: str) -> dict:
     document = {
         "run": {k: info[k] for k in ("run_id", "created", "finished", "status", "git_commit", "machine", "suite")},
         "goal": summary.goal_status(table),
+        "goals": goal_banner(rows, table),
         "rows": table,
         "by_scene": summary.summarize_by_scene(rows, info["suite"]),
         "validation": summary.validation_table(rows),
@@ -75,39 +169,134 @@ def _png(figure: Figure) -> str:
     return base64.b64encode(buffer.getvalue()).decode("ascii")
 
 
-def plot_rop_vs_distance(leaves: list[dict]) -> Figure:
-    """Mean ROP per distance (0.25 m bins of the leaf's range) for every variant, on objects of type leaf."""
-    figure = Figure(figsize=(7, 4), layout="constrained")
-    axes = figure.subplots()
-    leaves = [leaf for leaf in leaves if leaf.get("object_type") == "leaf"]
-    variants = list(dict.fromkeys(leaf["variant"] for leaf in leaves))
-    for variant in variants:
-        mine = [leaf for leaf in leaves if leaf["variant"] == variant and leaf.get("rop_after") is not None]
-        bins = np.round(np.array([leaf["range_m"] for leaf in mine]) * 4) / 4
-        x = np.unique(bins)
-        y = [np.mean([leaf["rop_after"] for leaf, b in zip(mine, bins) if b == v]) for v in x]
-        axes.plot(x, y, "o-" if variant == "raw" else ".-", label=variant, lw=2.5 if variant == "raw" else 1.2)
-    axes.set(xlabel="leaf distance (m)", ylabel="ROP after the variant", title="ROP against distance (τ = max(3σ, 2 mm))")
-    axes.legend(fontsize=8)
+def plot_rop_vs_distance(leaves: list[dict], kinds: dict | None = None) -> Figure:
+    """Mean ROP per distance (0.25 m bins of the leaf's range) for every variant, on objects of type leaf: one
+    panel per kind of scene, so that a line never joins different scenes.
+
+    Parameters
+    ----------
+    leaves : list of dict
+        Per-target scores (:func:`benchmarks.summary.target_scores`).
+    kinds : dict, optional
+        Kind of scene of each case name (:func:`benchmarks.summary.scene_kind`); one panel for all without it.
+
+    Returns
+    -------
+    Figure
+        ROP after (%) against leaf distance (m).
+    """
+    leaves = [leaf for leaf in leaves if leaf.get("object_type") == "leaf" and leaf.get("rop_after") is not None]
+    kind_of = (lambda leaf: kinds.get(leaf["case"], "")) if kinds else (lambda leaf: "")
+    groups = list(dict.fromkeys(kind_of(leaf) for leaf in leaves)) or [""]
+    figure = Figure(figsize=(min(4.5 * len(groups), 13), 3.8), layout="constrained")
+    for index, group in enumerate(groups):
+        axes = figure.add_subplot(1, len(groups), index + 1)
+        mine = [leaf for leaf in leaves if kind_of(leaf) == group]
+        for variant in dict.fromkeys(leaf["variant"] for leaf in mine):
+            ours = [leaf for leaf in mine if leaf["variant"] == variant]
+            bins = np.round(np.array([leaf["range_m"] for leaf in ours]) * 4) / 4
+            x = np.unique(bins)
+            y = [100 * np.mean([leaf["rop_after"] for leaf, b in zip(ours, bins) if b == v]) for v in x]
+            axes.plot(x, y, "o-" if variant == "raw" else ".-", label=variant, lw=2.5 if variant == "raw" else 1.2)
+        axes.set(xlabel="leaf distance (m)", ylabel="ROP after the variant (%)", title=group or None)
+        if index == len(groups) - 1:
+            axes.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))
+    figure.suptitle("ROP against distance (τ = max(3σ, 2 mm)), per kind of scene", fontsize=10)
     return figure
 
 
+def _found_area_errors(leaves: list[dict], variant: str) -> tuple[list[float], int, int]:
+    """Relative area errors (%) of the visible leaves a variant reconstructed, and the counts found / missed."""
+    mine = [leaf for leaf in summary.visible_leaves(leaves) if leaf["variant"] == variant]
+    found = [leaf for leaf in mine if summary.succeeded(leaf) and leaf.get("area_rel_err") is not None]
+    return [100 * leaf["area_rel_err"] for leaf in found], len(found), len(mine) - len(found)
+
+
 def plot_area_errors(leaves: list[dict]) -> Figure:
-    """Distribution of the relative leaf-area error per variant (box plots, %)."""
+    """Relative leaf-area error (%) per variant over the visible leaves it reconstructed (a missed leaf has no
+    area to compare: it is counted beside its box, not drawn at -100 %).
+
+    Parameters
+    ----------
+    leaves : list of dict
+        Per-target scores (:func:`benchmarks.summary.target_scores`).
+
+    Returns
+    -------
+    Figure
+        Horizontal box plots, one per variant, with found / missed counts.
+    """
     figure = Figure(figsize=(7, 4), layout="constrained")
-    axes = figure.subplots()
-    variants = [v for v in dict.fromkeys(leaf["variant"] for leaf in leaves)
-                if any(leaf.get("area_rel_err") is not None for leaf in leaves if leaf["variant"] == v)]
-    data = [[100 * leaf["area_rel_err"] for leaf in leaves if leaf["variant"] == v and leaf.get("area_rel_err") is not None]
-            for v in variants]
-    if data:
-        axes.boxplot(data, tick_labels=variants)
-    axes.axhspan(-100 * summary.GOAL_AREA_REL_ERR, 100 * summary.GOAL_AREA_REL_ERR, color="green", alpha=0.1,
-                 label=f"goal ±{summary.GOAL_AREA_REL_ERR:.0%}")
-    axes.axhline(0, color="black", lw=0.5)
-    axes.set(ylabel="relative area error (%)", title="leaf area error")
-    axes.tick_params(axis="x", labelrotation=30)
-    axes.legend(fontsize=8)
+    _area_axes(figure.subplots(), leaves, list(dict.fromkeys(leaf["variant"] for leaf in leaves)))
+    return figure
+
+
+def _area_axes(axes, leaves: list[dict], variants: list[str]) -> None:
+    """Horizontal box plots of the found leaves' area errors on ``axes`` (variants top to bottom)."""
+    data = [_found_area_errors(leaves, v) for v in variants]
+    positions = np.arange(len(variants))[::-1]
+    shown = [(errors, pos) for (errors, _, _), pos in zip(data, positions) if errors]
+    if shown:
+        axes.boxplot([e for e, _ in shown], positions=[pos for _, pos in shown], orientation="horizontal", widths=0.6,
+                     flierprops={"markersize": 2})
+    values = np.concatenate([e for e, _ in shown]) if shown else np.zeros(1)
+    limit = max(15.0, float(np.percentile(np.abs(values), 95)) * 1.2)
+    axes.set_xlim(-limit, limit)
+    axes.axvspan(-100 * GOAL_AREA_REL_ERR, 100 * GOAL_AREA_REL_ERR, color="green", alpha=0.12,
+                 label=f"goal ±{GOAL_AREA_REL_ERR:.0%}")
+    axes.axvline(0, color="black", lw=0.5)
+    for (errors, found, missed), pos in zip(data, positions):
+        if found or missed:
+            axes.annotate(f"{found} found / {missed} missed", (1.01, pos), xycoords=("axes fraction", "data"),
+                          va="center", fontsize=7)
+    axes.set_yticks(positions, variants, fontsize=8)
+    axes.set_ylim(-0.7, len(variants) - 0.3)
+    axes.set(xlabel="area error of the found leaves ≥ 80 % visible, all cases pooled (%)")
+    axes.legend(fontsize=7, loc="lower left")
+
+
+def plot_goal_figure(table: list[dict], leaves: list[dict]) -> Figure:
+    """The report's first figure: ROP before and after per variant, and the area error of the leaves each variant
+    found with its found / missed counts.
+
+    Parameters
+    ----------
+    table : list of dict
+        Summary rows (:func:`benchmarks.summary.summarize`); variants without a ROP are left out.
+    leaves : list of dict
+        Per-target scores (:func:`benchmarks.summary.target_scores`).
+
+    Returns
+    -------
+    Figure
+        Two panels sharing the variants' rows (ROP in %, area error in %).
+    """
+    rows = [r for r in table if r["rop_after"] is not None]
+    variants = [r["variant"] for r in rows]
+    figure = Figure(figsize=(12, 1.4 + 0.32 * max(len(rows), 3)), layout="constrained")
+    left, right = figure.subplots(1, 2, gridspec_kw={"width_ratios": [1, 1.15]})
+    positions = np.arange(len(rows))[::-1]
+    before = np.array([100 * (r["rop_before"] or 0) for r in rows])
+    after = np.array([100 * r["rop_after"] for r in rows])
+    left.barh(positions, before, height=0.8, color="lightgrey", label="ROP before (raw scan)")
+    left.barh(positions, after, height=0.5, color="tab:red", label="ROP after")
+    left.scatter(before * (1 - GOAL_ROP_REDUCTION), positions, marker="|", s=120, color="green", zorder=3,
+                 label=f"goal: {GOAL_ROP_REDUCTION:.0%} reduction")
+    for r, pos, top in zip(rows, positions, before):
+        if r["rop_reduction"] is not None:
+            left.annotate(f"{-r['rop_reduction']:+.0%}".replace("-", "−"), (top, pos), xytext=(3, 0), textcoords="offset points",
+                          va="center", fontsize=7)
+    left.set_yticks(positions, variants, fontsize=8)
+    left.set_ylim(-0.7, len(rows) - 0.3)
+    left.set_xlim(0, 1.18 * max(before.max(initial=0), 1e-3))
+    left.set(xlabel="ROP: outliers / points (%)")
+    left.legend(fontsize=7, loc="lower left", bbox_to_anchor=(0, 1.01), ncol=3, frameon=False)
+    _area_axes(right, leaves, variants)
+    right.scatter([100 * r["area_rel_err_bias"] for r in rows if r["area_rel_err_bias"] is not None],
+                  [pos for r, pos in zip(rows, positions) if r["area_rel_err_bias"] is not None], marker="D", s=18,
+                  color="tab:blue", zorder=3, label="median over cases (signed)")
+    right.legend(fontsize=7, loc="lower left", bbox_to_anchor=(0, 1.01), ncol=3, frameon=False)
+    right.set_yticks(positions, [""] * len(rows))
     return figure
 
 
@@ -238,36 +427,242 @@ def plot_before_after(case_spec: dict, variants: list[dict]) -> Figure:
     return figure
 
 
+#: Pulses of a per-case picture at most (a larger case is re-simulated at a coarser step for its picture).
+PREVIEW_PULSES = 60_000
+#: Per-case pictures at most per kind of scene, and in all.
+PREVIEWS_PER_KIND, PREVIEWS_MAX = 3, 18
+
+
+def preview_scan(case_spec: dict, max_pulses: int = PREVIEW_PULSES):
+    """The scan of a per-case picture: the case's scan, at a coarser step where it has more than ``max_pulses``
+    pulses.
+
+    Parameters
+    ----------
+    case_spec : dict
+        Stored specification of the case (re-simulated, deterministic).
+    max_pulses : int
+        Largest number of pulses of the picture's scan.
+
+    Returns
+    -------
+    scan : tlssim.Scan
+    n_pulses : int
+        Pulses of the case's own scan.
+    """
+    from tlssim.simulate import simulate
+
+    case = Case.from_dict(case_spec)
+    scene = build_scene(case.scene)
+    setup = scan_setup(case, scene)
+    rows, columns = setup.window.shape
+    if rows * columns > max_pulses:
+        step = max(setup.window.step_deg) * math.sqrt(rows * columns / max_pulses)
+        setup = dataclasses.replace(setup, window=dataclasses.replace(setup.window, step_deg=step))
+    return simulate(scene, setup, seed=case.seed, progress=False), rows * columns
+
+
+def plot_case_preview(case_spec: dict, max_pulses: int = PREVIEW_PULSES) -> Figure:
+    """A small picture of one case's scan: range and intensity images (rows = zenith, columns = azimuth), the
+    pulses farther than 1 cm from the true range of their main object (the outliers a method must fix) in red.
+
+    Parameters
+    ----------
+    case_spec : dict
+        Stored specification of the case (re-simulated here, deterministic).
+    max_pulses : int
+        Largest number of pulses of the picture's scan (:func:`preview_scan`).
+
+    Returns
+    -------
+    Figure
+        Two image panels: range (m) and intensity (DN).
+    """
+    scan, n_pulses = preview_scan(case_spec, max_pulses)
+    figure = Figure(figsize=(6.6, 2.4), layout="constrained")
+    extent = np.degrees([np.nanmin(scan.theta), np.nanmax(scan.theta), np.nanmax(scan.psi), np.nanmin(scan.psi)])
+    panels = []
+    for index, (values, label, cmap) in enumerate(((scan.range, "range (m)", "viridis"),
+                                                    (scan.intensity, "intensity (DN)", "gray"))):
+        axes = figure.add_subplot(1, 2, index + 1)
+        image = axes.imshow(values, cmap=cmap, extent=extent, aspect="auto", interpolation="nearest")
+        figure.colorbar(image, ax=axes, label=label, shrink=0.9)
+        axes.set_xlabel("azimuth θ (deg)", fontsize=8)
+        axes.set_ylabel("zenith ψ (deg)", fontsize=8)
+        axes.tick_params(labelsize=7)
+        panels.append(axes)
+    if scan.truth_range is not None:
+        outlier = np.abs(scan.range - scan.truth_range) > 0.01
+        overlay = np.zeros(scan.shape + (4,))
+        overlay[outlier] = (0.9, 0.1, 0.1, 1.0)
+        panels[1].imshow(overlay, extent=extent, aspect="auto", interpolation="nearest")
+        panels[1].set_title(f"red: {int(outlier.sum()):,} pulses > 1 cm from the true range", fontsize=8)
+    step = np.degrees(np.nanmedian(np.abs(np.diff(scan.theta, axis=1)))) if scan.shape[1] > 1 else float("nan")
+    coarse = scan.shape[0] * scan.shape[1] < n_pulses
+    figure.suptitle(f"{case_spec['name']}: {scan.shape[0]} × {scan.shape[1]} pulses at {step:.3f} deg"
+                    + (f" (coarsened for this picture from {n_pulses:,} pulses)" if coarse else ""), fontsize=9)
+    return figure
+
+
+def preview_cases(rows: list[dict]) -> tuple[list[dict], int]:
+    """The cases that get a picture: up to :data:`PREVIEWS_PER_KIND` per kind of scene, :data:`PREVIEWS_MAX` in
+    all; also the number of cases of the run.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Result rows of a run.
+
+    Returns
+    -------
+    chosen : list of dict
+        Case specifications.
+    n_cases : int
+    """
+    specs = {r["case_name"]: r["case_spec"] for r in rows}
+    chosen, per_kind = [], {}
+    for spec in specs.values():
+        kind = summary.scene_kind(spec)
+        if per_kind.get(kind, 0) < PREVIEWS_PER_KIND and len(chosen) < PREVIEWS_MAX:
+            per_kind[kind] = per_kind.get(kind, 0) + 1
+            chosen.append(spec)
+    return chosen, len(specs)
+
+
+#: Column titles and units of the report's tables: key -> (title, unit). Fractions are shown in %, lengths in
+#: mm (keys ending in ``_m``), counts as counts; keys not listed fall back on their suffix (:func:`column_label`).
+COLUMNS = {
+    "suite": ("suite", ""), "variant": ("variant", ""), "family": ("family", ""), "scene": ("scene", ""),
+    "case": ("case", ""), "group": ("leaf group", ""), "pixels": ("region size", "pixels"),
+    "n_cases": ("cases", "count"), "n_targets": ("scored objects", "count"),
+    "n_leaves_traits": ("leaves ≥ 80 % visible", "count"), "n_errors": ("failed cases", "count"),
+    "rop_before": ("ROP before", "%"), "rop_after": ("ROP after", "%"), "rop_reduction": ("ROP reduction", "%"),
+    "rop_before_1cm": ("ROP before, 1 cm", "%"), "rop_after_1cm": ("ROP after, 1 cm", "%"),
+    "rop_reduction_1cm": ("ROP reduction, 1 cm", "%"), "good_points_lost": ("good points lost", "%"),
+    "outliers_restored": ("outliers restored", "%"), "good_points_damaged": ("good points damaged", "%"),
+    "completeness": ("completeness", "%"), "flag_precision": ("flag precision", "%"),
+    "flag_recall": ("flag recall", "%"), "rppp_0": ("pixels with 0 values", "%"),
+    "rppp_1": ("pixels with 1 value (rppp₁)", "%"), "rppp_2": ("pixels with 2 values", "%"),
+    "rppp_3": ("pixels with 3 values", "%"), "rppp_more": ("pixels with > 3 values", "%"),
+    "abs_eps_mean": ("mean |height error|", "%"), "within_5pct": ("heights within 5 %", "%"),
+    "surface_rmse_m": ("surface RMSE", "mm"), "area_rel_err_median": ("median |area error|", "%"),
+    "area_rel_err_bias": ("median area error (signed)", "%"),
+    "elevation_err_median_deg": ("median elevation error", "deg"),
+    "azimuth_err_median_deg": ("median azimuth error", "deg"), "n_found": ("leaves found", "count"),
+    "n_missed": ("leaves missed", "count"), "n_false": ("false leaves", "count"),
+    "n_merged": ("leaves merged", "count"), "found_visible": ("visible leaves found", "%"),
+    "diameter_err_median_m": ("median diameter error", "mm"), "volume_rel_err": ("median |volume error|", "%"),
+    "runtime_s": ("runtime per case (median)", "s"), "runtime_total_s": ("runtime, all cases", "s"),
+    "pulses_per_s": ("throughput", "pulses/s"), "peak_mem_mb": ("peak memory", "MB"),
+    "n_pulses": ("pulses", "count"), "n_leaves": ("leaves ≥ 80 % visible", "count"),
+    "n_success": ("leaves reconstructed", "count"), "success": ("reconstructed", "%"),
+    "area_slope": ("area slope (est. / true)", "ratio"), "area_intercept_cm2": ("area intercept", "cm²"),
+    "area_r2": ("area R²", "ratio"), "area_bias_cm2": ("area BIAS (eq 2.1)", "cm²"),
+    "elevation_r2": ("elevation R²", "ratio"), "elevation_precision_deg": ("elevation precision (s.d.)", "deg"),
+    "azimuth_r2": ("azimuth R²", "ratio"), "azimuth_precision_deg": ("azimuth precision (s.d.)", "deg"),
+    "value": ("swept value", ""), "footprint_mm": ("footprint diameter", "mm"),
+    "sigma_range_m": ("range noise σ", "mm"), "intensity_dn": ("intensity", "DN"),
+    "points_per_cm2": ("point density", "points/cm²"), "n_points": ("points", "count"),
+}
+_SUFFIX_UNITS = (("_deg", "deg"), ("_cm2", "cm²"), ("_m2", "cm²"), ("_mm", "mm"), ("_m", "mm"), ("_s", "s"),
+                 ("_mb", "MB"), ("_dn", "DN"))
+_PERCENT = {key for key, (_, unit) in COLUMNS.items() if unit == "%"}
+
+
+def column_label(key: str) -> tuple[str, str]:
+    """Title and unit of a table column (``rop_after:fused`` is the ROP after ``fused``; unknown keys are named by
+    their words and unit suffix).
+
+    Parameters
+    ----------
+    key : str
+        Column key of a report table.
+
+    Returns
+    -------
+    title : str
+    unit : str
+        ``""`` for text columns.
+    """
+    base, _, variant = key.partition(":")
+    if base in COLUMNS:
+        title, unit = COLUMNS[base]
+    else:
+        unit = next((u for suffix, u in _SUFFIX_UNITS if base.endswith(suffix)), "")
+        title = base.removesuffix(next((s for s, u in _SUFFIX_UNITS if base.endswith(s)), "")).replace("_", " ")
+    return (f"{title}, {variant}" if variant else title), unit
+
+
 def _cell(value, key: str) -> str:
     if value is None:
         return "–"
     if isinstance(value, str):
         return html.escape(value)
     if isinstance(value, int):
-        return str(value)
-    if key.endswith("_deg"):
+        return f"{value:,}"
+    base = key.partition(":")[0]
+    unit = column_label(key)[1]
+    if base in _PERCENT:
+        return f"{100 * value:.1f}"
+    if unit == "mm" and not base.endswith("_mm"):
+        return f"{value * 1e3:.2f}"
+    if base.endswith("_m2"):
+        return f"{value * 1e4:.2f}"
+    if unit in ("s", "MB") or unit.startswith(("pulses", "points")):
+        return f"{value:,.3g}" if abs(value) < 1000 else f"{value:,.0f}"
+    if unit == "deg":
         return f"{value:.2f}"
-    if key.endswith("_m"):
-        return f"{value * 1e3:.2f} mm"
-    if key.endswith(("_s", "_mb")):
-        return f"{value:.3g}"
     return f"{value:.3f}"
 
 
+def _header(key: str) -> str:
+    title, unit = column_label(key)
+    return html.escape(f"{title} ({unit})" if unit else title)
+
+
 def _table(rows: list[dict], keys) -> str:
-    head = "".join(f"<th>{html.escape(k)}</th>" for k in keys)
+    head = "".join(f"<th title='{html.escape(k)}'>{_header(k)}</th>" for k in keys)
     body = "".join("<tr>" + "".join(f"<td>{_cell(r.get(k), k)}</td>" for k in keys) + "</tr>" for r in rows)
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
-_STYLE = """body{font-family:sans-serif;margin:2em;max-width:80em}table{border-collapse:collapse;margin:1em 0;
-font-size:0.85em}td,th{border:1px solid #ccc;padding:0.25em 0.5em;text-align:right}th{background:#eee}
-td:first-child{text-align:left}.goal{padding:0.7em;border-left:4px solid #c33;background:#fdf3f3}
-.met{border-color:#3a3;background:#f2fbf2}pre{background:#f6f6f6;padding:0.7em}"""
+_STYLE = """body{font-family:sans-serif;margin:1.5em;max-width:90em;color:#222}table{border-collapse:collapse;
+margin:0.8em 0;font-size:0.85em}td,th{border:1px solid #ccc;padding:0.25em 0.5em;text-align:right}
+th{background:#eee;font-weight:600;max-width:9em;vertical-align:bottom}td:first-child,th:first-child{text-align:left}
+tbody tr:nth-child(even){background:#fafafa}.goals td,.goals th{text-align:left;vertical-align:top}.goals td:first-child{
+white-space:nowrap;font-weight:bold}.met td:first-child{color:#176c17}.notmet td:first-child{color:#b22}
+.unmeasured td:first-child{color:#777}.meta{color:#555;font-size:0.9em}.pictures{display:flex;flex-wrap:wrap;
+gap:0.6em}.pictures figure{margin:0}figcaption{font-size:0.8em;color:#555}img{max-width:100%}
+pre{background:#f6f6f6;padding:0.7em;white-space:pre-wrap}.wide{overflow-x:auto}
+.goal{padding:0.6em;border-left:4px solid #c33;background:#fdf3f3}"""
+_STATUS = {"met": ("✔ met", "met"), "not met": ("✘ not met", "notmet"), "not measured": ("– not measured", "unmeasured")}
+
+
+def _image(title: str, figure: Figure) -> str:
+    return f"<img alt='{html.escape(title)}' src='data:image/png;base64,{_png(figure)}'>"
+
+
+def _banner(goals: list[dict]) -> str:
+    rows = "".join(f"<tr class='{_STATUS[g['status']][1]}'><td>{_STATUS[g['status']][0]}</td>"
+                   f"<td>{html.escape(g['issue'])}</td><td>{html.escape(g['goal'])}</td>"
+                   f"<td>{html.escape(g['measured'])}</td></tr>" for g in goals)
+    return ("<table class='goals'><thead><tr><th>status</th><th>goal of</th><th>goal</th><th>this run (best variant; "
+            f"✗ marks a check it misses)</th></tr></thead><tbody>{rows}</tbody></table>")
+
+
+def _machine(machine) -> str:
+    if isinstance(machine, dict):
+        return ", ".join(f"{k} {v}" for k, v in machine.items())
+    return str(machine)
 
 
 def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Path:
-    """Write the HTML report of a run (figures embedded as PNG); returns the path.
+    """Write the HTML report of a run (one self-contained file, figures embedded as PNG); returns the path.
+
+    The first screen holds the goal banner (:func:`goal_banner`), ROP before/after and the found leaves' area
+    errors per variant (:func:`plot_goal_figure`) and the headline table; then the per-case pictures (before /
+    after on the showcase leaf, a range and intensity image of each case), then the detailed tables and figures.
+    Table headers carry their units.
 
     Parameters
     ----------
@@ -278,7 +673,7 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
     path : str or Path
         Output HTML file.
     before_after : bool
-        Include the before/after figures (re-simulates cases: slower).
+        Include the pictures that re-simulate cases (before/after and per-case images: slower).
 
     Returns
     -------
@@ -289,60 +684,81 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
     rows = store.results(run_id)
     leaves = summary.target_scores(rows)
     run = document["run"]
-    met = ": MET" in document["goal"]
     parts = [
-        f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>tlsbench {html.escape(run_id)}</title>"
+        f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>tlsbench {html.escape(run_id)}</title>"
         f"<style>{_STYLE}</style></head><body>",
-        f"<h1>Benchmark run {html.escape(run_id)}</h1>",
-        f"<p>suite <b>{html.escape(run['suite'])}</b> · commit {html.escape(run['git_commit'])} · "
-        f"started {html.escape(run['created'])} · status {html.escape(run['status'])} · "
-        f"machine {html.escape(str(run['machine']))}</p>",
-        f"<p class='goal{' met' if met else ''}'>{html.escape(document['goal'])}</p>",
-        "<h2>Headline</h2>",
-        _table(document["rows"], [key for _, key, _ in summary.headline_columns(document["rows"])]),
-        "<h2>All metrics (variant × metric)</h2>",
-        _table(document["rows"], summary.SUMMARY_KEYS),
-        "<h2>By kind of scene</h2>",
-        _table(document["by_scene"], ["scene", "variant", "n_targets", "n_errors", "rop_before", "rop_after",
-                                      "rop_reduction", "outliers_restored", "good_points_lost",
-                                      "area_rel_err_median", "area_rel_err_bias", "runtime_s"]),
-        "<p>ROP: mean over leaves of outliers / points (points with ≥ 10 % of their footprint power from the leaf; "
-        "outliers farther than τ from the true surface of their object). Area and angle errors: medians of absolute "
-        "errors over leaves. Runtime: median per case. Lengths in mm.</p>",
+        f"<h1>Benchmark run {html.escape(run_id)}: suite {html.escape(run['suite'])}</h1>",
+        f"<p class='meta'>commit {html.escape(run['git_commit'])} · started {html.escape(run['created'][:19])} · "
+        f"status {html.escape(run['status'])} · {html.escape(_machine(run['machine']))}</p>",
+        "<h2>Goals</h2>", _banner(document["goals"]),
     ]
+    if document["errors"]:
+        first = document["errors"][0]
+        parts.append(f"<p class='goal'><b>{len(document['errors'])} failed result(s)</b>, first: "
+                     f"{html.escape(first['case'])} / {html.escape(first['variant'])}: "
+                     f"{html.escape(str(first['error']).strip().splitlines()[-1])} (all at the end)</p>")
+    if any(r["rop_after"] is not None for r in document["rows"]):
+        parts.append(_image("ROP before and after, area errors of the found leaves",
+                            plot_goal_figure(document["rows"], leaves)))
+    parts += ["<h2>Headline</h2>", "<div class='wide'>",
+              _table(document["rows"], [key for _, key, _ in summary.headline_columns(document["rows"])]),
+              "</div><p class='meta'>ROP: mean over leaves of outliers / points (points with ≥ 10 % of their footprint "
+              "power from the leaf; outliers farther than τ = max(3σ, 2 mm) from the true surface of their object). "
+              "Area and angle errors: medians over cases of the median absolute error over the leaves ≥ 80 % "
+              "visible. Runtime: median per case.</p>"]
+    pictures = []
+    showcase = pick_showcase(rows) if before_after else None
+    if showcase is not None:
+        shown = [r for r in rows if r["case_name"] == showcase["name"] and not r["error"] and r["metrics"]["targets"]
+                 and all("rop_before" in t for t in r["metrics"]["targets"])]  # leaf methods only
+        specs = list({r["variant"]: {"name": r["variant"], "params": r["params"]} for r in shown}.values())
+        pictures.append(("Before / after on one leaf", plot_before_after(showcase, specs)))
+    if pictures or before_after:
+        parts.append("<h2>Per-case pictures</h2>")
+        parts += [f"<h3>{html.escape(title)}</h3>{_image(title, figure)}" for title, figure in pictures]
+    if before_after:
+        chosen, n_cases = preview_cases(rows)
+        parts.append(f"<p class='meta'>Range and intensity of {len(chosen)} of the {n_cases} cases (up to "
+                     f"{PREVIEWS_PER_KIND} per kind of scene); red: pulses more than 1 cm from the true range of their "
+                     "main object.</p><div class='pictures'>")
+        for spec in chosen:
+            parts.append(f"<figure>{_image(spec['name'], plot_case_preview(spec))}"
+                         f"<figcaption>{html.escape(spec['name'])} ({html.escape(summary.scene_kind(spec))})"
+                         "</figcaption></figure>")
+        parts.append("</div>")
+    parts += ["<h2>By kind of scene</h2>", "<div class='wide'>",
+              _table([r for r in document["by_scene"] if r["n_targets"] or r["n_errors"]], ["scene", "variant", "n_targets", "n_errors", "rop_before", "rop_after",
+                                            "rop_reduction", "outliers_restored", "good_points_lost",
+                                            "area_rel_err_median", "area_rel_err_bias", "runtime_s"]), "</div>"]
     if document["validation"]:
-        parts += [f"<h2>Validation table (thesis ch.7)</h2><p>Over the leaves at least "
+        parts += [f"<h2>Validation table (thesis ch.7)</h2><p class='meta'>Over the leaves at least "
                   f"{metrics.MIN_VISIBILITY:.0%} visible; regressions, BIAS (eq 2.1) and precisions (standard "
-                  "deviation of the error) over the leaves the variant reconstructed (success). Areas in cm², "
-                  "angles in degrees.</p>", _table(document["validation"], summary.VALIDATION_KEYS)]
+                  "deviation of the error) over the leaves the variant reconstructed (success).</p>",
+                  "<div class='wide'>", _table(document["validation"], summary.VALIDATION_KEYS), "</div>"]
     if document["rppp_groups"]:
         parts += ["<h3>Redundancy rppp by leaf group (region pixels)</h3>",
                   _table(document["rppp_groups"], summary.RPPP_KEYS)]
     if document["cases"]:
-        parts += ["<h3>Whole-scan reconstruction per case</h3>", _table(document["cases"], summary.CASE_KEYS)]
+        parts += ["<h3>Whole-scan reconstruction per case</h3>", "<div class='wide'>",
+                  _table(document["cases"], summary.CASE_KEYS), "</div>"]
     figures = []
     if any(leaf.get("object_type") == "leaf" for leaf in leaves):
-        figures.append(("ROP against distance", plot_rop_vs_distance(leaves)))
-    if any(leaf.get("area_rel_err") is not None for leaf in leaves):
-        figures.append(("Leaf area error", plot_area_errors(leaves)))
+        kinds = {r["case_name"]: summary.scene_kind(r["case_spec"]) for r in rows}
+        figures.append(("ROP against distance", plot_rop_vs_distance(leaves, kinds)))
     if summary.visible_leaves(leaves):
         figures.append(("Estimated against true leaf area", plot_area_scatter(leaves)))
     if any(heightfields.is_heightfield(r["case_spec"]["scene"]) for r in rows):
         figures.append(("Height-field errors", plot_height_errors(rows)))
-    showcase = pick_showcase(rows) if before_after else None
-    if showcase is not None:
-        shown = [r for r in rows if r["case_name"] == showcase["name"] and not r["error"]]
-        specs = list({r["variant"]: {"name": r["variant"], "params": r["params"]} for r in shown}.values())
-        figures.append(("Before / after on one leaf", plot_before_after(showcase, specs)))
     for sweep in document["sweeps"]:
         if sweep["table"]:
             figures.append((f"Sweep: {sweep['kind']} (run {sweep['run_id']})", sweeps.plot_sweep(sweep["table"], sweep["kind"])))
     figures += history_figures(store, run["suite"])
-    for title, figure in figures:
-        parts.append(f"<h2>{html.escape(title)}</h2><img alt='{html.escape(title)}' src='data:image/png;base64,{_png(figure)}'>")
+    parts += [f"<h2>{html.escape(title)}</h2>{_image(title, figure)}" for title, figure in figures]
     for sweep in document["sweeps"]:
         if sweep["table"]:
             parts.append(f"<h3>Sweep table: {html.escape(sweep['kind'])}</h3>" + _table(sweep["table"], list(sweep["table"][0])))
+    parts += ["<h2>All metrics (variant × metric)</h2>", "<div class='wide'>",
+              _table(document["rows"], summary.SUMMARY_KEYS), "</div>"]
     if document["errors"]:
         parts.append("<h2>Errors</h2><pre>" + html.escape("\n".join(
             f"{e['case']} / {e['variant']}: {e['error']}" for e in document["errors"])) + "</pre>")

@@ -93,26 +93,42 @@ def variant_specs(variants: list[Variant]) -> list[dict]:
     return [{"name": v.name, "family": v.family, "params": v.params} for v in variants]
 
 
-def simulate_case(case: Case):
-    """Rebuild a case's scene and simulate its scan (deterministic from the case).
+def scan_setup(case: Case, scene):
+    """The scanner setup of a case: the case's ``scanner`` entries override the scene's scanner section
+    (window, pose) and the scanner model's fields; a case's ``step_deg`` also replaces the step of the scene's
+    window (built-in scenes give their window a step, which would otherwise win).
 
-    The case's ``scanner`` entries override the scene's scanner section
-    (window, pose) and the scanner model's fields; a case's ``step_deg``
-    also replaces the step of the scene's window (built-in scenes give
-    their window a step, which would otherwise win).
+    Parameters
+    ----------
+    case : Case
+        The case.
+    scene : Scene
+        Its scene (:func:`benchmarks.generators.build_scene`).
+
+    Returns
+    -------
+    tlssim.simulate.ScanSetup
+    """
+    from tlssim.simulate import setup_from_section
+
+    section = {**scene.scanner, **case.scanner}
+    if "step_deg" in case.scanner and "window" not in case.scanner and "window" in section:
+        section["window"] = {**section["window"], "step_deg": case.scanner["step_deg"]}
+    return setup_from_section(section)
+
+
+def simulate_case(case: Case):
+    """Rebuild a case's scene and simulate its scan (deterministic from the case; setup: :func:`scan_setup`).
 
     Returns
     -------
     scene : Scene
     scan : tlssim.Scan
     """
-    from tlssim.simulate import setup_from_section, simulate
+    from tlssim.simulate import simulate
 
     scene = build_scene(case.scene)
-    section = {**scene.scanner, **case.scanner}
-    if "step_deg" in case.scanner and "window" not in case.scanner and "window" in section:
-        section["window"] = {**section["window"], "step_deg": case.scanner["step_deg"]}
-    return scene, simulate(scene, setup_from_section(section), seed=case.seed, progress=False)
+    return scene, simulate(scene, scan_setup(case, scene), seed=case.seed, progress=False)
 
 
 def case_rows(case: dict, variants: list[dict]):

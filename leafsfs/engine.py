@@ -277,7 +277,7 @@ def reconstruct_heights(alpha: np.ndarray, height: np.ndarray, mask: np.ndarray 
                        params.buffer_rule, params.crossing_window, params.toggle_window,
                        fusion if variant == "fused" else None, stats)
         out = _run_part(part, smoothed[box], levels[box], height[box], valid[box], unreliable[box], sub_grid,
-                        params, ws, k)
+                        params, ws, k, thresholds)
         if out is None:
             continue
         part_pixels, part_values, part_seed, part_curves, part_anchors = out
@@ -301,9 +301,15 @@ def reconstruct_heights(alpha: np.ndarray, height: np.ndarray, mask: np.ndarray 
                         vertices, vertex_pixels, faces, curves, stats)
 
 
-def _domain_alpha(values: np.ndarray, params: SfsParams) -> float:
-    """Alpha of a domain: median (or mean), clamped to alpha_max, plus the bias (digest A1)."""
-    base = float(np.median(values) if params.alpha_rule == "median" else np.mean(values))
+def _domain_alpha(values: np.ndarray, params: SfsParams, thresholds: np.ndarray, level: int) -> float:
+    """Alpha of domain ``level``: median or mean of its pixels, or its lower or upper bound among the
+    ``thresholds`` (rad), clamped to alpha_max, plus the bias (digest A1)."""
+    if params.alpha_rule == "upper":
+        base = float(thresholds[level])
+    elif params.alpha_rule == "lower":
+        base = float(thresholds[level - 1]) if level > 0 else 0.0
+    else:
+        base = float(np.median(values) if params.alpha_rule == "median" else np.mean(values))
     base = min(base, math.radians(params.alpha_max_deg)) + math.radians(params.alpha_bias_deg)
     return float(np.clip(base, 0.0, math.radians(89.0)))
 
@@ -330,7 +336,7 @@ def _regions(part: np.ndarray, levels: np.ndarray, anchor: tuple[int, int]):
 
 
 def _run_part(part, smoothed, levels, height, valid, unreliable, grid: PixelGrid, params: SfsParams, ws: Workspace,
-              k: int):
+              k: int, thresholds: np.ndarray):
     lowest = levels[part].min()
     candidates = np.argwhere(part & (levels == lowest))
     anchor = tuple(candidates[np.argmin(smoothed[part & (levels == lowest)])])
@@ -358,7 +364,7 @@ def _run_part(part, smoothed, levels, height, valid, unreliable, grid: PixelGrid
     rim = seed_region & ~ndimage.binary_erosion(seed_region) & ~unreliable
     alpha = None
     if rim.any():
-        alpha = _domain_alpha(smoothed[rim], params)
+        alpha = _domain_alpha(smoothed[rim], params, thresholds, seed_level)
         spread = float(np.std(np.tan(np.minimum(smoothed[rim], math.radians(params.alpha_max_deg)))))
     for level, region in chain[1:]:
         # The domain's alpha from its reliable pixels (else the new reliable ones', else the previous domain's,
@@ -368,7 +374,7 @@ def _run_part(part, smoothed, levels, height, valid, unreliable, grid: PixelGrid
         in_domain = new & (levels == level)
         pool = in_domain if in_domain.any() else (new if new.any() else known)
         if (new.any() or alpha is None) and pool.any():
-            alpha = _domain_alpha(smoothed[pool], params)
+            alpha = _domain_alpha(smoothed[pool], params, thresholds, level)
             spread = float(np.std(np.tan(np.minimum(smoothed[pool], math.radians(params.alpha_max_deg)))))
         outer = extract_curve(region, grid, params.tangents)
         previous = region

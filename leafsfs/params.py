@@ -40,9 +40,13 @@ class SfsParams:
     thresholds_deg : tuple of float
         Increasing thresholds alpha_0 .. alpha_(n-1), degrees (fixed mode;
         pi/2 is appended).
-    alpha_rule : {"median", "mean"}
-        Alpha value of a domain (digest A1: the thesis' upper bound diverges
-        at the shell).
+    alpha_rule : {"median", "mean", "upper", "lower"}
+        Alpha value of a domain: the median or mean of its pixels; the
+        thesis' literal rule, its upper bound alpha_i (digest A1: it diverges
+        at the shell, so it is clamped to ``alpha_max_deg`` like the others);
+        or its lower bound alpha_(i-1), the alpha of the curve it propagates
+        from (the rule that reproduces the thesis' ch.5 bias results,
+        ``tlsbench reproduce ch5-alpha-bias``).
     alpha_max_deg : float
         Clamp of the domain alpha, degrees (A1: 85 for synthetic data, 60 for
         TLS leaves whose intensity-derived alpha is unreliable above 55-60).
@@ -147,7 +151,7 @@ class SfsParams:
     def __post_init__(self):
         _choice(self, "quantization", ("shell", "percentile", "fixed"))
         _choice(self, "shell_set", tuple(SHELL_SETS))
-        _choice(self, "alpha_rule", ("median", "mean"))
+        _choice(self, "alpha_rule", ("median", "mean", "upper", "lower"))
         _choice(self, "orphans", ("merge", "seed"))
         _choice(self, "tangents", TANGENT_ESTIMATORS)
         _choice(self, "fill", ("planar", "ruled", "cone"))

@@ -30,6 +30,20 @@ def test_bench_reports_time_memory_and_nlogn(capsys):
     assert row["us_per_nlogn"] == 1e6 * row["time_s"] / (row["points"] * np.log2(row["points"]))
 
 
+def test_bench_prints_each_row_when_its_run_is_done(capsys):
+    """The table is printed row by row (a long --sizes list shows the sizes already done), each row handed over
+    as soon as its run ends."""
+    from benchmarks.experiments.woody_perf import run_perf
+
+    seen = []
+    report = run_perf([300, 600], ["cylinders"], on_row=lambda row: seen.append(row["points"]))
+    assert seen == [row["points"] for row in report["rows"]] and len(seen) == 2 and seen[0] < seen[1]
+    assert main(["perf", "woody", "--sizes", "300,600", "--methods", "cylinders"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("machine:") and lines[1].split()[:3] == ["method", "points", "time_s"]
+    assert [line.split()[0] for line in lines[2:]] == ["cylinders", "cylinders"]
+
+
 def test_goal_lines_judge_the_worst_case_within_the_goal_range():
     from benchmarks.experiments.woody_experiments import goal_lines
 

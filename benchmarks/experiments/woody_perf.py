@@ -58,7 +58,7 @@ def _measure(method: str, size: int, queue) -> None:
                "volume_error": result.volume / cylinders_volume(cylinders) - 1.0})
 
 
-def run_perf(sizes, methods) -> dict:
+def run_perf(sizes, methods, on_row=None) -> dict:
     """Measure each method at each point count (one fresh process per run).
 
     Parameters
@@ -67,6 +67,8 @@ def run_perf(sizes, methods) -> dict:
         Target point counts of the clouds (the sampled count is near it).
     methods : iterable of str
         Methods to measure.
+    on_row : callable, optional
+        Called with each row as soon as its run is done (the table is printed row by row).
 
     Returns
     -------
@@ -78,33 +80,42 @@ def run_perf(sizes, methods) -> dict:
 
     context = multiprocessing.get_context("spawn")
     rows = []
-    for method in methods:
-        for size in tqdm(sizes, desc=f"bench {method}", leave=False):
-            queue = context.Queue()
-            worker = context.Process(target=_measure, args=(method, size, queue))
-            worker.start()
-            rows.append(queue.get())
-            worker.join()
-    for row in rows:
-        n = row["points"]
-        row["us_per_nlogn"] = 1e6 * row["time_s"] / (n * np.log2(n))
-    return {"machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
-            "cpus": multiprocessing.cpu_count(), "rows": rows}
+    runs = [(method, size) for method in methods for size in sizes]
+    for method, size in (bar := tqdm(runs, desc="bench woody", unit="run", leave=False)):
+        bar.set_postfix_str(f"{method} at {size:,} points")
+        queue = context.Queue()
+        worker = context.Process(target=_measure, args=(method, size, queue))
+        worker.start()
+        row = queue.get()
+        worker.join()
+        row["us_per_nlogn"] = 1e6 * row["time_s"] / (row["points"] * np.log2(row["points"]))
+        rows.append(row)
+        if on_row is not None:
+            on_row(row)
+    return {**_machine(), "rows": rows}
 
 
-def print_report(report: dict) -> None:
-    """The report as a table."""
-    print(f"machine: {report['machine']}, {report['cpus']} cpus; peak memory = peak RSS of the run above its start")
-    print(f"{'method':<10} {'points':>9} {'time_s':>9} {'peak_MB':>9} {'us/NlogN':>9}  notes")
-    for row in report["rows"]:
-        stats = row["stats"]
-        if row["method"] == "step":
-            note = (f"Hough {stats['occupied_cells']} cells = {stats['hough_bytes'] / 1e6:.1f} MB "
-                    f"(dense would be {stats['dense_cells'] * 4 / 1e6:.0f} MB), {stats['tuboids']} tuboids")
-        else:
-            note = f"{stats['branches']} branches, volume error {100 * row['volume_error']:+.1f} %"
-        print(f"{row['method']:<10} {row['points']:>9} {row['time_s']:>9.2f} {row['peak_mb']:>9.1f} "
-              f"{row['us_per_nlogn']:>9.3f}  {note}")
+def _header() -> str:
+    return f"{'method':<10} {'points':>9} {'time_s':>9} {'peak_MB':>9} {'us/NlogN':>9}  notes"
+
+
+def _row_line(row: dict) -> str:
+    stats = row["stats"]
+    if row["method"] == "step":
+        note = (f"Hough {stats['occupied_cells']} cells = {stats['hough_bytes'] / 1e6:.1f} MB "
+                f"(dense would be {stats['dense_cells'] * 4 / 1e6:.0f} MB), {stats['tuboids']} tuboids")
+    else:
+        note = f"{stats['branches']} branches, volume error {100 * row['volume_error']:+.1f} %"
+    return (f"{row['method']:<10} {row['points']:>9} {row['time_s']:>9.2f} {row['peak_mb']:>9.1f} "
+            f"{row['us_per_nlogn']:>9.3f}  {note}")
+
+
+def _machine() -> dict:
+    return {"machine": f"{platform.machine()} {platform.processor() or ''}".strip(), "cpus": multiprocessing.cpu_count()}
+
+
+def _machine_line(report: dict) -> str:
+    return f"machine: {report['machine']}, {report['cpus']} cpus; peak memory = peak RSS of the run above its start"
 
 
 def add_parser(sub) -> None:
@@ -125,9 +136,12 @@ def run(args) -> int:
     methods = [m.strip() for m in args.methods.split(",")]
     if not sizes or min(sizes) < 100 or set(methods) - {"step", "cylinders"}:
         raise BenchError("--sizes must be point counts >= 100 and --methods a subset of step, cylinders")
-    report = run_perf(sizes, methods)
     if args.json:
-        print(json.dumps(report, indent=2))
-    else:
-        print_report(report)
+        print(json.dumps(run_perf(sizes, methods), indent=2))
+        return 0
+    from tqdm import tqdm
+
+    print(_machine_line(_machine()))
+    print(_header(), flush=True)
+    run_perf(sizes, methods, on_row=lambda row: tqdm.write(_row_line(row)))  # each row above the progress bar
     return 0

@@ -1,0 +1,106 @@
+"""``tlsbench reproduce [NAME ...]``: run reproduction experiments, print, write and store them.
+
+Each experiment prints the published values and ours side by side with a
+verdict per row and writes ``NAME.csv`` and ``NAME.png`` under the output
+directory; all of them go to ``reproduction.html`` there and to one run of
+the results store. The last line reads ``N/M rows within tolerance``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+import time
+import traceback
+from pathlib import Path
+
+from benchmarks.reproduce.core import EXPERIMENTS, Outcome, count_within, select
+from benchmarks.reproduce.output import format_rows, store_outcomes, summary_line, write_csv, write_png
+from benchmarks.store import Store
+
+#: Modules that register experiments, in the order of the page.
+MODULES = ("benchmarks.reproduce.sensors2011", "benchmarks.reproduce.thesis_ch5", "benchmarks.reproduce.thesis_ch2",
+           "benchmarks.reproduce.woody_papers")
+
+
+def load_experiments() -> dict:
+    """Import every module of :data:`MODULES` (registering their experiments); returns the registry."""
+    for name in MODULES:
+        importlib.import_module(name)
+    return EXPERIMENTS
+
+
+def add_parser(sub) -> None:
+    """Register ``reproduce`` with the ``tlsbench`` sub-commands."""
+    p = sub.add_parser("reproduce", help="reproduce the sources' published tables and figures, with verdicts",
+                       description="Run the registered reproduction experiments (all when no NAME is given; "
+                                   "NAME may end in '*'), print published values and ours side by side, write "
+                                   "CSV, PNG and reproduction.html, and store the rows.")
+    p.add_argument("names", nargs="*", metavar="NAME", help="experiments to run (default: all)")
+    p.add_argument("--list", action="store_true", help="list the registered experiments and exit")
+    p.add_argument("--quick", action="store_true",
+                   help="tiny versions (tests, make bench); heavy experiments only when named one by one")
+    p.add_argument("--seed", type=int, default=0, help="seed of the simulations (default 0)")
+    p.add_argument("-o", "--output", default="reproduction", help="output directory (default reproduction)")
+    p.add_argument("--db", default="reproduction.sqlite",
+                   help="results database (default reproduction.sqlite: a store of its own, so that the suites' "
+                        "'latest' run stays a suite run; compare two runs with tlsbench compare A B --db ...)")
+    p.add_argument("--no-store", action="store_true", help="do not write the rows to the results store")
+    p.set_defaults(func=run)
+
+
+def run_experiments(names: list[str] | None, quick: bool, seed: int, echo=print) -> list[Outcome]:
+    """Run the named experiments, printing each table; an experiment that fails is reported, not raised.
+
+    Parameters
+    ----------
+    names : list of str or None
+        Experiment names (all when empty).
+    quick : bool
+        Run the tiny versions.
+    seed : int
+        Seed of the simulations.
+    echo : callable
+        Where the tables go (``print``).
+    """
+    load_experiments()
+    outcomes = []
+    for experiment in select(names, quick):
+        start = time.perf_counter()
+        outcome = Outcome(experiment)
+        try:
+            outcome.rows = experiment.run(quick, seed)
+        except Exception as exc:  # one failing experiment must not hide the others' rows
+            outcome.error = f"{type(exc).__name__}: {exc}"
+            traceback.print_exc(file=sys.stderr)
+        outcome.seconds = time.perf_counter() - start
+        within, compared = count_within(outcome.rows)
+        echo(f"\n== {experiment.name}: {experiment.title} ({within}/{compared} within, {outcome.seconds:.1f} s)")
+        echo(format_rows(outcome.rows) if outcome.rows else f"failed: {outcome.error}")
+        outcomes.append(outcome)
+    return outcomes
+
+
+def run(args) -> int:
+    """The command (see the module docstring); exit status 1 when an experiment failed."""
+    if args.list:
+        for experiment in load_experiments().values():
+            print(f"{experiment.name:24s} {'heavy ' if experiment.heavy else '      '}{experiment.title}")
+        return 0
+    from benchmarks.reproduce.page import write_page  # imports benchmarks.report and its modules: only when run
+
+    outcomes = run_experiments(args.names, args.quick, args.seed)
+    out = Path(args.output)
+    for outcome in outcomes:
+        if outcome.rows:
+            write_csv(outcome.rows, out / f"{outcome.experiment.name}.csv")
+            write_png(outcome.experiment, outcome.rows, out / f"{outcome.experiment.name}.png")
+    command = "tlsbench reproduce " + " ".join(sys.argv[2:] if sys.argv[1:2] == ["reproduce"] else [])
+    page = write_page(outcomes, out / "reproduction.html", command.strip())
+    if not args.no_store:
+        with Store(args.db) as store:
+            run_id = store_outcomes(store, outcomes, args.quick, args.seed)
+        print(f"stored as run {run_id} in {args.db}")
+    print(f"CSV and PNG per experiment and {page} written")
+    print(summary_line([r for o in outcomes for r in o.rows]))
+    return 1 if any(o.error for o in outcomes) else 0

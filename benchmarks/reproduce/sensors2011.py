@@ -1,0 +1,238 @@
+"""Balduzzi et al. 2011 (Sensors 11(2):1657): Table 2, the goniometer curve and the inversion precision.
+
+The panel series (seven reflectances at the 14 distances of the paper) and
+the goniometer (a leaf on a 3 % board at 2.16 m, 0-85 deg) are simulated
+with the ``faro-ls880`` preset by
+:func:`benchmarks.experiments.calibration.simulate_tables`; Table 2's
+columns are measured with :func:`leafsfs.calibration.panel_statistics`.
+The paper's two 3 % materials (Canson paper and paint) are both compared
+with our single 3 % panel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+import scenes
+from benchmarks.experiments.calibration import simulate_tables, simulated_calibration
+from benchmarks.reproduce.core import Row, register
+from leafsfs.calibration import fit_calibration, panel_statistics, reference_curve_from_table
+from tlssim.calibration import patch_incidence
+from tlssim.scanner import get_preset
+from tlssim.simulate import setup_from_section, simulate
+
+SOURCE = "Sensors 2011 Table 2"
+#: Table 2 of the paper: material, reflectance, mean shift, s.d. of shift, raw DN at 3.56 m, RMSE after correction.
+TABLE2 = (("83 % Canson", 0.83, 30.24, 3.90, 1749.0, 2.98), ("80 % Canson", 0.80, 27.84, 4.88, 1750.0, 2.50),
+          ("68 % Canson", 0.68, 79.07, 5.76, 1705.0, 1.60), ("48 % Canson", 0.48, 169.55, 5.36, 1619.0, 3.66),
+          ("22 % grey card", 0.22, 399.30, 29.87, 1408.0, 11.49), ("3 % Canson", 0.03, 884.93, 49.66, 839.0, 21.52),
+          ("3 % paint", 0.03, 961.55, 34.09, 935.0, 11.49))
+#: f99(d_ref) of the paper's distance correction, DN (Sensors 2011, distance-correction section).
+F99_REF_DN = 1781.45
+#: Validity limit of the intensity-to-incidence inversion, deg (Sensors 2011 / thesis ch.6: 55-60 deg).
+INVERSION_LIMIT_DEG = 60.0
+#: Precision of the inversion below the limit, deg (issue 12's reading of the paper; the measured figure is held back).
+INVERSION_PRECISION_DEG = 5.0
+
+_SHIFT_TOL = ("2 x the published s.d. of the shift (column ii): the published mean is itself spread that much "
+              "over distance")
+_RMSE_TOL = ("4 DN for rho >= 48 %, 10 DN below (the paper's own quality bounds: < 4 DN for rho > 48 %, "
+             "> 10 DN for rho < 22 %)")
+_SD_TOL = "50 % of the published value (a spread is known to within a factor, not a DN)"
+
+
+@register("sensors2011-table2", "Sensors 2011 Table 2: seven materials, intensity against distance",
+          description="Simulated panel series (faro-ls880 preset, 14 distances 0.35-10 m), the 99 % curve fitted "
+                      "piecewise, and the four columns of Table 2 per material: (i) mean shift below the 99 % curve "
+                      "beyond 1 m, (ii) its s.d. over distance, (iii) raw DN at 3.56 m, (iv) RMSE of the corrected "
+                      "intensity beyond 1 m.",
+          findings="Columns (i) and (iii): the simulator's intensity is I = C + k ln(rho cos a g(d)) with one gain "
+                   "k = 263 DN per e-fold fitted on the whole table (tls-physics A.2, a modelling assumption); a "
+                   "single k cannot give the paper's 83/80/68 % papers (their per-material k is 131-211) and its "
+                   "48 % one at once, so the high-reflectance shifts come out 16-28 DN too large. Column (ii) and "
+                   "the low-reflectance column (iv): in the model the curves are exact vertical translations and "
+                   "each panel value is a mean over hundreds of returns, so the shift hardly varies with distance "
+                   "(0.3-2 DN against the paper's 4-50 DN); the real targets' departures from a translation "
+                   "(non-Lambertian papers, the attenuator's reflectance dependence) are not modelled.")
+def table2(quick: bool, seed: int) -> list[Row]:
+    """Rows of Table 2 (four columns per material and the 99 % reference value).
+
+    Parameters
+    ----------
+    quick : bool
+        Unused: the panel series is small (about 10 s).
+    seed : int
+        Seed of the simulation.
+    """
+    panels, _ = simulate_tables(get_preset("faro-ls880"), seed)
+    curve = reference_curve_from_table(panels)
+    stats = panel_statistics(panels, curve)
+    rows = [Row("99 %/raw at 3.56 m", "raw DN at 3.56 m", "DN", float(curve(curve.reference_distance_m)),
+                F99_REF_DN, 2.0, "2 DN: the simulator's reference DN is set to the paper's f99(d_ref); what is left "
+                "is the fit of the piecewise curve", "Sensors 2011 distance correction: f99(3.56 m) = 1781.45 DN",
+                x=0.99)]
+    for material, rho, shift, shift_sd, raw, rmse in TABLE2:
+        ours = stats[min(stats, key=lambda r: abs(r - rho))]
+        common = dict(x=rho)
+        rows += [
+            Row(f"{material}/mean shift", "(i) mean shift", "DN", ours["mean_shift_dn"], shift, 2 * shift_sd,
+                _SHIFT_TOL, f"{SOURCE} (i)", **common),
+            Row(f"{material}/shift s.d.", "(ii) s.d. of shift", "DN", ours["shift_std_dn"], shift_sd, 0.5 * shift_sd,
+                _SD_TOL, f"{SOURCE} (ii)", **common),
+            Row(f"{material}/raw at 3.56 m", "raw DN at 3.56 m", "DN", ours["raw_at_reference_dn"], raw,
+                2 * shift_sd, _SHIFT_TOL, f"{SOURCE} (iii)", **common),
+            Row(f"{material}/corrected RMSE", "(iv) RMSE after correction", "DN", ours["corrected_rmse_dn"], rmse,
+                4.0 if rho >= 0.48 else 10.0, _RMSE_TOL, f"{SOURCE} (iv)", **common),
+        ]
+    return rows
+
+
+@register("sensors2011-goniometer", "Sensors 2011 Fig. (goniometer): leaf intensity against incidence, and the "
+          "inversion precision below 60 deg",
+          description="Simulated goniometer (leaf on a 3 % board at 2.16 m, both rotation axes, 0-85 deg), the "
+                      "calibration fitted on it (distance correction + 4th-order polynomial), then the inversion "
+                      "applied to single returns of a second goniometer scan with another seed.",
+          findings="The paper's measured curve and its inversion precision are held back from the spec: the "
+                   "published column stays empty and the rows test the published trends (intensity falls with "
+                   "incidence, the rotation axis hardly matters) and the +-5 deg precision below 60 deg. Our "
+                   "intensity slopes are reported for a comparison against the paper's figure by hand.")
+def goniometer(quick: bool, seed: int) -> list[Row]:
+    """Rows of the goniometer experiment (trends, slopes, inversion precision).
+
+    Parameters
+    ----------
+    quick : bool
+        Unused: the goniometer scene is small.
+    seed : int
+        Seed of the calibration scans (the inversion is tested on ``seed + 1``).
+    """
+    model = get_preset("faro-ls880")
+    panels, table = simulate_tables(model, seed)
+    calibration = fit_calibration(panels, table, scanner_model=model.to_dict())
+    rows = []
+    corrected = calibration.corrected(table["intensity_dn"], np.full(len(table["alpha_rad"]), 2.16))
+    alpha_deg = np.degrees(table["alpha_rad"])
+    by_axis = {}
+    for axis in np.unique(table["rotation_axis"]):
+        chosen = table["rotation_axis"] == axis
+        order = np.argsort(alpha_deg[chosen])
+        a, i = alpha_deg[chosen][order], corrected[chosen][order]
+        by_axis[str(axis)] = dict(zip(table["nominal_deg"][chosen][order], i))
+        rows.append(Row(f"{axis}/monotone", "corrected DN falls with incidence", "share of steps", float(
+            np.mean(np.diff(i) < 0)), claim="intensity falls monotonically with incidence (Sensors 2011 sec. 3.2)",
+            holds=bool(np.all(np.diff(i[a < 80]) < 0)), source="Sensors 2011 / thesis ch.6 Fig. (I against alpha)",
+            series=str(axis), note="ours: share of 0-85 deg steps where the intensity falls; the claim is tested "
+                                   "below 80 deg where the footprint stays on the leaf"))
+        slopes = []
+        for low, high in ((0, 30), (30, 60), (60, 85)):
+            band = (a >= low) & (a <= high)
+            slopes.append(float(np.polyfit(a[band], i[band], 1)[0]) if band.sum() >= 2 else float("nan"))
+            rows.append(Row(f"{axis}/slope {low}-{high} deg", "intensity slope", "DN/deg", slopes[-1],
+                            source="ours; the published slopes are kept out of the spec (compare with the paper's "
+                                   "figure by hand)", x=(low + high) / 2, series=str(axis)))
+        rows.append(Row(f"{axis}/slopes steepen", "intensity slope", "DN/deg", slopes[-1], series=f"{axis} (claim)",
+                        claim="intensity falls gently near normal incidence and steeply towards grazing incidence "
+                              "(tls-physics §6 item 6, the k ln cos(alpha) shape)",
+                        holds=bool(slopes[0] < 0 and slopes[0] > slopes[1] > slopes[2]),
+                        source="Sensors 2011 Fig. (I against alpha)", x=85.0))
+    common = sorted(set(by_axis.get("vertical", {})) & set(by_axis.get("horizontal", {})))
+    common = [n for n in common if n < INVERSION_LIMIT_DEG]
+    if common:
+        gap = float(np.max([abs(by_axis["vertical"][n] - by_axis["horizontal"][n]) for n in common]))
+        rows.append(Row("axis difference", "largest |vertical - horizontal| below 60 deg", "DN", gap,
+                        claim="the rotation axis changes the curve only slightly (judged negligible)",
+                        holds=gap < 10.0, source="Sensors 2011 sec. 3.2", note="'slightly' read as < 10 DN, the "
+                        "corrected-intensity spread the paper accepts for rho < 22 % (an assumption)"))
+    _, test = simulate_tables(model, seed + 1)
+    truth = np.degrees(test["alpha_rad"])[test["sample_station"]]
+    estimate = np.degrees(calibration.alpha(test["sample_intensity_dn"], test["sample_range_m"]))
+    below = truth < INVERSION_LIMIT_DEG
+    error = np.abs(estimate - truth)[below]
+    p95 = float(np.quantile(error, 0.95)) if len(error) else float("nan")
+    rows.append(Row("inversion p95 below 60 deg", "inversion error (single returns)", "deg", p95,
+                    claim=f"incidence recovered within +-{INVERSION_PRECISION_DEG:g} deg below "
+                          f"{INVERSION_LIMIT_DEG:g} deg (issue 12; the paper's measured precision is held back)",
+                    holds=bool(p95 <= INVERSION_PRECISION_DEG), source="Sensors 2011 sec. 3.2 / thesis ch.6",
+                    note="ours on single returns: near normal incidence the curve is flat (about 1.3 DN/deg), so "
+                         "a few DN of intensity noise move the angle by several degrees; the paper's precision "
+                         "may be on sub-selection means"))
+    rows.append(Row("inversion RMS below 60 deg", "inversion error (single returns)", "deg",
+                    float(np.sqrt(np.mean(error**2))) if len(error) else float("nan"),
+                    source="ours only (for the page)"))
+    return rows
+
+
+def leaf_delta_alpha(distance_m: float, seed: int) -> np.ndarray:
+    """Per-point ``delta alpha = alpha_I - alpha_LSR`` (eq 5) on the built-in ``leaf-<d>m`` scan, degrees.
+
+    ``alpha_I`` inverts each pure return's intensity with the simulated
+    calibration of the faro-ls880 preset; ``alpha_LSR`` is the incidence of
+    the plane fitted to the whole leaf (:func:`tlssim.calibration.patch_incidence`).
+
+    Parameters
+    ----------
+    distance_m : float
+        Distance of the built-in leaf scene (1.5, 3 or 5 m).
+    seed : int
+        Seed of the scan and of the calibration scans.
+
+    Returns
+    -------
+    ndarray
+        Delta alpha of the leaf's pure returns (less than 5 % of the power from elsewhere), degrees.
+    """
+    model = get_preset("faro-ls880")
+    calibration = simulated_calibration(model, seed)
+    scene = scenes.build(f"leaf-{distance_m:g}m")
+    scan = simulate(scene, setup_from_section(scene.scanner), seed=seed, progress=False)
+    leaf = scan.object_names.index("leaf")
+    pure = scan.valid & (scan.truth_id == leaf) & (np.nan_to_num(scan.mixed_fraction, nan=1.0) < 0.05)
+    alpha_lsr = patch_incidence(scan.xyz[pure])
+    alpha_i = calibration.alpha(scan.intensity[pure], scan.range[pure])
+    return np.degrees(alpha_i - alpha_lsr)
+
+
+@register("sensors2011-insitu", "Sensors 2011 sec. 3.3 (eq 5): delta alpha on whole leaves at 1.5, 3 and 5 m",
+          description="The built-in curved 9 cm pear leaf at 20 deg incidence (leaf-1.5m, leaf-3m, leaf-5m), the "
+                      "simulated calibration inverted on its pure returns, delta alpha = alpha_I - alpha_LSR per "
+                      "point against the plane fitted to the whole leaf.",
+          findings="The paper's in-situ results are qualitative: whole leaves with a simple curvature give a skewed, "
+                   "shifted delta-alpha distribution, and the distance correction leaves no clear difference "
+                   "between distances. Thresholds for 'skewed' (|skewness| > 0.3), 'shifted' (|median| > 1 deg) and "
+                   "'no clear difference' (medians within 3 deg) are our assumptions, stated in the rows. Measured: "
+                   "on our procedural leaf the distribution is symmetric and centred (skewness -0.04 to -0.08, "
+                   "median within 0.1 deg at 1.5 and 3 m) with an s.d. of about 10.6 deg: single-return intensity "
+                   "noise through the flat part of the I-alpha curve dominates the leaf's gentle curvature, and "
+                   "the simulator has no in-canopy offset (tls-physics §6 item 12, off by default); at 5 m the "
+                   "median moves to -3.3 deg. Outside: a modelling difference (leaf shape and noise), not fixed.")
+def insitu(quick: bool, seed: int) -> list[Row]:
+    """Rows of the in-situ delta-alpha analysis (median, s.d., skewness per distance; the paper's claims).
+
+    Parameters
+    ----------
+    quick : bool
+        1.5 and 3 m only.
+    seed : int
+        Seed of the scans.
+    """
+    distances = (1.5, 3.0) if quick else (1.5, 3.0, 5.0)
+    rows, medians = [], []
+    for d in distances:
+        delta = leaf_delta_alpha(d, seed)
+        median = float(np.median(delta))
+        skew = float(np.mean((delta - delta.mean()) ** 3) / np.std(delta) ** 3) if len(delta) > 2 else float("nan")
+        medians.append(median)
+        rows += [Row(f"{d:g} m/median", "median delta alpha", "deg", median, x=d, source="ours (paper's figure)",
+                     note=f"{len(delta)} pure returns"),
+                 Row(f"{d:g} m/s.d.", "s.d. of delta alpha", "deg", float(np.std(delta)), x=d,
+                     source="ours (paper's figure)"),
+                 Row(f"{d:g} m/skewed and shifted", "claim", "skewness", skew, x=d,
+                     source="Sensors 2011 sec. 3.3.3 (entire leaves on tree 9)",
+                     claim="a curved leaf gives a skewed (|skewness| > 0.3), shifted (|median| > 1 deg) delta-alpha "
+                           "distribution", holds=bool(abs(skew) > 0.3 and abs(median) > 1.0),
+                     note=f"median {median:+.2f} deg")]
+    rows.append(Row("no clear difference between distances", "claim", "deg", float(np.ptp(medians)),
+                    source="Sensors 2011 sec. 3.3.2 (flat parts, 15 trees)", holds=bool(np.ptp(medians) < 3.0),
+                    claim="the distance correction leaves no clear difference between distances (ours: medians "
+                          "within 3 deg)"))
+    return rows

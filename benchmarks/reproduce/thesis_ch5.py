@@ -1,0 +1,419 @@
+"""Thesis ch.5 §3.3-3.4: the synthetic PROP-SFS experiments on analytic surfaces, and the complexity law.
+
+Chapter 5 publishes no result table: its numbers are statements about
+figures (prop-sfs.md §5.5). Each statement is a row whose claim is tested
+on our reconstructions (``buffer`` variant, percentile quantisation with a
+20 % seed, alpha clamp 85 deg, no rim extrapolation: leafsfs' settings for
+clean synthetic data); our errors themselves are reported rows for the
+plots. Errors are the thesis' eq 3.1 (signed, ``eps_mean``) and eq 3.2
+(``abs_eps_mean``), relative to ``h_tot``. The alpha-bias and size studies
+run with both domain-alpha rules: ``median`` (ours, clamped median of the
+domain's pixels) and ``upper`` (the thesis' literal upper bound alpha_i,
+clamped to 85 deg at the shell), see prop-sfs.md A1.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from benchmarks.metrics import height_errors
+from benchmarks.reproduce.core import Row, register
+from leafsfs.engine import reconstruct_heights
+from leafsfs.params import SfsParams
+from leafsfs.synthetic import sample_surface
+from scenes.surfaces import get_surface
+
+SOURCE = "thesis ch.5 §3.3.1"
+RULES = ("median", "upper", "lower")
+BIASES_DEG = (-7.0, -3.5, 0.0, 3.5, 7.0)
+NOISES_DEG = (1.4, 2.8, 5.7)
+PASSES = (0, 1, 2, 3, 4, 5, 10, 20, 30, 40, 50, 60, 70, 80, 90)
+SIDES = (25, 34, 41, 47, 53, 58)
+EPSILONS = (0.05, 0.10, 0.20)
+
+
+def reconstruct(surface: str, side: int, *, noise_deg: float = 0.0, bias_deg: float = 0.0, n_smooth: int = 0,
+                eps_alpha: float = 0.2, rule: str = "median", seed: int = 0) -> dict:
+    """Reconstruct one analytic surface and score it.
+
+    Parameters
+    ----------
+    surface : str
+        Name in :mod:`scenes.surfaces` (``hemisphere``: radius 20).
+    side : int
+        Matrix side, pixels.
+    noise_deg, bias_deg : float
+        Uniform alpha noise amplitude and alpha bias added to the alpha matrix, degrees.
+    n_smooth : int
+        Smoothing passes.
+    eps_alpha : float
+        Quantisation percentile (fraction).
+    rule : {"median", "upper"}
+        Domain-alpha rule.
+    seed : int
+        Seed of the noise.
+
+    Returns
+    -------
+    dict
+        :func:`benchmarks.metrics.height_errors` plus ``area_rel_err`` (the
+        reconstructed height image's area against the true one's, over the
+        same fully reconstructed 2 x 2 cells) and ``seconds``.
+    """
+    sample = sample_surface(get_surface(surface), side, alpha_noise_deg=noise_deg, alpha_bias_deg=bias_deg, seed=seed)
+    params = SfsParams(n_smooth=n_smooth, quantization="percentile", eps_alpha=eps_alpha, eps_seed=0.2,
+                       alpha_max_deg=85, rim_px=0, alpha_rule=rule)
+    start = time.perf_counter()
+    result = reconstruct_heights(sample.alpha, sample.height, sample.mask, sample.grid, "buffer", params)
+    seconds = time.perf_counter() - start
+    scores = height_errors(result.height, sample.truth, sample.mask)
+    spacing = np.abs(np.diag(sample.grid.matrix))
+    ours, truth = image_area(result.height, spacing), image_area(np.where(np.isfinite(result.height), sample.truth,
+                                                                           np.nan), spacing)
+    scores["area_rel_err"] = (ours - truth) / truth if truth > 0 else math.nan
+    scores["seconds"] = seconds
+    return scores
+
+
+def image_area(height: np.ndarray, spacing) -> float:
+    """Area of a height image over its 2 x 2 cells whose four corners are finite (two triangles per cell).
+
+    Parameters
+    ----------
+    height : ndarray, 2-D
+        Heights (NaN where missing), in the unit of ``spacing``.
+    spacing : array_like
+        Pixel size along rows and columns.
+
+    Returns
+    -------
+    float
+        Area, in the square of the unit.
+    """
+    dy, dx = float(spacing[0]), float(spacing[1])
+    a, b, c, d = height[:-1, :-1], height[:-1, 1:], height[1:, :-1], height[1:, 1:]
+    ok = np.isfinite(a) & np.isfinite(b) & np.isfinite(c) & np.isfinite(d)
+    # triangles (a, b, c) and (b, d, c): cross products of their edge vectors
+    t1 = 0.5 * np.sqrt((dy * (b - a)) ** 2 + (dx * (c - a)) ** 2 + (dx * dy) ** 2)
+    t2 = 0.5 * np.sqrt((dy * (d - c)) ** 2 + (dx * (d - b)) ** 2 + (dx * dy) ** 2)
+    return float(np.sum((t1 + t2)[ok]))
+
+
+def _monotone(values, decreasing: bool = True) -> bool:
+    steps = np.diff(np.asarray(values, float))
+    return bool(np.all(steps < 0) if decreasing else np.all(steps > 0))
+
+
+@register("ch5-alpha-bias", "Thesis ch.5 Fig. 10: hemisphere error and area against an alpha bias of -7..+7 deg, "
+          "three domain-alpha rules",
+          description="Radius-20 hemisphere, 41 px, no noise, no smoothing, 20 % quantisation; a bias of -7, -3.5, "
+                      "0, +3.5, +7 deg added to the alpha matrix; the domain alpha taken as the clamped median of "
+                      "its pixels (ours), its upper bound alpha_i (the thesis' literal wording, prop-sfs A1) or its "
+                      "lower bound alpha_(i-1), the alpha of the curve it propagates from. Also the combined study: "
+                      "+-2.8 deg noise with and without +7 deg bias against smoothing passes.",
+          findings="Issue 12 found our trend against the thesis' (a positive bias should lower the error and bring "
+                   "the area closer). Measured: the upper-bound rule is not the cause (every slope too steep: "
+                   "signed error -16 % at no bias, worse with a positive bias, area +83 %). The median rule is "
+                   "unbiased at no bias, so any bias moves it away. The lower-bound rule (each annulus propagated "
+                   "with the alpha of its inner curve) reproduces every statement of the thesis: a positive error "
+                   "at no bias (+5 %), lowered by a positive bias (|error| 5.3 -> 1.4 % at +7 deg), the area "
+                   "brought from -13 % to +0.5 %, the noisy error positive, falling with smoothing, negative with "
+                   "+7 deg, the curves a constant apart. So the thesis' code most likely used the lower bound "
+                   "(an erratum of its text, which names the upper bound), and its 'positive bias helps' is the "
+                   "compensation of that low alpha; our median rule does not need it (a modelling choice, kept "
+                   "as the default: it is the most accurate at no bias).")
+def alpha_bias(quick: bool, seed: int) -> list[Row]:
+    """Rows of the alpha-bias study and the combined noise-and-bias study.
+
+    Parameters
+    ----------
+    quick : bool
+        Side 25 and fewer smoothing passes.
+    seed : int
+        Seed of the noise.
+    """
+    side = 25 if quick else 41
+    rows = []
+    for rule in RULES:
+        runs = [reconstruct("hemisphere", side, bias_deg=b, rule=rule, seed=seed) for b in BIASES_DEG]
+        for b, s in zip(BIASES_DEG, runs):
+            rows.append(Row(f"{rule}/bias {b:+g}/signed", "signed error eps_mean (eq 3.1)", "% of h_tot",
+                            100 * s["eps_mean"], x=b, series=rule, source="ours (the thesis' curve is a figure)"))
+            rows.append(Row(f"{rule}/bias {b:+g}/area", "area error", "%", 100 * s["area_rel_err"], x=b, series=rule,
+                            source="ours (the thesis' curve is a figure)"))
+        signed = [s["eps_mean"] for s in runs]
+        absolute = [s["abs_eps_mean"] for s in runs]
+        area = [abs(s["area_rel_err"]) for s in runs]
+        rows += [
+            Row(f"{rule}/signed error falls with bias", "claim", "% of h_tot per deg",
+                100 * float(np.polyfit(BIASES_DEG, signed, 1)[0]), source=f"{SOURCE} (alpha bias)",
+                claim="increasing alpha decreases the average error (signed, eq 3.1)", holds=_monotone(signed),
+                series=rule),
+            Row(f"{rule}/|error| at +7 below |error| at 0", "claim", "% of h_tot", 100 * absolute[-1],
+                source=f"{SOURCE} (alpha bias), issue 12's reading", holds=absolute[-1] < absolute[2], series=rule,
+                claim="a positive bias lowers the mean absolute error (eq 3.2) below the unbiased one",
+                note=f"mean |error| at 0 deg: {100 * absolute[2]:.2f} %"),
+            Row(f"{rule}/area closer with positive bias", "claim", "%", 100 * area[-1], series=rule,
+                source=f"{SOURCE} (alpha bias, Fig. 10-4)", holds=area[-1] < area[2] and area[3] < area[2],
+                claim="a positive bias brings the reconstructed area closer to the real area",
+                note=f"|area error| at 0 deg: {100 * area[2]:.2f} %"),
+        ]
+    passes = (0, 5, 20, 40) if quick else (0, 1, 2, 5, 10, 20, 30, 40, 50)
+    for rule in RULES:
+        rows += _combined(rule, side, passes, seed)
+    return rows
+
+
+def _combined(rule: str, side: int, passes, seed: int) -> list[Row]:
+    """Rows of the combined study (+-2.8 deg noise with and without +7 deg bias against smoothing) for one rule."""
+    rows, curves = [], {}
+    for bias in (0.0, 7.0):
+        curves[bias] = [reconstruct("hemisphere", side, noise_deg=2.8, bias_deg=bias, n_smooth=n, rule=rule,
+                                    seed=seed)["eps_mean"] for n in passes]
+        rows += [Row(f"{rule}/noise 2.8/bias {bias:+g}/{n} passes", "signed error with +-2.8 deg noise",
+                     "% of h_tot", 100 * e, x=n, series=f"{rule}, bias {bias:+g}",
+                     source="ours (thesis Fig. 10 combined)") for n, e in zip(passes, curves[bias])]
+    plain, biased = np.array(curves[0.0]), np.array(curves[7.0])
+    after20 = np.array(passes) >= 20
+    gap = biased - plain
+    source = f"{SOURCE} (noise with and without bias)"
+    rows += [
+        Row(f"{rule}/combined/error falls with smoothing", "claim", "% of h_tot", 100 * float(plain[-1] - plain[1]),
+            source=source, holds=bool(plain[-1] < plain[1] and biased[-1] < biased[1]), series=rule,
+            claim="the average error decreases with smoothing, with and without bias"),
+        Row(f"{rule}/combined/unbiased error positive", "claim", "% of h_tot", 100 * float(np.mean(plain[1:])),
+            source=source, holds=bool(np.all(plain[1:] > 0)), claim="without bias the error is positive", series=rule),
+        Row(f"{rule}/combined/biased error negative after 20 passes", "claim", "% of h_tot",
+            100 * float(np.max(biased[after20])), source=source, holds=bool(np.all(biased[after20] < 0)), series=rule,
+            claim="with +7 deg bias the error is negative after 20 passes"),
+        Row(f"{rule}/combined/bias translates the error", "claim", "% of h_tot", 100 * float(np.std(gap[1:])),
+            source=source, holds=bool(np.std(gap[1:]) < 0.25 * abs(np.mean(gap[1:]))), series=rule,
+            claim="the two curves differ by roughly a constant (ours: s.d. of the gap under 25 % of its mean)",
+            note=f"mean gap {100 * float(np.mean(gap[1:])):.2f} % of h_tot"),
+    ]
+    return rows
+
+
+@register("ch5-smoothing", "Thesis ch.5 Fig. 10: hemisphere error against smoothing passes at +-1.4/2.8/5.7 deg noise",
+          description="Radius-20 hemisphere, 41 px, 20 % quantisation, uniform alpha noise of +-1.4, 2.8, 5.7 deg, "
+                      "0-90 smoothing passes, median and lower-bound domain-alpha rules.",
+          findings="With the median rule our error grows with smoothing: the masked 3 x 3 mean lowers the steep "
+                   "alpha near the rim, and the median rule, unbiased before smoothing, becomes low after it. With "
+                   "the lower-bound rule (the one that reproduces the thesis' bias study) the alpha starts low and "
+                   "smoothing moves the error the way the thesis describes (20-70 passes better than 2-10), but "
+                   "its +5 % offset leaves only 57-59 % of the points within 5 % of the radius against the thesis' "
+                   "95 %, which the median rule meets: no single rule reproduces both statements, so the thesis' "
+                   "rule is not fully identified. The masked boundary mode of the smoothing is ours (prop-sfs A13: "
+                   "unspecified in the thesis).")
+def smoothing(quick: bool, seed: int) -> list[Row]:
+    """Rows of the noise/smoothing study.
+
+    Parameters
+    ----------
+    quick : bool
+        Side 25, three pass counts.
+    seed : int
+        Seed of the noise.
+    """
+    side, passes = (25, (0, 5, 20, 80)) if quick else (41, PASSES)
+    rows = []
+    for rule in ("median", "lower"):
+        rows += _smoothing_rows(rule, side, passes, seed)
+    return rows
+
+
+def _smoothing_rows(rule: str, side: int, passes, seed: int) -> list[Row]:
+    """Rows of the noise/smoothing study for one domain-alpha rule."""
+    rows = []
+    runs = {}
+    for noise in NOISES_DEG:
+        runs = {n: reconstruct("hemisphere", side, noise_deg=noise, n_smooth=n, rule=rule, seed=seed) for n in passes}
+        rows += [Row(f"{rule}/noise {noise}/{n} passes/|error|", "mean |error| (eq 3.2)", "% of h_tot",
+                     100 * s["abs_eps_mean"], x=n, series=f"{rule} +-{noise} deg", source="ours (thesis Fig. 10)")
+                 for n, s in runs.items()]
+        few = [n for n in passes if (2 if noise == 5.7 else 1) <= n <= 10]
+        within = min(runs[n]["within_5pct"] for n in few) if few else math.nan
+        rows.append(Row(f"{rule}/noise {noise}/>95 % within 5 %", "share within 5 % of the radius", "%", 100 * within,
+                        source=f"{SOURCE} (noise)", holds=within > 0.95, series=rule,
+                        claim=f"with {'2' if noise == 5.7 else '1'}-10 passes more than 95 % of the points have "
+                              "|error| < 5 % of the radius (ours: the worst of those pass counts)"))
+    # runs now holds the +-5.7 deg study
+    few = [runs[n]["abs_eps_mean"] for n in passes if 2 <= n <= 10]
+    mid = [runs[n]["abs_eps_mean"] for n in passes if 20 <= n <= 70]
+    many = [runs[n]["abs_eps_mean"] for n in passes if n >= 80]
+    if few and mid:
+        rows.append(Row(f"{rule}/noise 5.7/20-70 passes better than 2-10", "claim", "% of h_tot",
+                        100 * float(np.mean(mid)), source=f"{SOURCE} (noise)", series=rule,
+                        holds=float(np.mean(mid)) < float(np.mean(few)),
+                        claim="at +-5.7 deg, 20-70 passes are more accurate than 2-10",
+                        note=f"mean |error| with 2-10 passes: {100 * float(np.mean(few)):.2f} %"))
+    if mid and many:
+        rows.append(Row(f"{rule}/noise 5.7/>=80 passes lose accuracy", "claim", "% of h_tot",
+                        100 * float(np.mean(many)), source=f"{SOURCE} (noise)", series=rule,
+                        holds=float(np.mean(many)) > float(np.min(mid)),
+                        claim="80 passes or more lose accuracy (ours: worse than the best of 20-70)"))
+    if 0 in runs and few:
+        rows.append(Row(f"{rule}/noise 5.7/no smoothing is poor", "claim", "% of h_tot", 100 * runs[0]["abs_eps_mean"],
+                        source=f"{SOURCE} (noise)", holds=runs[0]["abs_eps_mean"] > max(few), series=rule,
+                        claim="without smoothing the error distribution is poor (worse than with 2-10 passes)",
+                        note=f"completeness {runs[0]['completeness']:.2f}"))
+    return rows
+
+
+@register("ch5-size", "Thesis ch.5 Fig. 11: hemisphere error against matrix size and quantisation percentile",
+          description="Radius-20 hemisphere at 25-58 px, 5/10/20 % quantisation, with and without +3.5 deg bias, "
+                      "both domain-alpha rules, no noise.",
+          findings="Under the lower-bound rule (the one that reproduces the bias study) '10 % unbiased gives the "
+                   "errors of 20 % with +3.5 deg' holds (largest gap 0.8 % of h_tot), as it must if the thesis' "
+                   "alpha was low by about half a domain; under the median and upper rules it does not. The rule "
+                   "'a small matrix needs a large percentile' fails under every rule: at 25 px our 5 % "
+                   "quantisation is better than 20 %. Our domains one or two pixels wide still give usable curves "
+                   "(Braquelaire-Vialard tangents on pixel contours, opened regions), where the thesis reports "
+                   "polygonal iso-alpha curves at 25-41 px: a difference of implementation, not explained further.")
+def size(quick: bool, seed: int) -> list[Row]:
+    """Rows of the size/percentile study.
+
+    Parameters
+    ----------
+    quick : bool
+        Sides 25 and 41 only.
+    seed : int
+        Unused (no noise); kept for the common signature.
+    """
+    sides = (25, 41) if quick else SIDES
+    rows = []
+    for rule in RULES:
+        err = {}
+        for s in sides:
+            for eps in EPSILONS:
+                for bias in (0.0, 3.5):
+                    err[s, eps, bias] = reconstruct("hemisphere", s, eps_alpha=eps, bias_deg=bias, rule=rule,
+                                                    seed=seed)["abs_eps_mean"]
+                    rows.append(Row(f"{rule}/side {s}/eps {eps:g}/bias {bias:+g}", f"mean |error|, bias {bias:+g}",
+                                    "% of h_tot", 100 * err[s, eps, bias], x=s, series=f"{rule} {100 * eps:g} %",
+                                    source="ours (thesis Fig. 11)"))
+        small, large = sides[0], sides[-1]
+        rows += [
+            Row(f"{rule}/small matrix needs a large percentile", "claim", "% of h_tot", 100 * err[small, 0.2, 0.0],
+                source="thesis ch.5 §3.3.2", holds=err[small, 0.2, 0.0] < err[small, 0.05, 0.0], series=rule,
+                claim=f"at {small} px, 20 % gives a lower error than 5 %",
+                note=f"5 %: {100 * err[small, 0.05, 0.0]:.2f} %"),
+            Row(f"{rule}/large matrix takes a small percentile", "claim", "% of h_tot", 100 * err[large, 0.05, 0.0],
+                source="thesis ch.5 §3.3.2", holds=err[large, 0.05, 0.0] <= err[large, 0.2, 0.0], series=rule,
+                claim=f"at {large} px, 5 % gives an error no higher than 20 %",
+                note=f"20 %: {100 * err[large, 0.2, 0.0]:.2f} %"),
+        ]
+        gaps = [abs(err[s, 0.1, 0.0] - err[s, 0.2, 3.5]) for s in sides]
+        spread = [abs(err[s, 0.1, 0.0] - err[s, 0.05, 0.0]) for s in sides]
+        rows.append(Row(f"{rule}/10 % unbiased like 20 % with +3.5 deg", "claim", "% of h_tot", 100 * float(max(gaps)),
+                        source="thesis ch.5 §3.3.2", holds=bool(max(gaps) <= max(spread)), series=rule,
+                        claim="for every size, 10 % without bias and 20 % with +3.5 deg bias give the same errors "
+                              "(ours: their largest gap no larger than the 10 %-5 % gap)"))
+    return rows
+
+
+@register("ch5-vase", "Thesis ch.5 Fig. 13: vase col error against the quantisation percentile",
+          description="The vase neck (eqs 3.5-3.6, domain divided by 10, prop-sfs A21) at 60 px, 20/10/5 % "
+                      "quantisation, 20 % seed, the three domain-alpha rules.",
+          findings="Outside under every rule: our vase col error grows as the percentile falls (median rule "
+                   "35.9/60.9/108 % at 20/10/5 %, lower-bound rule 19.9/39.3/68.8 %; the upper bound fails "
+                   "everywhere, 439 %), where the thesis says a smaller percentile lowers the local error. The "
+                   "thesis itself blames its corner divergence at 5 % on toggle points mismanaged at the col; ours "
+                   "accumulates error over more annuli across the col, where the greatest-slope orientation flips. "
+                   "Counted as a defect of ours (toggle handling at saddles), not fixed here.")
+def vase(quick: bool, seed: int) -> list[Row]:
+    """Rows of the vase-col study.
+
+    Parameters
+    ----------
+    quick : bool
+        40 px instead of 60.
+    seed : int
+        Unused (no noise).
+    """
+    side = 40 if quick else 60
+    rows = []
+    for rule in RULES:
+        runs = {eps: reconstruct("vase", side, eps_alpha=eps, rule=rule, seed=seed) for eps in (0.2, 0.1, 0.05)}
+        rows += [Row(f"{rule}/eps {eps:g}/|error|", "mean |error| (eq 3.2)", "% of h_tot", 100 * s["abs_eps_mean"],
+                     x=100 * eps, series=rule, source="ours (thesis Fig. 13)") for eps, s in runs.items()]
+        errors = [runs[eps]["abs_eps_mean"] for eps in (0.2, 0.1, 0.05)]
+        rows.append(Row(f"{rule}/smaller percentile, lower error", "claim", "% of h_tot", 100 * errors[-1],
+                        source="thesis ch.5 §3.3.4", holds=_monotone(errors), series=rule,
+                        claim="a smaller percentile lowers the local error (20 -> 10 -> 5 %)"))
+    return rows
+
+
+def fit_law(area, eps, seconds) -> tuple[float, float]:
+    """Exponents ``p, q`` of ``t = A a^p / eps^q + C`` fitted to timings (the form of the thesis' eq 3.10).
+
+    For each trial constant ``C`` below the shortest time, ``log(t - C)`` is
+    fitted linearly in ``log a`` and ``log eps``; the ``C`` with the least
+    squared error in ``t`` wins.
+
+    Parameters
+    ----------
+    area : ndarray
+        Matrix sizes a_tot, pixels.
+    eps : ndarray
+        Quantisation percentiles (fractions).
+    seconds : ndarray
+        Run times, s.
+
+    Returns
+    -------
+    p, q : float
+        Exponents of a_tot and of 1/eps.
+    """
+    design = np.column_stack([np.ones_like(area), np.log(area), np.log(eps)])
+    best = (np.inf, math.nan, math.nan)
+    for constant in np.linspace(0.0, 0.95 * float(np.min(seconds)), 40):
+        coef = np.linalg.lstsq(design, np.log(seconds - constant), rcond=None)[0]
+        error = float(np.sum((np.exp(design @ coef) + constant - seconds) ** 2))
+        if error < best[0]:
+            best = (error, float(coef[1]), float(-coef[2]))
+    return best[1], best[2]
+
+
+@register("ch5-complexity", "Thesis ch.5 §3.4: complexity law t = 0.022 a_tot^1.37 / eps^1.12 + 14",
+          description="Noise-free hemisphere at the thesis' sizes (25-58 px; 75 and 100 px as its validation) and "
+                      "percentiles 5/10/15/20 %; the shortest of repeated runs (the thesis kept the shortest of 4); "
+                      "log t = c + p log a_tot - q log eps fitted on ours.",
+          findings="The law's unit, machine and constant are not stated (prop-sfs A15): only its exponents are "
+                   "compared, fitted with a constant term as in the law. Our time grows less than the thesis' with "
+                   "the matrix size: the propagation visits each annulus once and the pre-processing is "
+                   "vectorised, where the thesis' output (and so its time) grew with point redundancy (ch.7). A "
+                   "smaller exponent is not a defect; the row is outside because the law does not describe ours.")
+def complexity(quick: bool, seed: int) -> list[Row]:
+    """Rows of the complexity law (fitted exponents against the published ones, times against the law's shape).
+
+    Parameters
+    ----------
+    quick : bool
+        Sides 25-41, two percentiles, one repeat.
+    seed : int
+        Unused (no noise).
+    """
+    sides, epsilons, repeat = ((25, 34, 41), (0.1, 0.2), 1) if quick else (SIDES + (75, 100), (0.05, 0.1, 0.15, 0.2), 3)
+    samples = []
+    for s in sides:
+        for eps in epsilons:
+            t = min(reconstruct("hemisphere", s, eps_alpha=eps, seed=seed)["seconds"] for _ in range(repeat))
+            samples.append((s * s, eps, t))
+    a, eps, t = (np.array(v, float) for v in zip(*samples))
+    p, q = fit_law(a, eps, t)
+    tol = ("0.5: the law is a shape target (prop-sfs A15, §9.8: exponents of the same sign and similar size); "
+           "its constant 14 and unit are not comparable")
+    rows = [Row("exponent of a_tot", "fitted exponent", "", p, 1.37, 0.5, tol, "thesis ch.5 eq 3.10", x=1,
+                series="exponents", note="fitted with a constant term, as the law has"),
+            Row("exponent of 1/eps", "fitted exponent", "", q, 1.12, 0.5, tol, "thesis ch.5 eq 3.10", x=2,
+                series="exponents", note="fitted with a constant term, as the law has")]
+    for (area, e, seconds) in samples:
+        law = 0.022 * area**1.37 / (100 * e) ** 1.12 + 14
+        rows.append(Row(f"side {int(round(math.sqrt(area)))}/eps {e:g}", "time, ours (s) against the law (its unit)",
+                        "s", seconds, x=law, series=f"eps {100 * e:g} %", source="ours; x = the law's value",
+                        note=f"law: {law:.1f} (unit not stated)"))
+    return rows

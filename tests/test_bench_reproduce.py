@@ -1,0 +1,188 @@
+"""``tlsbench reproduce``: verdicts, registry, CSV/store round trips and the table shape of the experiments."""
+
+import math
+
+import numpy as np
+import pytest
+
+from benchmarks.cli import main
+from benchmarks.compare import compare_runs
+from benchmarks.errors import BenchError
+from benchmarks.reproduce import core, sensors2011, thesis_ch5
+from benchmarks.reproduce.cli import load_experiments, run_experiments
+from benchmarks.reproduce.core import OUTSIDE, REPORTED, WITHIN, Outcome, Row, count_within, verdict
+from benchmarks.reproduce.output import read_csv, store_outcomes, summary_line, write_csv
+from benchmarks.store import Store
+
+
+def test_verdict_tolerance_edges():
+    assert verdict(10.0, 12.0, 2.0) == WITHIN
+    assert verdict(9.99, 12.0, 2.0) == OUTSIDE
+    assert verdict(14.5, 12.0, 2.0) == OUTSIDE
+    assert verdict(12.0, 12.0, 0.0) == WITHIN
+    assert verdict(math.nan, 12.0, 2.0) == OUTSIDE
+
+
+def test_verdict_claims_and_reported_rows():
+    assert verdict(1.0, None, None, holds=True) == WITHIN
+    assert verdict(1.0, None, None, holds=False) == OUTSIDE
+    assert verdict(1.0, None, None) == REPORTED
+    with pytest.raises(BenchError):
+        verdict(1.0, 2.0, None)
+    with pytest.raises(BenchError):
+        verdict(1.0, 2.0, -1.0)
+
+
+def test_count_within_ignores_reported_rows():
+    rows = [Row("a", "q", "DN", 1.0, 1.5, 1.0), Row("b", "q", "DN", 5.0, 1.5, 1.0), Row("c", "q", "DN", 3.0),
+            Row("d", "q", "", 0.0, claim="falls", holds=True)]
+    assert count_within(rows) == (2, 3)
+    assert summary_line(rows) == "2/3 rows within tolerance"
+
+
+def test_csv_round_trip(tmp_path):
+    rows = [Row("48 %/mean shift", "(i) mean shift", "DN", 190.53, 169.55, 10.72, "2 x s.d.", "Table 2 (i)", x=0.48,
+                series="48 %"),
+            Row("claim row", "claim", "%", -1.5, claim="error falls", holds=False, note="a, b"),
+            Row("ours only", "slope", "DN/deg", math.nan)]
+    back = read_csv(write_csv(rows, tmp_path / "x.csv"))
+    assert back[:2] == rows[:2]
+    assert [r.verdict for r in back] == [r.verdict for r in rows] == [OUTSIDE, OUTSIDE, REPORTED]
+    assert back[0].ours == 190.53 and back[0].published == 169.55 and back[0].x == 0.48
+    assert back[1].holds is False and back[1].note == "a, b" and back[1].published is None
+    assert math.isnan(back[2].ours)
+
+
+def _outcome(name: str, ours: float) -> Outcome:
+    experiment = core.Experiment(name, "a title", lambda quick, seed: [])
+    return Outcome(experiment, [Row("r1", "q", "DN", ours, 10.0, 1.0), Row("r2", "q", "DN", 10.0, 10.0, 1.0)], 0.1)
+
+
+def test_store_round_trip_and_compare_flags_a_row_leaving_its_tolerance(tmp_path):
+    with Store(tmp_path / "r.sqlite") as store:
+        run_a = store_outcomes(store, [_outcome("exp", 10.5)], quick=True, seed=0)
+        run_b = store_outcomes(store, [_outcome("exp", 12.0)], quick=True, seed=0)
+        rows_a, rows_b = store.results(run_a), store.results(run_b)
+        assert store.run_info(run_a)["suite"] == "reproduce-quick"
+    assert {r["variant"] for r in rows_a} == {"exp/r1", "exp/r2"}
+    assert rows_a[0]["case_spec"]["published"] == 10.0
+    entries = {(e["variant"], e["metric"]): e["verdict"] for e in compare_runs(rows_a, rows_b)}
+    assert entries["exp/r1", "within_tolerance"] == "regression"
+    assert entries["exp/r1", "tolerance_ratio"] == "regression"
+    assert entries["exp/r2", "within_tolerance"] == "same"
+
+
+def test_registry_select_and_duplicates():
+    registry = load_experiments()
+    assert {"sensors2011-table2", "ch5-alpha-bias", "ch5-complexity"} <= set(registry)
+    assert [e.name for e in core.select(["ch5-*"])][:2] == ["ch5-alpha-bias", "ch5-smoothing"]
+    with pytest.raises(BenchError, match="no reproduction experiment"):
+        core.select(["no-such"])
+    # heavy experiments leave --quick unless named one by one
+    assert "step-ds1a" in {e.name for e in core.select(None)} - {e.name for e in core.select(None, quick=True)}
+    assert [e.name for e in core.select(["step-ds1a"], quick=True)] == ["step-ds1a"]
+    assert [e.name for e in core.select(["mendez-*"], quick=True)] == ["mendez-table6"]
+    with pytest.raises(BenchError, match="heavy"):
+        core.select(["step-*"], quick=True)
+    with pytest.raises(BenchError, match="twice"):
+        core.register("ch5-vase", "again")(lambda quick, seed: [])
+
+
+def _fake_panels(seed=0):
+    """A panel table of the log model I = 1781.45 + k ln(rho / 0.99) - 2 k ln(d / 3.56) with 2 DN noise."""
+    rng = np.random.default_rng(seed)
+    distances = np.array([0.6, 1.0, 1.5, 2.15, 3.6, 5.0, 7.5, 10.0])
+    rho = np.repeat([0.99, 0.83, 0.8, 0.68, 0.48, 0.22, 0.03], len(distances))
+    d = np.tile(distances, 7)
+    intensity = 1781.45 + 263 * np.log(rho / 0.99) - 2 * 263 * np.log(d / 3.56) + rng.normal(0, 2, len(d))
+    return {"reflectance": rho, "distance_m": d, "intensity_dn": intensity}, None
+
+
+def test_table2_shape_and_verdicts_on_a_known_table(monkeypatch):
+    monkeypatch.setattr(sensors2011, "simulate_tables", lambda model, seed: _fake_panels(seed))
+    rows = sensors2011.table2(quick=True, seed=0)
+    assert len(rows) == 1 + 7 * 4 and len({r.key for r in rows}) == len(rows)
+    assert all(r.published is not None and r.tolerance_note and r.source for r in rows)
+    shift = {r.key.split("/")[0]: r for r in rows if r.quantity == "(i) mean shift"}
+    # the log model with k = 263 gives 263 ln(0.99/0.48) = 190 DN against the published 169.55 +- 10.72
+    assert shift["48 % Canson"].ours == pytest.approx(190.4, abs=3) and shift["48 % Canson"].verdict == OUTSIDE
+    assert shift["22 % grey card"].verdict == WITHIN
+
+
+def test_image_area_of_a_tilted_plane():
+    y, x = np.mgrid[0:20, 0:30] * 0.5
+    height = 0.75 * x  # slope 0.75: area factor 1.25
+    assert thesis_ch5.image_area(height, (0.5, 0.5)) == pytest.approx(19 * 29 * 0.25 * 1.25)
+    height[0, 0] = np.nan  # one corner gone: one cell less
+    assert thesis_ch5.image_area(height, (0.5, 0.5)) == pytest.approx((19 * 29 - 1) * 0.25 * 1.25)
+
+
+def test_ch5_experiments_quick_table_shapes():
+    outcomes = run_experiments(["ch5-alpha-bias", "ch5-vase"], quick=True, seed=0, echo=lambda text: None)
+    bias, vase = (o.rows for o in outcomes)
+    assert not any(o.error for o in outcomes)
+    for rule in thesis_ch5.RULES:
+        signed = [r for r in bias if r.key.startswith(f"{rule}/bias") and r.key.endswith("signed")]
+        assert [r.x for r in signed] == list(thesis_ch5.BIASES_DEG)
+        assert sum(r.key.startswith(rule) and r.holds is not None for r in bias) == 7
+    assert len({r.key for r in bias}) == len(bias)
+    signed = {r.key: r.ours for r in bias}
+    # the thesis' upper-bound rule takes the steepest alpha of each domain: the descent from the summit is too steep
+    assert signed["upper/bias +0/signed"] < signed["median/bias +0/signed"] - 5
+    # and the lower-bound rule (the inner curve's alpha) too shallow
+    assert signed["lower/bias +0/signed"] > signed["median/bias +0/signed"] + 2
+    assert [r.x for r in vase if r.holds is None] == [20.0, 10.0, 5.0] * len(thesis_ch5.RULES)
+    assert all(r.claim and r.source for r in bias + vase if r.holds is not None)
+
+
+def test_cli_list_and_quick_run(tmp_path, capsys):
+    assert main(["reproduce", "--list"]) == 0
+    assert "sensors2011-table2" in capsys.readouterr().out
+    assert main(["reproduce", "ch5-vase", "--quick", "-o", str(tmp_path), "--db", str(tmp_path / "r.sqlite")]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert out[-1].endswith("rows within tolerance") and "smaller percentile, lower error" in "\n".join(out)
+    assert (tmp_path / "ch5-vase.csv").is_file() and (tmp_path / "ch5-vase.png").stat().st_size > 1000
+    assert "ch5-vase" in (tmp_path / "reproduction.html").read_text()
+    assert main(["reproduce", "nothing-like-this", "--no-store", "-o", str(tmp_path)]) == 2
+    assert "no reproduction experiment 'nothing-like-this'" in capsys.readouterr().err
+
+
+def _tube_row(views, completeness, mae):
+    return {"views": views, "kept": 1.0, "noise_cm": 0.0, "cap": 0, "radius_mae_cm": mae,
+            "completeness": completeness, "tuboids": 3}
+
+
+def test_woody_rows_from_the_experiment_rows(monkeypatch):
+    from benchmarks.reproduce import woody_papers
+
+    monkeypatch.setattr(woody_papers.woody, "exp_tube", lambda quick, seed: [
+        _tube_row("two views", 0.95, 0.4), _tube_row("one view", 0.80, 0.9)])
+    rows = woody_papers.ds2(True, 0)
+    claim = [r for r in rows if r.holds is not None]
+    assert len(rows) == 3 and len(claim) == 1 and claim[0].verdict == WITHIN
+    monkeypatch.setattr(woody_papers.woody, "exp_tube", lambda quick, seed: [
+        _tube_row("two views", 0.70, 0.4), _tube_row("one view", 0.80, 0.9)])
+    assert [r.verdict for r in woody_papers.ds2(True, 0) if r.holds is not None] == [OUTSIDE]
+    step = [{"normals": "pca", "circles": "refit", "arc_deg": arc, "diameter_mae_cm": mae, "tuboids": 1,
+             "completeness": 1.0} for arc, mae in ((10, 5.0), (40, 0.5), (90, 1.5))]
+    monkeypatch.setattr(woody_papers.woody, "exp_occlusion", lambda quick, seed: step)
+    # arcs under 40 deg are reported, not judged
+    assert [r.verdict for r in woody_papers.ds1b(True, 0)] == [REPORTED, WITHIN, OUTSIDE]
+
+
+def test_fit_law_recovers_known_exponents():
+    area = np.repeat([625.0, 1681.0, 3364.0, 10000.0], 3)
+    eps = np.tile([0.05, 0.1, 0.2], 4)
+    seconds = 2e-4 * area**1.37 / eps**1.12 + 0.5
+    p, q = thesis_ch5.fit_law(area, eps, seconds)
+    assert p == pytest.approx(1.37, abs=0.05) and q == pytest.approx(1.12, abs=0.05)
+
+
+def test_insitu_claims_on_known_distributions(monkeypatch):
+    rng = np.random.default_rng(0)
+    skewed = rng.exponential(4.0, 4000) - 1.0  # skewness 2, median about +1.8 deg
+    monkeypatch.setattr(sensors2011, "leaf_delta_alpha", lambda d, seed: skewed + (0.0 if d < 2 else 5.0))
+    rows = sensors2011.insitu(quick=True, seed=0)
+    verdicts = {r.key: r.verdict for r in rows if r.holds is not None}
+    assert verdicts == {"1.5 m/skewed and shifted": WITHIN, "3 m/skewed and shifted": WITHIN,
+                        "no clear difference between distances": OUTSIDE}
