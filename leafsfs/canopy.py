@@ -151,9 +151,9 @@ def _disc_offsets(radius_px: float, side: tuple[int, int] | None) -> np.ndarray:
 def _least_over(image: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     """Smallest value of ``image`` over the pixel offsets around every pixel (outside the image: ignored)."""
     r = int(np.abs(offsets).max())
-    padded = np.pad(image, r, constant_values=np.inf)
-    rows, cols = image.shape
-    return np.min([padded[r + i:r + i + rows, r + j:r + j + cols] for i, j in offsets], axis=0)
+    footprint = np.zeros((2 * r + 1, 2 * r + 1), dtype=bool)
+    footprint[offsets[:, 0] + r, offsets[:, 1] + r] = True
+    return ndimage.minimum_filter(np.asarray(image, dtype=float), footprint=footprint, mode="constant", cval=np.inf)
 
 
 #: Sides of the half discs of :func:`edge_pulses` (every 45 deg: a straight edge is within 22.5 deg of one

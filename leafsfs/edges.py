@@ -179,6 +179,11 @@ def attribute_mixed(range_m: np.ndarray, surfaces: np.ndarray, band_px: int, int
     # Surfaces are extrapolated from their pulses at least `margin` pixels inside: their outermost pulses can
     # still hold a little of the other surface's power (steps within the noise link them).
     images = _Images(range_m, intensity, surfaces, _cores(surfaces, band, max(1, band // 3)))
+    # A footprint's share of a surface falls from all to nothing within about two 1/e^2 radii of its edge (the band
+    # is three radii, see band_pixels): a mixed pulse lies no farther than two radii from a pulse that is not mixed
+    # (a surface's, or a no-return). Unlinked pulses deeper inside a run of them are the pure pulses of a piece too
+    # small to be a surface (a leaf mostly hidden): no pair explains them, they keep their measured distance.
+    mixed &= ndimage.distance_transform_edt(mixed) <= max(1.0, 2 * band / 3)
     _store(out, _attribute(images, mixed, reach_px=band, band_px=band, radius_px=radius_px, tolerance_m=tolerance_m))
     if reach_px > band:
         unresolved = mixed & (out.pair[..., 0] == 0)

@@ -253,6 +253,11 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
             continue
         _paste_leaf(grids, fit, region)
         fits.append((int(label), fit))
+    # Mixed pulses of a leaf region that the engine gave no height (a region skipped, a rim the propagation did not
+    # reach or dropped as implausible) take their owner surface's distance extrapolated from its pure pulses.
+    left = regions.unreliable & (regions.labels > 0) & ~grids.corrected & np.isfinite(regions.owner_range)
+    grids.range[left] = regions.owner_range[left]
+    grids.corrected |= left
     return _assemble(scan, variant, params, regions, grids, fits, skipped, reliable)
 
 
@@ -275,6 +280,10 @@ class _Regions:
     range : ndarray, 2-D
         Measured ranges with the background pulses moved to their owner
         surface's distance, m.
+    owner_range : ndarray, 2-D
+        Distance of the owner surface of every unreliable pulse, extrapolated
+        to it from the surface's pure pulses, m (NaN elsewhere and where no
+        pair of surfaces was found).
     """
 
     labels: np.ndarray
@@ -282,6 +291,7 @@ class _Regions:
     background: np.ndarray
     unreliable: np.ndarray
     range: np.ndarray
+    owner_range: np.ndarray
 
 
 class _Shares:
@@ -462,11 +472,12 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
             shares.add(k, whole, np.where(paired, mixed.share_of(main, gain), own))
             background |= unreliable & (labels == k) & (mixed.owner > 0) & (mixed.owner != main)
         labels = np.where(background, 0, labels)
-    out_range[background] = mixed.owner_range()[background]
+    owner_range = np.where(unreliable & (mixed.owner > 0), mixed.owner_range(), np.nan)
+    out_range[background] = owner_range[background]
     labels = np.where(valid, labels, 0)
     if not labels.any():
         raise SfsError("no leaf pixel with a valid return: the mask (or the leaf segmentation) selects none")
-    return _Regions(labels, shares, background, unreliable, out_range)
+    return _Regions(labels, shares, background, unreliable, out_range, owner_range)
 
 
 def _fit_leaf(scan: Scan, alpha: np.ndarray, region: np.ndarray, share: np.ndarray, unreliable: np.ndarray,

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from leafsfs.edges import attribute_mixed, geometric_share
 from leafsfs.frame import local_frame
@@ -170,3 +171,23 @@ def test_the_mixed_pulses_of_a_thin_part_attached_to_a_surface_go_to_the_dominan
     # the pulses paired within the band keep their pairs
     paired = plain.pair[..., 0] > 0
     assert np.array_equal(mixed.pair[paired], plain.pair[paired]) and not mixed.thin[paired].any()
+
+
+def test_unlinked_pulses_deeper_than_a_footprint_edge_are_no_mixed_pulses():
+    # A piece of a leaf too small to be a surface (24 x 24 pulses at 2.0 m, unlinked) beside a plate at 1.9 m, a
+    # wall at 2.5 m behind both: its range lies between theirs, but its pulses more than two footprint radii
+    # (2/3 of the band) from any pulse that is not mixed are pure pulses of that piece, which no pair explains.
+    rows, cols = np.mgrid[0:60, 0:80]
+    range_m = 2.5 + 0.0 * rows
+    surfaces = np.full(rows.shape, 2)
+    plate = (rows >= 10) & (rows < 50) & (cols < 30)
+    piece = (rows >= 18) & (rows < 42) & (cols >= 30) & (cols < 54)
+    range_m[plate], surfaces[plate] = 1.9, 1
+    range_m[piece], surfaces[piece] = 2.0, 0
+    band = 12
+    mixed = attribute_mixed(range_m, surfaces, band, tolerance_m=0.003, reach_px=40)
+    deep = piece & (ndimage.distance_transform_edt(piece) > 2 * band / 3)
+    assert deep.sum() >= 16 and (mixed.owner[deep] == 0).all() and (mixed.pair[deep] == 0).all()
+    # the piece's pulses at its border (where a footprint edge would lie) are still paired with the plate and wall
+    rim = piece & (ndimage.distance_transform_edt(piece) <= 2)
+    assert (mixed.pair[rim] > 0).all(axis=-1).mean() > 0.9

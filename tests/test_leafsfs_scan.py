@@ -261,3 +261,28 @@ def test_reconstruct_an_e57_or_ptx_scan_without_truth(leaf_scan, leaf_result, tm
     # the same distances as from the NPZ file, to the files' coordinate precision
     both = (corrected.layers["leaf"] > 0) & (leaf_result.labels > 0)
     assert np.median(np.abs(corrected.range - leaf_result.range)[both]) < 1e-4
+
+
+def test_mixed_pulses_of_a_leaf_without_heights_take_the_leaf_planes_distance(leaf_scan, monkeypatch):
+    # A region the engine cannot reconstruct (here: it rejects every region) is skipped, but its mixed pulses are
+    # still paired with the leaf and the wall: those the leaf dominates take the leaf's distance extrapolated from
+    # its own pure pulses, nothing is deleted.
+    module = sys.modules["leafsfs.reconstruct"]  # the package exports the function under the module's name
+
+    def reject(*args, **kwargs):
+        raise SfsError("rejected")
+
+    monkeypatch.setattr(module, "reconstruct_heights", reject)
+    _, scan, calibration = leaf_scan
+    result = reconstruct(scan, variant="buffer", calibration=calibration)
+    assert not result.leaves and result.skipped
+    leaf = scan.object_names.index("leaf")
+    measured = np.abs(scan.range - scan.truth_range)
+    mixed = (scan.truth_id == leaf) & (scan.mixed_fraction > 0.05) & (measured > 0.01) & (result.labels > 0)
+    assert mixed.sum() > 100
+    corrected = np.abs(result.range - scan.truth_range)
+    assert np.all(result.outlier[mixed]) and np.all(np.isfinite(result.range[mixed]))
+    assert np.median(corrected[mixed]) < 0.05 * np.median(measured[mixed])
+    # pure pulses keep their measured distance
+    pure = (result.labels > 0) & (scan.mixed_fraction < 1e-3)
+    assert np.array_equal(result.range[pure], scan.range[pure])
