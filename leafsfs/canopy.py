@@ -379,6 +379,57 @@ def wood_surfaces(surfaces: np.ndarray, range_m: np.ndarray, theta: np.ndarray, 
 
 
 
+def rim_shares(region: np.ndarray, intensity: np.ndarray, gain_dn: float, rim_px: float) -> np.ndarray:
+    """Share of each pulse's footprint on a region, from its intensity deficit at the region's outline (1 inside).
+
+    Where nothing returns beside a leaf (sky, or a surface too far to mix
+    with it in range), a pulse whose footprint is partly on the leaf
+    returns the leaf's range, so the range test takes it for a pure pulse,
+    but only the power of the part of its footprint on the leaf: with a
+    log amplifier of gain ``gain_dn`` DN per e-fold its intensity is
+    ``I_full + gain_dn ln(share)`` (tls-physics: received power
+    proportional to the lit area of a Lambertian surface). ``I_full`` is
+    taken from the region's pulses deeper than ``rim_px`` from its outline
+    (averaged over 5 x 5 of them, the nearest), which lie wholly on it.
+    Counted whole, such pulses dilate the leaf's area by about its
+    perimeter times a footprint radius (+10 to +15 % on 3-6 cm pear leaves
+    at 4 m and 0.018 deg).
+
+    Parameters
+    ----------
+    region : ndarray of bool, 2-D
+        The region's pulses.
+    intensity : ndarray, 2-D
+        Intensities, DN.
+    gain_dn : float
+        Log-amplifier gain, DN per e-fold.
+    rim_px : float
+        Depth from the region's outline within which a footprint may reach
+        past it, pixels (a footprint radius).
+
+    Returns
+    -------
+    ndarray of float, 2-D
+        Share in [0, 1] per pulse (0 off the region; 1 where the region has
+        no pulse deeper than ``rim_px``, no reference intensity).
+    """
+    if not gain_dn > 0 or not rim_px >= 0:
+        raise SfsError(f"gain_dn must be positive and rim_px non-negative, got {gain_dn!r} and {rim_px!r}")
+    depth = ndimage.distance_transform_edt(np.pad(region, 1))[1:-1, 1:-1]
+    interior = region & (depth > rim_px) & np.isfinite(intensity)
+    share = region.astype(float)
+    if not interior.any():
+        return share
+    level = np.where(interior, intensity, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = ndimage.uniform_filter(level, 5, mode="constant") / ndimage.uniform_filter(interior.astype(float), 5,
+                                                                                           mode="constant")
+    nearest = tuple(ndimage.distance_transform_edt(~interior, return_distances=False, return_indices=True))
+    rim = region & ~interior & np.isfinite(intensity)
+    share[rim] = np.clip(np.exp((intensity[rim] - mean[nearest][rim]) / gain_dn), 0.0, 1.0)
+    return share
+
+
 def visibility(labels: np.ndarray, range_m: np.ndarray, tolerance_m: float, ring_px: int = 2) -> dict[int, dict]:
     """How each leaf region is cut: by something in front of it, or by the scan window's border.
 

@@ -112,11 +112,19 @@ class Segmentation:
         Surface label of each leaf region (``leaf_surfaces[k - 1]`` for region ``k``).
     mixed : MixedPulses
         The surfaces (large linked components) and the attribution of the mixed pulses.
+    footprint_px : float
+        How far inside a surface's outline a pulse's footprint may reach
+        past it, pixels (at least 1): two footprint radii at the scan's
+        median range, one for the outermost pulses the range test keeps
+        (about a radius outside the surface's edge) and one inside the
+        edge, beyond which less than 3 % of a Gaussian footprint lies
+        across it.
     """
 
     leaves: np.ndarray
     leaf_surfaces: np.ndarray
     mixed: MixedPulses
+    footprint_px: float = 1.0
 
     def region_surface(self, label: int) -> int:
         """Surface label of leaf region ``label``."""
@@ -218,7 +226,8 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     edge_radius_m : float
         Neighbourhood of the edge test (:func:`leafsfs.canopy.edge_pulses`),
         m at the scan's median range, at least :data:`MIN_EDGE_RADIUS_PX` (assumption:
-        2.5 mm, a FARO-class footprint radius at 4 m).
+        2.5 mm, a FARO-class footprint radius at 4 m); also the footprint
+        radius of :attr:`Segmentation.footprint_px`.
     edge_factor : float
         Residual RMS of an edge pulse's neighbourhood, in range-noise
         standard deviations (0: no edge test).
@@ -241,8 +250,9 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     sigma = sigma if np.isfinite(sigma) and sigma > 0 else NOISE_FLOOR_M
     step = angular_step(theta, psi)
     linked = range_m
+    footprint = edge_radius_m / (float(np.nanmedian(range_m)) * step)
     if edge_factor > 0:
-        radius = max(MIN_EDGE_RADIUS_PX, edge_radius_m / (float(np.nanmedian(range_m)) * step))
+        radius = max(MIN_EDGE_RADIUS_PX, footprint)
         limit = math.radians(max_slope_deg)
         slope = np.tan(limit if alpha is None else
                        np.minimum(np.nan_to_num(alpha, nan=limit) + math.radians(alpha_margin_deg), limit))
@@ -273,7 +283,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     leaf_surfaces = np.nonzero(leaf)[0]
     relabel = np.zeros(len(leaf), dtype=int)
     relabel[leaf_surfaces] = np.arange(1, len(leaf_surfaces) + 1)
-    return Segmentation(np.where(mixed.thin, 0, relabel[mixed.owner]), leaf_surfaces, mixed)
+    return Segmentation(np.where(mixed.thin, 0, relabel[mixed.owner]), leaf_surfaces, mixed, max(1.0, 2 * footprint))
 
 
 def _border_labels(surfaces: np.ndarray) -> np.ndarray:

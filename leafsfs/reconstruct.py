@@ -18,7 +18,7 @@ import numpy as np
 import trimesh
 from scipy import ndimage
 
-from leafsfs.canopy import visibility
+from leafsfs.canopy import rim_shares, visibility
 from leafsfs.engine import HeightResult, reconstruct_heights
 from leafsfs.errors import SfsError
 from leafsfs.frame import MARGIN_PX, LocalFrame, local_frame
@@ -451,7 +451,11 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
         shares = _Shares(scan.shape)
         for k in np.unique(labels[labels > 0]):
             surface = segmentation.region_surface(k)
-            shares.add(k, extents[surface], mixed.share_of(surface, gain, extents[surface]))
+            box = extents[surface]
+            share = mixed.share_of(surface, gain, box)
+            # Pure pulses at the outline with nothing beside the leaf count for the part of their footprint on it.
+            rim = rim_shares(labels[box] == k, scan.intensity[box], gain, segmentation.footprint_px)
+            shares.add(k, box, np.where(share >= 1, np.minimum(share, rim), share))
         # Mixed pulses dominated by a surface that is not a leaf (the wall behind) take its distance; so do those of
         # a thin part attached to a leaf (a petiole), at the distance where it is attached when it dominates them.
         background = unreliable & (mixed.owner > 0) & (~np.isin(mixed.owner, segmentation.leaf_surfaces) | mixed.thin)
@@ -464,7 +468,8 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
         for k in np.unique(labels[labels > 0]):
             main = _main_surface(mixed.surfaces, labels == k)
             paired = (mixed.surfaces == 0) & (mixed.pair == main).any(axis=-1)
-            shares.add(k, whole, np.where(paired, mixed.share_of(main, gain), (labels == k).astype(float)))
+            own = rim_shares(labels == k, scan.intensity, gain, segmentation.footprint_px)
+            shares.add(k, whole, np.where(paired, mixed.share_of(main, gain), own))
             background |= unreliable & (labels == k) & (mixed.owner > 0) & (mixed.owner != main)
         labels = np.where(background, 0, labels)
     owner_range = np.where(unreliable & (mixed.owner > 0), mixed.owner_range(), np.nan)

@@ -114,10 +114,12 @@ def test_leaf_traits_and_redundancy(leaf_scan, leaf_result):
 
 def test_a_given_mask_counts_the_mixed_pulses_of_its_leaf(leaf_scan, leaf_result):
     # The automatic region given back as a mask: the same leaf, the same area (its mixed pulses outside the mask,
-    # which the wall dominates, still count for the leaf's share of their footprints).
+    # which the wall dominates, still count for the leaf's share of their footprints; its outline pulses count for
+    # their share from the intensity, the reference taken at the nearest interior pulse: ties broken on another
+    # window, 1e-4 apart).
     _, scan, calibration = leaf_scan
     given = reconstruct(scan, mask=leaf_result.labels > 0, calibration=calibration)
-    assert given.traits()[0]["area_m2"] == pytest.approx(leaf_result.traits()[0]["area_m2"], rel=1e-6)
+    assert given.traits()[0]["area_m2"] == pytest.approx(leaf_result.traits()[0]["area_m2"], rel=1e-3)
     assert not given.background.any() and leaf_result.background.sum() > 1000
 
 
