@@ -8,8 +8,9 @@ attached to the run. :func:`write_html` writes the page a person reads, one
 file with every figure embedded as a PNG: first the goal banner, ROP before
 and after with the area errors of the found leaves per variant, and the
 headline table (headers with units); then per-case pictures (before/after on
-one leaf, re-simulated from its case, which is deterministic, and a range and
-intensity image of each case); then the tables by kind of scene, the thesis'
+one leaf, re-simulated from its case, which is deterministic; before/after on
+one tree, its best whole-scan variant run once on the coarsened picture scan;
+a range and intensity image of each case); then the tables by kind of scene, the thesis'
 validation table, ROP against distance per kind of scene, estimated against
 true areas, the sweep plots and, where the store holds runs of the suite at
 several commits, the goal's metrics across commits (:mod:`benchmarks.history`).
@@ -31,7 +32,7 @@ from benchmarks import heightfields, metrics, scoring, summary, sweeps
 from benchmarks.history import history_figures
 from benchmarks.generators import build_scene
 from benchmarks.registry import get_variant
-from benchmarks.runner import scan_setup, simulate_case
+from benchmarks.runner import case_variant, scan_setup, simulate_case
 from benchmarks.store import Store
 from benchmarks.suite import Case
 from benchmarks.summary import GOAL_AREA_REL_ERR, GOAL_ROP_REDUCTION
@@ -433,9 +434,39 @@ PREVIEW_PULSES = 60_000
 PREVIEWS_PER_KIND, PREVIEWS_MAX = 3, 18
 
 
-def preview_scan(case_spec: dict, max_pulses: int = PREVIEW_PULSES):
-    """The scan of a per-case picture: the case's scan, at a coarser step where it has more than ``max_pulses``
+def preview_case(case_spec: dict, max_pulses: int = PREVIEW_PULSES):
+    """The case of a per-case picture, re-simulated: at a coarser step where its scan has more than ``max_pulses``
     pulses.
+
+    Parameters
+    ----------
+    case_spec : dict
+        Stored specification of the case (re-simulated, deterministic).
+    max_pulses : int
+        Largest number of pulses of the picture's scan.
+
+    Returns
+    -------
+    case : Case
+    scene : Scene
+    scan : tlssim.Scan
+    n_pulses : int
+        Pulses of the case's own scan.
+    """
+    from tlssim.simulate import simulate
+
+    case = Case.from_dict(case_spec)
+    scene = build_scene(case.scene)
+    setup = scan_setup(case, scene)
+    rows, columns = setup.window.shape
+    if rows * columns > max_pulses:
+        step = max(setup.window.step_deg) * math.sqrt(rows * columns / max_pulses)
+        setup = dataclasses.replace(setup, window=dataclasses.replace(setup.window, step_deg=step))
+    return case, scene, simulate(scene, setup, seed=case.seed, progress=False), rows * columns
+
+
+def preview_scan(case_spec: dict, max_pulses: int = PREVIEW_PULSES):
+    """The scan of a per-case picture (:func:`preview_case`).
 
     Parameters
     ----------
@@ -450,16 +481,8 @@ def preview_scan(case_spec: dict, max_pulses: int = PREVIEW_PULSES):
     n_pulses : int
         Pulses of the case's own scan.
     """
-    from tlssim.simulate import simulate
-
-    case = Case.from_dict(case_spec)
-    scene = build_scene(case.scene)
-    setup = scan_setup(case, scene)
-    rows, columns = setup.window.shape
-    if rows * columns > max_pulses:
-        step = max(setup.window.step_deg) * math.sqrt(rows * columns / max_pulses)
-        setup = dataclasses.replace(setup, window=dataclasses.replace(setup.window, step_deg=step))
-    return simulate(scene, setup, seed=case.seed, progress=False), rows * columns
+    _, _, scan, n_pulses = preview_case(case_spec, max_pulses)
+    return scan, n_pulses
 
 
 def plot_case_preview(case_spec: dict, max_pulses: int = PREVIEW_PULSES) -> Figure:
@@ -501,6 +524,97 @@ def plot_case_preview(case_spec: dict, max_pulses: int = PREVIEW_PULSES) -> Figu
     coarse = scan.shape[0] * scan.shape[1] < n_pulses
     figure.suptitle(f"{case_spec['name']}: {scan.shape[0]} × {scan.shape[1]} pulses at {step:.3f} deg"
                     + (f" (coarsened for this picture from {n_pulses:,} pulses)" if coarse else ""), fontsize=9)
+    return figure
+
+
+def pick_tree_showcase(rows: list[dict]) -> tuple[dict, dict] | None:
+    """The tree shown before/after and the variant shown on it: a case with several target leaves scored by a
+    whole-scan variant (scope ``scan``), preferably a canopy scene (:data:`CANOPY_SCENES`), with its whole-scan
+    variant of lowest mean ROP after; ``None`` when the run has none. One case only, since the figure re-runs the
+    variant."""
+    best: dict[str, tuple] = {}
+    for r in rows:
+        targets = [] if r["error"] else r["metrics"]["targets"]
+        leaves = [t for t in targets if t.get("object_type") == "leaf" and t.get("rop_after") is not None]
+        if len(leaves) < 2 or heightfields.is_heightfield(r["case_spec"]["scene"]) \
+                or get_variant(r["variant"]).scope != "scan":
+            continue
+        rank = (summary.scene_kind(r["case_spec"]) not in CANOPY_SCENES,
+                float(np.mean([t["rop_after"] for t in leaves])))
+        if r["case_name"] not in best or rank < best[r["case_name"]][0]:
+            best[r["case_name"]] = (rank, r)
+    if not best:
+        return None
+    _, row = min(best.values(), key=lambda item: item[0][0])
+    return row["case_spec"], {"name": row["variant"], "params": row["params"]}
+
+
+def plot_tree_before_after(case_spec: dict, variant_spec: dict, max_pulses: int = PREVIEW_PULSES) -> Figure:
+    """A tree's leaf points before and after a whole-scan variant, run once on the case's picture scan
+    (:func:`preview_case`, coarsened, so cheap).
+
+    Both panels show the intensity image; red: the target leaves' points farther than 1 cm from their true surface
+    (before: as measured; after: as the variant left them), blue: points it removed; the leaf regions it found are
+    outlined. The title gives the mean ROP at 1 cm over the leaves, before and after, on this picture's scan.
+
+    Parameters
+    ----------
+    case_spec : dict
+        Stored specification of the case (re-simulated here, deterministic).
+    variant_spec : dict
+        The variant (``name``, ``params``), of scope ``scan``.
+    max_pulses : int
+        Largest number of pulses of the picture's scan.
+
+    Returns
+    -------
+    Figure
+        Two image panels (rows = zenith, columns = azimuth, deg): before and after.
+    """
+    case, scene, scan, n_pulses = preview_case(case_spec, max_pulses)
+    leaves = scoring.prepare_leaves(scene, scan, None if case.targets is None else list(case.targets))
+    variant = case_variant(case, variant_spec)
+    if variant.prepare is not None:
+        variant.prepare(scan)
+    output = variant(scan, scoring.target_labels(scan.shape, leaves))
+    outputs, _ = scoring.leaf_outputs(leaves, output, scene, scan)
+    scores = [scoring.score_leaf(leaf, out) for leaf, out in zip(leaves, outputs)]
+    before, after, removed = (np.zeros(scan.shape, bool) for _ in range(3))
+    for leaf, out in zip(leaves, outputs):
+        rows, cols = np.nonzero(leaf.mask)
+        rows, cols = rows + leaf.window[0].start, cols + leaf.window[1].start
+        _, kept, distance = scoring.output_distance(leaf, out)
+        tau = leaf.taus["1cm"]
+        before[rows, cols] |= np.abs(leaf.distance) > tau
+        after[rows, cols] |= kept & (np.abs(distance) > tau)
+        removed[rows, cols] |= ~kept
+    figure = Figure(figsize=(8.0, 3.4), layout="constrained")
+    extent = np.degrees([np.nanmin(scan.theta), np.nanmax(scan.theta), np.nanmax(scan.psi), np.nanmin(scan.psi)])
+    regions = np.asarray(output.labels) > 0 if output.labels is not None else None
+    rop = {key: float(np.mean([s[key] for s in scores])) for key in ("rop_before_1cm", "rop_after_1cm")}
+    found = scoring.found_counts(scores)
+    panels = ((before, None, f"before: {int(before.sum()):,} leaf points > 1 cm (red)"),
+              (after, removed, f"after {variant_spec['name']}: {int(after.sum()):,} > 1 cm (red), "
+                               f"{int((removed & ~after).sum()):,} removed (blue)"))
+    for index, (outlier, dropped, title) in enumerate(panels):
+        axes = figure.add_subplot(1, 2, index + 1)
+        axes.imshow(scan.intensity, cmap="gray", extent=extent, aspect="auto", interpolation="nearest")
+        overlay = np.zeros(scan.shape + (4,))
+        if dropped is not None:
+            overlay[dropped] = (0.2, 0.4, 0.9, 1.0)
+        overlay[outlier] = (0.9, 0.1, 0.1, 1.0)
+        axes.imshow(overlay, extent=extent, aspect="auto", interpolation="nearest")
+        if index == 1 and regions is not None and regions.any():
+            axes.contour(regions, levels=[0.5], colors="gold", linewidths=0.5, extent=extent, origin="upper")
+        axes.set_title(title, fontsize=8)
+        axes.set_xlabel("azimuth θ (deg)", fontsize=8)
+        axes.set_ylabel("zenith ψ (deg)", fontsize=8)
+        axes.tick_params(labelsize=7)
+    coarse = scan.shape[0] * scan.shape[1] < n_pulses
+    figure.suptitle(f"{case.name}, {variant_spec['name']} run on {scan.shape[0]} × {scan.shape[1]} pulses"
+                    + (f" (coarsened from {n_pulses:,})" if coarse else "")
+                    + f"\nROP at 1 cm {rop['rop_before_1cm']:.1%} → {rop['rop_after_1cm']:.1%}, "
+                    f"{found['n_found']} of {found['n_leaves']} leaves found (gold outlines)", fontsize=9)
     return figure
 
 
@@ -661,7 +775,7 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
 
     The first screen holds the goal banner (:func:`goal_banner`), ROP before/after and the found leaves' area
     errors per variant (:func:`plot_goal_figure`) and the headline table; then the per-case pictures (before /
-    after on the showcase leaf, a range and intensity image of each case), then the detailed tables and figures.
+    after on the showcase leaf and on one tree (:func:`plot_tree_before_after`), a range and intensity image of each case), then the detailed tables and figures.
     Table headers carry their units.
 
     Parameters
@@ -713,6 +827,9 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
                  and all("rop_before" in t for t in r["metrics"]["targets"])]  # leaf methods only
         specs = list({r["variant"]: {"name": r["variant"], "params": r["params"]} for r in shown}.values())
         pictures.append(("Before / after on one leaf", plot_before_after(showcase, specs)))
+    tree = pick_tree_showcase(rows) if before_after else None
+    if tree is not None:
+        pictures.append(("Before / after on a tree", plot_tree_before_after(*tree)))
     if pictures or before_after:
         parts.append("<h2>Per-case pictures</h2>")
         parts += [f"<h3>{html.escape(title)}</h3>{_image(title, figure)}" for title, figure in pictures]

@@ -166,3 +166,23 @@ def test_case_pictures_of_large_scans_are_coarsened(llvm):
     assert full.shape[0] * full.shape[1] == n_pulses > 1000
     small, same = preview_scan(spec, max_pulses=n_pulses // 4)
     assert same == n_pulses and n_pulses // 6 <= small.shape[0] * small.shape[1] <= n_pulses // 4
+
+
+def test_a_tree_case_gets_one_before_after_figure_with_fewer_outliers_after(tmp_path):
+    # The eight-leaf twig is the smallest scene scored on the whole scan; at 0.04 deg it is 168 x 305 pulses.
+    suite = {"name": "tiny-tree", "cases": [{"name": "cluster", "scene": {"builtin": "leaf-cluster"},
+                                             "scanner": {"step_deg": 0.04}}]}
+    (tmp_path / "suite.yaml").write_text(yaml.safe_dump(suite))
+    with Store(tmp_path / "r.sqlite") as store:
+        outcome = execute(load_suite(str(tmp_path / "suite.yaml")), registry.resolve(["raw", "fused"]), store,
+                          workers=0, progress=False)
+        text = write_html(store, outcome.run_id, tmp_path / "report.html").read_text()
+    assert text.count("<h3>Before / after on a tree</h3>") == 1
+    page = _Page()
+    page.feed(text.split("<h3>Before / after on a tree</h3>", 1)[1])
+    pixels = np.asarray(Image.open(io.BytesIO(base64.b64decode(page.images[0].split(",", 1)[1]))).convert("RGB"))
+    pixels = pixels.astype(int)
+    red = (pixels[..., 0] > 180) & (pixels[..., 1] < 80) & (pixels[..., 2] < 80)
+    half = pixels.shape[1] // 2
+    before, after = int(red[:, :half].sum()), int(red[:, half:].sum())
+    assert before > 500 and after < before / 4, (before, after)
