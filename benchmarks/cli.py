@@ -101,7 +101,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("report", help="report a stored run (HTML page or JSON document)")
     p.add_argument("run", help="run id, unique id prefix, or 'latest'")
     p.add_argument("--db", default="results.sqlite", help="results database (default results.sqlite)")
-    p.add_argument("-o", "--output", default=None, help="write the HTML report here")
+    p.add_argument("-o", "--output", default=None,
+                   help="write the report here: the JSON document for a .json path, else the HTML page")
     p.add_argument("--json", action="store_true", help="print the JSON report")
     p.add_argument("--no-before-after", action="store_true", help="skip the re-simulated before/after figure")
     p.set_defaults(func=cmd_report)
@@ -236,7 +237,10 @@ def cmd_report(args) -> int:
 
     with Store(args.db, create=False) as store:
         run_id = store.resolve(args.run)
-        if args.output:
+        if args.output and Path(args.output).suffix.lower() == ".json":
+            Path(args.output).write_text(json.dumps(report_document(store, run_id), indent=2))
+            print(f"report: {args.output}", file=sys.stderr)
+        elif args.output:
             path = write_html(store, run_id, args.output, before_after=not args.no_before_after)
             print(f"report: {path}", file=sys.stderr)
         if args.json:

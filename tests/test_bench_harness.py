@@ -262,6 +262,8 @@ def test_cli_run_writes_well_formed_reports(tiny_path, tmp_path, capsys):
                 "area_rel_err_median", "elevation_err_median_deg", "azimuth_err_median_deg", "diameter_err_median_m",
                 "volume_rel_err", "runtime_s"}
     assert all(required <= set(r) for r in printed["rows"])
+    assert cli.main(["report", "latest", "--db", str(db), "-o", str(tmp_path / "again.json")]) == 0
+    assert json.loads((tmp_path / "again.json").read_text()) == printed  # a .json path gets the JSON, not HTML
     raw, shadow = printed["rows"]
     assert raw["suite"] == "tiny" and raw["rop_reduction"] == 0.0 and shadow["rop_reduction"] > 0.8
     assert raw["diameter_err_median_m"] is None and raw["volume_rel_err"] is None
