@@ -465,26 +465,6 @@ def preview_case(case_spec: dict, max_pulses: int = PREVIEW_PULSES):
     return case, scene, simulate(scene, setup, seed=case.seed, progress=False), rows * columns
 
 
-def preview_scan(case_spec: dict, max_pulses: int = PREVIEW_PULSES):
-    """The scan of a per-case picture (:func:`preview_case`).
-
-    Parameters
-    ----------
-    case_spec : dict
-        Stored specification of the case (re-simulated, deterministic).
-    max_pulses : int
-        Largest number of pulses of the picture's scan.
-
-    Returns
-    -------
-    scan : tlssim.Scan
-    n_pulses : int
-        Pulses of the case's own scan.
-    """
-    _, _, scan, n_pulses = preview_case(case_spec, max_pulses)
-    return scan, n_pulses
-
-
 def plot_case_preview(case_spec: dict, max_pulses: int = PREVIEW_PULSES) -> Figure:
     """A small picture of one case's scan: range and intensity images (rows = zenith, columns = azimuth), the
     pulses farther than 1 cm from the true range of their main object (the outliers a method must fix) in red.
@@ -494,14 +474,14 @@ def plot_case_preview(case_spec: dict, max_pulses: int = PREVIEW_PULSES) -> Figu
     case_spec : dict
         Stored specification of the case (re-simulated here, deterministic).
     max_pulses : int
-        Largest number of pulses of the picture's scan (:func:`preview_scan`).
+        Largest number of pulses of the picture's scan (:func:`preview_case`).
 
     Returns
     -------
     Figure
         Two image panels: range (m) and intensity (DN).
     """
-    scan, n_pulses = preview_scan(case_spec, max_pulses)
+    _, _, scan, n_pulses = preview_case(case_spec, max_pulses)
     figure = Figure(figsize=(6.6, 2.4), layout="constrained")
     extent = np.degrees([np.nanmin(scan.theta), np.nanmax(scan.theta), np.nanmax(scan.psi), np.nanmin(scan.psi)])
     panels = []

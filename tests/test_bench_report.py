@@ -159,12 +159,12 @@ def test_report_renders_in_headless_chromium(report, tmp_path):
 
 
 def test_case_pictures_of_large_scans_are_coarsened(llvm):
-    from benchmarks.report import preview_scan
+    from benchmarks.report import preview_case
 
     spec = {"name": "edge", "scene": {"builtin": "knife-edge"}, "scanner": {}, "seed": 0}
-    full, n_pulses = preview_scan(spec, max_pulses=10**6)
+    _, _, full, n_pulses = preview_case(spec, max_pulses=10**6)
     assert full.shape[0] * full.shape[1] == n_pulses > 1000
-    small, same = preview_scan(spec, max_pulses=n_pulses // 4)
+    _, _, small, same = preview_case(spec, max_pulses=n_pulses // 4)
     assert same == n_pulses and n_pulses // 6 <= small.shape[0] * small.shape[1] <= n_pulses // 4
 
 
