@@ -106,6 +106,18 @@ def test_dbh_of_a_one_sided_stem_on_a_ground_plane(diameter, lean_deg):
     assert np.degrees(np.arccos(stem.axis[2])) == pytest.approx(lean_deg, abs=2.0)
 
 
+def test_dbh_of_a_tree_cut_out_of_its_scan_stands_on_its_stem_base():
+    # no ground points (as the example trees of TreeQSM, aRchi, rTwig): a stem from z = 0.2 and a crown 3 m wide
+    # from 1.2 m up, drooping to 0.9 m at its edge; the old 3 x 3 spike filter kept the crown cells as ground
+    rng = np.random.default_rng(11)
+    stem = stem_cloud(0.12, seed=11, ground=False)
+    xy = rng.uniform(-1.5, 1.5, (8000, 2))
+    crown = np.column_stack([xy, 1.2 + 0.6 * rng.random(8000) - 0.15 * np.abs(xy).max(axis=1)])
+    points = np.concatenate([stem, crown[np.hypot(*xy.T) > 0.3]])
+    stem = measure_dbh(points)[0]
+    assert stem.ground_z_m == pytest.approx(0.2, abs=0.02) and stem.dbh_m == pytest.approx(0.12, rel=0.02)
+
+
 def test_dbh_with_leaves_and_given_ground_height():
     stem = measure_dbh(stem_cloud(0.2, seed=7, leaves=3000), ground_z=0.3)[0]
     assert stem.dbh_m == pytest.approx(0.2, rel=0.02) and stem.ground_z_m == 0.3

@@ -5,7 +5,10 @@ measured from the ground at the stem). Here, for each stem crossing breast
 height:
 
 1. the ground is found from the lowest points (:mod:`woody.ground`) or
-   given;
+   given; under a stem it is the ground plane around it, or the lowest
+   points at its foot where that plane floats more than 0.2 m above them
+   (a tree cut out of its scan has no ground points: it stands on its
+   lowest stem points);
 2. the points of a thin horizontal slice at breast height are grouped into
    stems (connected within a few point spacings) and a circle is fitted to
    each group (:func:`woody.circles.fit_circle`);
@@ -34,7 +37,7 @@ from woody.circles import CircleFit, fit_circle
 from woody.cloud import check_points
 from woody.errors import WoodyError
 from woody.geometry import cylinder_arrays
-from woody.ground import ground_grid, local_ground_z
+from woody.ground import ENVELOPE_M, GROUND_RANK, ground_grid, local_ground_z
 
 #: Breast height above the ground, m (the international convention; 1.37 m = 4.5 ft in the USA).
 BREAST_HEIGHT_M = 1.3
@@ -54,6 +57,10 @@ GOOD_ARC_DEG = 90.0
 #: Largest RMS residual of a trusted fit: the larger of 5 mm and 5 % of the radius (assumption: ranging noise
 #: and bark roughness of a few millimetres; more means leaves, branches or a non-circular stem in the slice).
 MAX_RESIDUAL_M, MAX_RESIDUAL_REL = 0.005, 0.05
+
+
+#: Margin around a stem's circle whose lowest points may be its ground, m (assumption: the root collar's flare).
+FOOTPRINT_MARGIN_M = 0.1
 
 
 @dataclass(frozen=True)
@@ -155,8 +162,7 @@ def measure_dbh(points, ground_z: float | None = None, height_m: float = BREAST_
             continue
         if not (min_dbh_m <= 2 * first.radius_m <= max_dbh_m) or first.n_inliers < MIN_POINTS:
             continue
-        ground = ground_z if grid is None else local_ground_z(grid, first.centre,
-                                                              radius_m=max(1.5, 3 * first.radius_m))
+        ground = ground_z if grid is None else _stem_ground(points, grid, first)
         stem = _measure_stem(points, tree, first, ground, height_m, slice_m)
         if stem is not None and min_dbh_m <= stem.dbh_m <= max_dbh_m:
             stems.append(stem)
@@ -261,6 +267,20 @@ def _spacing(xyz: np.ndarray) -> float:
         return 0.0
     distance, _ = cKDTree(xyz).query(xyz, k=2)
     return float(np.median(distance[:, 1]))
+
+
+def _stem_ground(points: np.ndarray, grid, first: CircleFit) -> float:
+    """Ground height at a stem, m: the ground plane around it, or its foot where that plane floats above it.
+
+    The foot is the robust lowest height (the third-lowest point) within the stem's circle and 10 cm around
+    it: a plane more than ``ENVELOPE_M`` above it saw no ground there (a tree cut out of its scan has no
+    ground points, and the cells around its stem hold its crown).
+    """
+    plane = local_ground_z(grid, first.centre, radius_m=max(1.5, 3 * first.radius_m))
+    near = np.hypot(*(points[:, :2] - first.centre).T) <= first.radius_m + FOOTPRINT_MARGIN_M
+    heights = np.sort(points[near, 2])
+    foot = float(heights[min(GROUND_RANK, len(heights) - 1)])
+    return foot if plane - foot > ENVELOPE_M else plane
 
 
 def _measure_stem(points, tree, first: CircleFit, ground: float, height_m: float, slice_m: float):

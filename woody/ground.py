@@ -4,13 +4,14 @@ A grid of square cells over x, y holds the third-lowest height of each
 cell's points (a robust minimum: one or two isolated points below the
 ground, such as multipath returns, do not pull it down; a percentile would
 rise with the number of stem points in a cell). Cells that see no ground
-(under a dense crown, behind a stem) hold a value far above their
-neighbours': a cell more than ``max_rise_m`` above the lowest of its eight
-neighbours is dropped (repeatedly, so that plateaus of such cells go too),
+(under a dense crown, behind a stem) hold a value far above the ground
+around them: a cell is dropped when it lies above the cone of slope
+``max_rise_m`` per cell (chessboard distance) standing on any other cell,
 and every dropped or empty cell takes the value of the nearest kept one.
-This is a simple progressive-minimum filter in the spirit of the cloth and
-morphological ground filters of airborne lidar; on a cloud without ground
-points (a stem cut out of a scan) the ground is the lowest part of the stem.
+This is the slope-based filter of airborne lidar (Vosselman 2000) on the
+cells; a plateau of crown cells goes too, however wide, so on a cloud
+without ground points (a tree cut out of a scan, as the example clouds of
+TreeQSM, aRchi or rTwig) the ground is the lowest part of the stem.
 
 :func:`local_ground_z` gives the ground height at one place, e.g. under a
 stem: a plane fitted with a robust loss to the cells around it.
@@ -30,7 +31,8 @@ from woody.errors import WoodyError
 
 #: Rank (0 = lowest) of the height in a cell taken as its ground height.
 GROUND_RANK = 2
-#: A cell more than this above its lowest neighbour sees no ground, m (assumption: steeper than any
+#: Largest rise of the ground per cell (0.5 m) of distance, m: a cell higher above any other sees no ground
+#: (assumption: steeper than any
 #: slope under a tree at the default 0.5 m cells, lower than a crown or a stem's height).
 MAX_RISE_M = 0.5
 
@@ -83,8 +85,8 @@ def ground_grid(points, cell_m: float = 0.5, max_rise_m: float = MAX_RISE_M) -> 
     cell_m : float
         Cell size, m.
     max_rise_m : float
-        Largest height of a cell above its lowest neighbour that is still
-        ground, m.
+        Largest rise of the ground per cell of distance (chessboard: a
+        neighbour, diagonal ones too, is one cell away), m.
 
     Returns
     -------
@@ -117,12 +119,13 @@ def ground_grid(points, cell_m: float = 0.5, max_rise_m: float = MAX_RISE_M) -> 
     z = np.full(int(shape.prod()), np.inf)
     z[cells] = points[order[pick], 2]
     z = z.reshape(shape)
+    cone = z.copy()  # lowest cone over each cell: min over cells j of z_j + max_rise_m * chessboard distance
     while True:
-        lowest = ndimage.minimum_filter(z, size=3, mode="constant", cval=np.inf)
-        spikes = np.isfinite(z) & (z > lowest + max_rise_m)
-        if not spikes.any():
+        lower = np.minimum(cone, ndimage.minimum_filter(cone, size=3, mode="constant", cval=np.inf) + max_rise_m)
+        if (lower == cone).all():
             break
-        z[spikes] = np.inf
+        cone = lower
+    z[z > cone] = np.inf
     seen = np.isfinite(z)
     if not seen.all():
         kept = np.argwhere(seen)
@@ -134,9 +137,10 @@ def ground_grid(points, cell_m: float = 0.5, max_rise_m: float = MAX_RISE_M) -> 
 def local_ground_z(grid: GroundGrid, xy, radius_m: float = 1.5) -> float:
     """Ground height at one place: a robust plane through the lowest seen cells around it.
 
-    The plane is fitted again without the cells more than 0.2 m above it
-    until none is left out, so that cells which saw only branches (a crown
-    over a cloud without ground points) do not lift it.
+    The plane starts from the lowest quarter of the cells and is fitted
+    again without the cells more than 0.2 m above it until none is left
+    out, so that cells which saw only branches (a crown over a cloud
+    without ground points) do not lift it.
 
     Parameters
     ----------
@@ -168,7 +172,9 @@ def local_ground_z(grid: GroundGrid, xy, radius_m: float = 1.5) -> float:
         return float(grid.at(xy)[0])
     design = np.column_stack([np.ones(near.sum()), centres[near] - xy])
     values = values[near]
-    kept = np.ones(len(values), bool)
+    kept = values <= np.quantile(values, 0.25) + ENVELOPE_M  # start from the lowest cells, not the mean of all
+    if kept.sum() < 3:
+        kept = values <= np.sort(values)[2]
     for _ in range(20):  # lower envelope: cells well above the plane (branches, no ground seen) are left out
         start = np.linalg.lstsq(design[kept], values[kept], rcond=None)[0]
         below = values - design @ start <= ENVELOPE_M
