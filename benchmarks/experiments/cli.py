@@ -11,7 +11,8 @@ import importlib
 
 #: Modules of ``tlsbench experiment NAME`` (each registers one NAME).
 EXPERIMENT_MODULES: tuple[str, ...] = ("benchmarks.experiments.calibration", "benchmarks.experiments.sfs_compare",
-                                        "benchmarks.experiments.woody_experiments", "benchmarks.experiments.dbh_stems")
+                                        "benchmarks.experiments.woody_experiments", "benchmarks.experiments.dbh_stems",
+                                        "benchmarks.experiments.woody_real")
 #: Modules of ``tlsbench perf NAME``.
 PERF_MODULES: tuple[str, ...] = ("benchmarks.experiments.scenes_perf", "benchmarks.experiments.simulator_perf",
                                  "benchmarks.experiments.sfs_perf", "benchmarks.experiments.woody_perf")

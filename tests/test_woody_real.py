@@ -1,0 +1,46 @@
+"""Real tree clouds (tests/data/real): the reader round trip, the references, and the DBH of a cut-out tree."""
+
+import laspy
+import numpy as np
+import pytest
+import trimesh
+
+from benchmarks.experiments.woody_real import CLOUDS, DATA, treeqsm_reference
+from tlssim.formats.points import read_points
+from woody.cloud import read_cloud
+from woody.dbh import measure_dbh
+
+
+@pytest.mark.parametrize("name, cloud, ref", CLOUDS)
+def test_real_clouds_read_without_viewpoint_or_normals_and_round_trip(tmp_path, name, cloud, ref):
+    read = read_cloud(DATA / cloud)
+    assert read.viewpoints is None and read.normals is None and len(read.points) > 10000
+    ply, xyz, las = (tmp_path / f"{name}.{suffix}" for suffix in ("ply", "xyz", "las"))
+    trimesh.PointCloud(read.points).export(ply)
+    np.savetxt(xyz, read.points, fmt="%.6f")
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales, header.offsets = [1e-5] * 3, read.points.min(axis=0)
+    out = laspy.LasData(header)
+    out.x, out.y, out.z = read.points.T
+    out.write(las)
+    for path, tolerance in ((ply, 5e-5), (xyz, 1e-6), (las, 1e-5)):  # PLY of trimesh: float32
+        again = read_cloud(path)
+        assert again.viewpoints is None and np.allclose(again.points, read.points, atol=tolerance, rtol=0)
+
+
+def test_treeqsm_references_match_the_published_tree_data():
+    # rTwig's QSM.mat holds TreeQSM's own tree data: the cylinders must give its TotalVolume (dm^3) and DBHqsm
+    rtwig = treeqsm_reference(DATA / "rtwig_treeqsm.mat")
+    assert rtwig["volume_m3"] == pytest.approx(21.5675e-3, rel=1e-4)
+    assert rtwig["dbh_m"] == pytest.approx(0.073514, rel=1e-4)
+    archi = treeqsm_reference(DATA / "archi_tree1_treeqsm.txt")
+    assert archi["cylinders"] == 2271 and 0.45 < archi["dbh_m"] < 0.55
+
+
+def test_dbh_of_the_rtwig_tree_is_within_5_percent_of_its_treeqsm_model():
+    # a tree cut out of its scan: no ground points, no scanner position; it must stand on its stem base
+    points = read_cloud(DATA / "rtwig_cloud.txt").points
+    stem = measure_dbh(points)[0]
+    assert stem.ground_z_m == pytest.approx(points[:, 2].min(), abs=0.05)
+    assert stem.dbh_m == pytest.approx(treeqsm_reference(DATA / "rtwig_treeqsm.mat")["dbh_m"], rel=0.05)
+    assert stem.flag == "ok"
