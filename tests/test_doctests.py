@@ -15,7 +15,7 @@ EXAMPLES = {
     "tlssim.simulate": ("simulate",),
     "leafsfs.engine": ("reconstruct_heights",),
     "leafsfs.reconstruct": ("reconstruct",),
-    "woody.step": ("step", "seed_votes"),
+    "woody.step": ("step",),
     "benchmarks.runner": ("execute",),
     "woody.cylinders": ("follow_cylinders",),
     "woody.circles": ("fit_circle", "algebraic_circle"),

@@ -151,7 +151,7 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
          max_tuboids: int | None = None, max_seeds: int | None = 5000, min_vertices: int = 3,
          min_length_radii: float = 1.0, max_mean_energy: float = -0.3, weak_energy: float = -0.4,
          min_weak_arc_deg: float = 72.0, refine: bool = True, subsample_m: float | None = None,
-         min_seed_votes: int | None = None, progress: bool = False) -> StepResult:
+         progress: bool = False) -> StepResult:
     """Extract tuboids from a point cloud with STEP.
 
     Parameters
@@ -209,14 +209,6 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
         ``cell_m`` is subsampled to that spacing: a Hough cell then still
         receives the votes of about 16 points per cm of stem, and a 30
         pts/cm² scan costs what a 4 pts/cm² one does.
-    min_seed_votes : int, optional
-        Fewest votes of a Hough maximum that seeds a snake. By default it
-        follows from the point spacing ``s`` (:func:`seed_votes`): a quarter
-        of the votes the weakest tube sought (radius ``r_min_m``, seen on
-        ``min_weak_arc_deg``) casts into its centre cell. The maxima of two
-        or three stray votes that a real cloud's noise, leaves and twigs
-        leave everywhere are then not grown one by one (on rTwig's example
-        tree: 18,561 maxima, 8,867 of two votes).
     progress : bool
         Show a progress bar over the seeds.
 
@@ -284,10 +276,7 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
     clock = time.perf_counter()
     is_max, h_min, h_max = hs.neighbourhood()
     energy = data_energy(hs, h_min, h_max, params.balance)
-    spacing = point_spacing(points)
-    if min_seed_votes is None:
-        min_seed_votes = seed_votes(spacing, cell_m, r_min_m, min_weak_arc_deg, min_votes)
-    seed_rows = np.flatnonzero(is_max & (hs.counts >= min_seed_votes))
+    seed_rows = np.flatnonzero(is_max)
     seed_rows = seed_rows[np.argsort(-hs.counts[seed_rows], kind="stable")]
     seeds = grid.unpack(hs.keys[seed_rows])
     timings["maxima_s"] = time.perf_counter() - clock
@@ -309,52 +298,9 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
     timings["refine_s"] = time.perf_counter() - clock
     stats = {"points": count, "points_used": len(points), "oriented": bool(oriented), "grid_shape": list(grid.shape),
              "dense_cells": float(np.prod(np.array(grid.shape, float))), "occupied_cells": len(hs.keys),
-             "hough_bytes": hs.nbytes, "spacing_m": spacing, "min_seed_votes": int(min_seed_votes),
-             "maxima": int(is_max.sum()), "seeds": len(seeds), "seeds_tried": tried, "snakes_rejected": rejected,
+             "hough_bytes": hs.nbytes, "seeds": len(seeds), "seeds_tried": tried, "snakes_rejected": rejected,
              "tuboids": len(tuboids), **timings}
     return StepResult(tuboids, normals, stats)
-
-
-#: Share of a tube's votes that its centre cell receives (assumption: PCA normals scatter a ridge's votes over
-#: about two cells in each of the two coordinates across the axis).
-SEED_SHARE = 0.25
-
-
-def seed_votes(spacing_m: float, cell_m: float, r_min_m: float, arc_deg: float, min_votes: int = 2) -> int:
-    """Fewest votes of a Hough maximum that may seed a snake, from the point spacing.
-
-    A tube of radius ``r`` sampled at spacing ``s`` and seen on an arc of
-    ``arc_deg`` has ``arc / 360 * 2 pi r * cell / s^2`` points in one cell's
-    length of it, each casting one vote near the centre cell at its radius;
-    the threshold is :data:`SEED_SHARE` of that for the weakest tube sought.
-
-    Parameters
-    ----------
-    spacing_m : float
-        Point spacing, m (:func:`woody.density.point_spacing`).
-    cell_m : float
-        Hough cell in x, y, z, m.
-    r_min_m : float
-        Smallest radius sought, m.
-    arc_deg : float
-        Smallest visible arc of a weak tube that is kept, degrees.
-    min_votes : int
-        Lower bound: the accumulator's own threshold.
-
-    Returns
-    -------
-    int
-        The threshold, votes.
-
-    Examples
-    --------
-    >>> seed_votes(0.005, 0.02, 0.02, 72.0)   # 4 pts/cm²: a 2 cm tube seen on 72 deg casts 20 votes per cell
-    5
-    >>> seed_votes(0.0115, 0.02, 0.02, 72.0)  # 0.75 pts/cm²
-    2
-    """
-    votes = arc_deg / 360.0 * 2.0 * np.pi * r_min_m * cell_m / max(spacing_m, 1e-9) ** 2
-    return max(int(min_votes), int(SEED_SHARE * votes))
 
 
 def _check_not_a_line(points: np.ndarray) -> None:
