@@ -171,10 +171,14 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
         Radius range sought, m.
     oriented : bool, optional
         Whether normals point outwards (vote on one half-line, eq. 5) or
-        have an arbitrary sign (both half-lines, eq. 6). Default: True when
-        normals are given or ``viewpoints`` is known, False otherwise. True
-        without either orients the PCA normals away from the local centre
-        of mass (:func:`woody.normals.orient_outward`).
+        have an arbitrary sign (both half-lines, eq. 6). Default True:
+        given normals are taken as outward, PCA normals are flipped towards
+        ``viewpoints`` when known, else away from the local centre of mass
+        (:func:`woody.normals.orient_outward`). False votes on both
+        half-lines: the outward votes put Hough maxima on rings around
+        every stem, each grown as a snake and rejected (a 30 cm stem at 10
+        pts/cm²: 5,589 maxima, 4,794 snakes, 89 s; oriented outward: 763
+        maxima, 31 snakes, 10 s, the same diameter and volume).
     normal_k : int
         Neighbours for PCA normals.
     samples_per_bin, min_votes : int
@@ -261,11 +265,9 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
         if len(points) < normal_k:
             raise WoodyError(f"the {count} points fill only {len(points)} voxels of {cell_m / 4} m: too few for "
                              f"STEP (at least {normal_k})")
-    if normals is not None:
-        oriented = True if oriented is None else oriented
-    else:
+    oriented = True if oriented is None else oriented
+    if normals is None:
         normals = pca_normals(points, normal_k, viewpoints)
-        oriented = viewpoints is not None if oriented is None else oriented
         if oriented and viewpoints is None:
             normals = orient_outward(points, normals)
     timings["normals_s"] = time.perf_counter() - clock
