@@ -131,8 +131,29 @@ def test_ch5_experiments_quick_table_shapes():
     assert signed["upper/bias +0/signed"] < signed["median/bias +0/signed"] - 5
     # and the lower-bound rule (the inner curve's alpha) too shallow
     assert signed["lower/bias +0/signed"] > signed["median/bias +0/signed"] + 2
-    assert [r.x for r in vase if r.holds is None] == [20.0, 10.0, 5.0] * len(thesis_ch5.RULES)
+    assert [r.x for r in vase if r.x is not None] == [20.0, 10.0, 5.0] * (len(thesis_ch5.RULES) + 2)
+    # the diagnosis: with the floor in the mask the seed is the floor (alpha ties at 0), without it none of it
+    on_floor = {r.series: r.ours for r in vase if r.key.endswith("seed on the floor")}
+    assert on_floor["median"] > 95.0 and on_floor["median, floor out"] == 0.0
     assert all(r.claim and r.source for r in bias + vase if r.holds is not None)
+
+
+def test_ch5_smoothing_rows_separate_noise_from_smoothing(monkeypatch):
+    calls = []
+
+    def fake(surface, side, *, noise_deg=0.0, n_smooth=0, rule="median", seed=0, **kwargs):
+        calls.append((noise_deg, n_smooth))
+        # noise costs 2 % without smoothing and nothing after; smoothing adds 0.1 % per pass
+        error = 0.01 + 0.001 * n_smooth + (0.02 if noise_deg and n_smooth == 0 else 0.0)
+        return {"abs_eps_mean": error, "within_5pct": 0.99, "completeness": 1.0}
+
+    monkeypatch.setattr(thesis_ch5, "reconstruct", fake)
+    rows = {r.key: r for r in thesis_ch5._smoothing_rows("median", 25, (0, 5, 20, 80), 0)}
+    assert rows["median/noise 5.7/noise left after 2+ passes"].ours == pytest.approx(0.0)
+    assert rows["median/noise 5.7/20-70 passes better than 2-10"].verdict == OUTSIDE
+    assert rows["median/noise 5.7/no smoothing is poor"].verdict == WITHIN
+    assert rows["median/no noise/20 passes/|error|"].ours == pytest.approx(3.0)
+    assert len(calls) == 4 * (1 + len(thesis_ch5.NOISES_DEG))
 
 
 def test_cli_list_and_quick_run(tmp_path, capsys):
