@@ -8,7 +8,7 @@ import pytest
 from benchmarks.cli import main
 from benchmarks.compare import compare_runs
 from benchmarks.errors import BenchError
-from benchmarks.reproduce import core, sensors2011, thesis_ch5
+from benchmarks.reproduce import core, sensors2011, thesis_ch5, thesis_ch7
 from benchmarks.reproduce.cli import load_experiments, run_experiments
 from benchmarks.reproduce.core import OUTSIDE, REPORTED, WITHIN, Outcome, Row, count_within, verdict
 from benchmarks.reproduce.output import read_csv, store_outcomes, summary_line, write_csv
@@ -207,3 +207,31 @@ def test_insitu_claims_on_known_distributions(monkeypatch):
     verdicts = {r.key: r.verdict for r in rows if r.holds is not None}
     assert verdicts == {"1.5 m/skewed and shifted": WITHIN, "3 m/skewed and shifted": WITHIN,
                         "no clear difference between distances": OUTSIDE}
+
+
+def _validation_row(variant, success, err):
+    row = {key: 1.0 for key in thesis_ch7.summary.VALIDATION_KEYS}
+    return {**row, "variant": variant, "success": success, "area_rel_err_median": err, "n_leaves": 4, "n_success": 4}
+
+
+def test_ch7_shell_set_rows_and_claim(monkeypatch):
+    table = [_validation_row("buffer-T1", 1.0, 0.05), _validation_row("buffer-T2", 1.0, 0.04),
+             _validation_row("buffer", 1.0, 0.03), _validation_row("buffer-T3*", 0.75, 0.02)]
+    groups = [{"variant": "buffer", "group": "A", "pixels": "<2000", "n_leaves": 2, "rppp_1": 0.9}]
+    monkeypatch.setattr(thesis_ch7.summary, "validation_table", lambda results: table)
+    monkeypatch.setattr(thesis_ch7.summary, "rppp_groups", lambda results: groups)
+    rows = thesis_ch7.shell_rows([])
+    reported = [r for r in rows if r.holds is None]
+    assert len(reported) == 4 * len(thesis_ch7.QUANTITIES) + 1
+    assert {r.key.split("/")[0] for r in reported} == {"T1", "T2", "T3", "T3*"}
+    assert [r.verdict for r in rows if r.holds is not None] == [WITHIN]
+    table[2] = _validation_row("buffer", 0.75, 0.03)  # T3 loses a leaf that T1 and T2 keep
+    assert [r.verdict for r in thesis_ch7.shell_rows([]) if r.holds is not None] == [OUTSIDE]
+
+
+def test_ch7_leaf_cases_in_the_thesis_ranges():
+    cases = thesis_ch7.leaf_cases(8, seed=3)
+    assert cases == thesis_ch7.leaf_cases(8, seed=3) and len({c["name"] for c in cases}) == 8
+    scenes = [c["scene"] for c in cases]
+    assert [s["length_m"] for s in scenes] == list(thesis_ch7.LENGTHS_M) * 2
+    assert all(0.8 <= s["distance_m"] <= 2.0 and 0 <= s["incidence_deg"] <= 60 for s in scenes)

@@ -19,7 +19,8 @@ from benchmarks.reproduce.output import format_rows, store_outcomes, summary_lin
 from benchmarks.store import Store
 
 #: Modules that register experiments, in the order of the page.
-MODULES = ("benchmarks.reproduce.sensors2011", "benchmarks.reproduce.thesis_ch5", "benchmarks.reproduce.thesis_ch2",
+MODULES = ("benchmarks.reproduce.sensors2011", "benchmarks.reproduce.thesis_ch5", "benchmarks.reproduce.thesis_ch7",
+           "benchmarks.reproduce.thesis_ch2",
            "benchmarks.reproduce.woody_papers")
 
 
