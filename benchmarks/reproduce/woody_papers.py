@@ -462,7 +462,9 @@ def scaled_tree(seed: int, factor: float) -> list[dict]:
                    "cuts the run time (woody.md A.14 (5); judged only where STEP finds more than 10 tuboids "
                    "without it, since a cap that does not bind cannot cut anything). Completeness is over the "
                    "limbs of 5 cm diameter and more (a 1 cm radius cell cannot resolve thinner twigs: the paper's "
-                   "rule Delta_r < smallest radius).", heavy=True)
+                   "rule Delta_r < smallest radius). Measured (seed 0, two trees): 0.99-1.00 down to 50 %, "
+                   "0.93-0.99 at 25 %, 0.25-0.71 at 10 % with 4 cm and 0.48-0.74 with 5 cm, so the 5 cm statement "
+                   "holds; STEP finds at most 9 tuboids on these trees, so the cap never binds.", heavy=True)
 def ds4(quick: bool, seed: int) -> list[Row]:
     """Rows of DS4 (completeness of the >= 5 cm limbs, radius error and time per condition; two claims).
 
