@@ -201,7 +201,7 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
     n_cores = -(-cols // core_cols)
     # Leaves are numbered in core order: the count before the first core to write comes from the written tiles.
     written = {t["col0"] // core_cols: t for t in index["tiles"]}
-    offsets = {}
+    offsets = {0: 0}
     cache: dict[int, _Window] = {}
     windows_run = 0
 
@@ -214,13 +214,11 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
         return cache[k]
 
     def offset(k: int) -> int:
-        if k not in offsets:
-            if k == 0:
-                offsets[k] = 0
-            elif k - 1 in written:
-                offsets[k] = offset(k - 1) + len(_tile_leafsfs(outdir / "corrected", written[k - 1])["leaves"])
-            else:
-                offsets[k] = offset(k - 1) + len(window(k - 1).traits)
+        j = max(offsets)
+        while j < k:  # the leaves of core j: from its written tile, else from its window
+            kept = _tile_leafsfs(outdir / "corrected", written[j])["leaves"] if j in written else window(j).traits
+            offsets[j + 1] = offsets[j] + len(kept)
+            j += 1
         return offsets[k]
 
     for c0, c1 in todo:
