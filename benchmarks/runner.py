@@ -149,15 +149,20 @@ def case_rows(case: dict, variants: list[dict]):
         variant is scored; a variant that fails on the case gets a row with
         its ``error``.
     """
+    from tlssim.simulate import BYTES_PER_PULSE, simulate
+
     case = Case.from_dict(case)
     if heightfields.is_heightfield(case.scene):
         yield from _heightfield_rows(case, variants)
         return
-    if _scan_bytes(case) > TILED_SCAN_BYTES:
-        yield from _tiled_rows(case, variants)
-        return
     try:
-        (scene, scan), simulate_s, _ = measured(simulate_case, case)
+        scene, build_s, _ = measured(build_scene, case.scene)
+        setup = scan_setup(case, scene)
+        if setup.window.shape[0] * setup.window.shape[1] * BYTES_PER_PULSE > TILED_SCAN_BYTES:
+            yield from _tiled_rows(case, scene, setup, build_s, variants)
+            return
+        scan, simulate_s, _ = measured(lambda: simulate(scene, setup, seed=case.seed, progress=False))
+        simulate_s += build_s
         leaves = scoring.prepare_leaves(scene, scan, None if case.targets is None else list(case.targets))
         wood = scoring.prepare_wood(scene, scan)
     except Exception as exc:  # noqa: BLE001 - a broken case is recorded, not fatal to the run
@@ -191,20 +196,11 @@ def case_rows(case: dict, variants: list[dict]):
             yield _row(case, spec, {"targets": []}, None, None, simulate_s, _message(exc))
 
 
-#: A case whose scan would hold more than this in memory (:data:`tlssim.simulate.BYTES_PER_PULSE` per pulse) is
+#: A case whose scan would hold more than this in memory (:data:`~tlssim.simulate.BYTES_PER_PULSE` per pulse) is
 #: simulated into tiles on disk and scored window by window (:func:`_tiled_rows`), bytes.
 TILED_SCAN_BYTES = 2 * 1024**3
 #: Memory of one scoring window of a tiled case (the scan's columns, the truth, the variant's outputs), bytes.
 TILED_WINDOW_BYTES = 2e9
-
-
-def _scan_bytes(case: Case) -> int:
-    """Memory the simulator would hold for the case's scan in one piece, bytes."""
-    from tlssim.simulate import BYTES_PER_PULSE
-
-    setup = scan_setup(case, build_scene(case.scene))
-    rows, cols = setup.window.shape
-    return rows * cols * BYTES_PER_PULSE
 
 
 def tiles_root() -> Path:
@@ -218,7 +214,7 @@ def tiles_root() -> Path:
     return Path(os.environ.get("TLSBENCH_TILES") or Path(tempfile.gettempdir()) / "tlsbench-tiles")
 
 
-def _tiled_rows(case: Case, variants: list[dict]):
+def _tiled_rows(case: Case, scene, setup, build_s: float, variants: list[dict]):
     """Rows of a case too large for memory: simulated into tiles, scored window by window.
 
     The scan's columns are cut into cores; each core is scored in a window
@@ -239,10 +235,10 @@ def _tiled_rows(case: Case, variants: list[dict]):
     from tlssim.simulate import simulate_tiled
 
     try:
-        scene = build_scene(case.scene)
         digest = hashlib.sha256(json.dumps(case.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
         tiled, simulate_s, _ = measured(lambda: simulate_tiled(
-            scene, scan_setup(case, scene), tiles_root() / f"{case.name}-{digest}", seed=case.seed, progress=False))
+            scene, setup, tiles_root() / f"{case.name}-{digest}", seed=case.seed, progress=False))
+        simulate_s += build_s
     except Exception as exc:  # noqa: BLE001 - a broken case is recorded, not fatal to the run
         for spec in variants:
             yield error_row(case, spec, _message(exc))
