@@ -101,7 +101,8 @@ def _reconstruct_tiled(args, params, mask) -> int:
     from tqdm import tqdm
 
     from leafsfs.errors import SfsError
-    from leafsfs.tiled import LEAF_SIZE_M, core_columns, margin_columns, reconstruct_tiled
+    from leafsfs.tiled import (LEAF_SIZE_M, RECONSTRUCT_BYTES_PER_PULSE, core_columns, margin_columns,
+                               reconstruct_tiled)
     from tlssim.tiled import open_tiled
 
     if mask is not None:
@@ -109,10 +110,13 @@ def _reconstruct_tiled(args, params, mask) -> int:
     tiled = open_tiled(args.scan)
     leaf_size = args.leaf_size_m if args.leaf_size_m is not None else LEAF_SIZE_M
     core_cols = args.core_cols
+    # The margins are not known before the data are read: those of the first tile's columns stand for all.
+    margin = margin_columns(tiled.load_columns(0, min(tiled.shape[1], tiled.tile_cols)), leaf_size, 2048)
     if core_cols is None:
-        # The margin is not known before the data are read: budget for that of the first tile's columns.
-        first = tiled.load_columns(0, min(tiled.shape[1], tiled.tile_cols))
-        core_cols = core_columns(tiled.shape[0], args.memory_budget * 1e9, margin_columns(first, leaf_size, 2048))
+        core_cols = core_columns(tiled.shape[0], args.memory_budget * 1e9, margin)
+    window = min(tiled.shape[1], core_cols + 2 * margin)
+    print(f"windows of about {window} columns ({core_cols} + 2 x {margin} margin): about "
+          f"{window * tiled.shape[0] * RECONSTRUCT_BYTES_PER_PULSE / 1e9:.1f} GB each")
     with tqdm(total=tiled.shape[0] * tiled.shape[1], unit="pulse", unit_scale=True, desc="reconstruct") as bar:
         result = reconstruct_tiled(tiled, args.outdir, args.variant, params, calibration=args.calibration,
                                    core_cols=core_cols, leaf_size_m=leaf_size, progress=bar.update)
