@@ -345,7 +345,8 @@ def follow_cylinders(points, params: FollowParams | None = None, *, progress: bo
     ----------
     points : array_like, (n, 3)
         One cleaned tree (no ground, no leaves), m. The trunk is grown from
-        the lowest point.
+        the lowest point (strict mode: from the stem base around it), parts
+        of the cloud out of reach are bridged (``bridge_m``).
     params : FollowParams, optional
         Settings (default: the paper's apple-tree values and the spec's
         recommendations).
