@@ -103,3 +103,42 @@ def test_invalid_clouds_are_refused():
         follow_cylinders(np.array([[0.0, 0.0, 0.0], [np.inf, 0.0, 0.0], [1.0, 1.0, 1.0]]))
     with pytest.raises(WoodyError, match="at least 3"):
         follow_cylinders(np.zeros((2, 3)))
+
+
+@pytest.fixture(scope="module")
+def y_gap_cloud():
+    """The Y seen from one side (+x), with a 10 cm stretch of one arm hidden (as behind a leaf)."""
+    cloud = sample_cylinders(Y, 1e4, seed=5, view=(1.0, 0.0, 0.0))
+    arm = np.asarray(Y[1]["end"], float) - np.asarray(Y[1]["start"], float)
+    t = (cloud.points - np.asarray(Y[1]["start"], float)) @ arm / (arm @ arm)
+    hidden = (cloud.labels == 1) & (t > 0.3) & (t < 0.3 + 0.1 / np.linalg.norm(arm))
+    return cloud, ~hidden
+
+
+def test_a_one_sided_y_with_a_gap_comes_back_as_one_tree(y_gap_cloud):
+    cloud, keep = y_gap_cloud
+    result = follow_cylinders(cloud.points[keep])
+    roots = [b for b in result.branches if b["parent"] == -1]
+    assert len(roots) == 1
+    assert result.stats["unassigned"] < 0.02 * keep.sum()
+    s = score(cloud.truth, result.cylinders())
+    assert abs(s["volume_error"]) < 0.10
+    assert s["completeness"] > 0.8
+    # Without bridging the growth stops at the gap: the far end of the arm is never reached.
+    plain = follow_cylinders(cloud.points[keep], bridge_m=0.0)
+    assert plain.stats["unassigned"] > 0.05 * keep.sum()
+
+
+def test_the_start_does_not_hang_on_which_base_point_is_lowest(y_gap_cloud):
+    cloud, keep = y_gap_cloud
+    points = cloud.points[keep]
+    lowest = np.argsort(points[:, 2])[:8]
+    volumes, radii = [], []
+    for index in lowest[[0, 3, 7]]:
+        moved = points.copy()
+        moved[index, 2] = points[lowest[0], 2] - 1e-3  # this base point becomes the lowest
+        result = follow_cylinders(moved)
+        volumes.append(result.volume)
+        radii.append(result.branches[0]["radius_m"])
+    assert np.ptp(volumes) < 0.05 * np.mean(volumes)
+    assert np.ptp(radii) < 0.05 * np.mean(radii)

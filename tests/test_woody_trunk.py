@@ -80,8 +80,12 @@ def test_all_parts_follows_every_connected_part_of_a_cloud_without_stem():
     second = polyline_cylinders(np.array([[0.8, 0, 0.15], [1.3, 0, 0.25]]), np.array([0.015, 0.015]), first_id=1,
                                 parent=-1, order=1, branch=1)
     cloud = sample_cylinders(first + second, 2e4, seed=4)
-    lowest = follow_tree(cloud.points)
+    lowest = follow_tree(cloud.points, bridge_m=0.0)
+    bridged = follow_tree(cloud.points)
     both = follow_tree(cloud.points, all_parts=True)
     assert (lowest.labels >= 0).mean() < 0.6  # growth from the lowest point never reaches the second part
+    # Bridged (the default): the second part grows as a child across the 30 cm gap, one tree.
+    assert (bridged.labels >= 0).mean() > 0.95 and sum(b["parent"] == -1 for b in bridged.branches) == 1
+    assert bridged.volume == pytest.approx(cloud.truth["volume_m3"], rel=0.2)
     assert (both.labels >= 0).mean() > 0.95 and both.stats["parts"] == 2
     assert both.volume == pytest.approx(cloud.truth["volume_m3"], rel=0.2)

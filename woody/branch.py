@@ -249,6 +249,21 @@ class Branch:
         t = rel @ self.direction
         return float(np.percentile(np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - t * t, 0.0)), 95))
 
+    def spread_radius(self) -> float:
+        """Radius of the circle whose points spread as the branch's do across its axis, ``sqrt(2 lambda)``, m.
+
+        ``lambda`` is the larger eigenvalue of the points' covariance across
+        the axis; points spread evenly over a half or a full circle of radius
+        ``r`` give ``r``, a shorter arc less, a line of points along a thin
+        twig about the noise.
+        """
+        if self.direction is None or self.n < 3:
+            return 0.0
+        pts = self.coords[self.points]
+        rel = pts - pts.mean(axis=0)
+        rel -= np.outer(rel @ self.direction, self.direction)
+        return float(np.sqrt(2.0 * max(np.linalg.eigvalsh(rel.T @ rel / len(pts))[-1], 0.0)))
+
     def tentative_distance(self, index: int) -> tuple[float, float]:
         """Orthogonal distance of point ``index`` to the axis refitted with it, and its normalised projection ``t_d``."""
         xyz = self.coords[index]

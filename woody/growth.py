@@ -12,6 +12,7 @@ from __future__ import annotations
 import heapq
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from woody.branch import Branch, is_significant
 
@@ -46,45 +47,93 @@ def grow(cloud: tuple, graph: np.ndarray, params, precision: float,
     points = cloud[0]
     state = _Growth(cloud, graph, params, precision)
     branches = state.branches
-    # Root: the lowest point with three neighbours within Precision. The paper starts from the lowest
-    # point; a lone stray return below the tree (a mixed pulse, a grazing edge) would then grow nothing.
-    supported = (graph[:, min(2, graph.shape[1] - 1)] >= 0) & \
-        (np.linalg.norm(points[np.maximum(graph[:, min(2, graph.shape[1] - 1)], 0)] - points, axis=1) < precision)
-    candidates = np.flatnonzero(supported) if supported.any() else np.arange(len(points))
-    root = int(candidates[np.argmin(points[candidates, 2])])
-    state.new_branch(root, None, 1)
+    for index in _root_points(points, graph, params, precision):
+        if not branches:
+            state.new_branch(index, None, 1)
+        else:
+            state.owner[index] = 0
+            branches[0].add(index)
+            state.push_neighbours(branches[0], index)
     bar = tqdm(total=len(points), desc="cylinder following", disable=not progress, leave=False)
-    bar.update(1)
+    bar.update(len(branches[0].points))
     active = [branches[0]]
     while active:
-        born = len(branches)
-        for branch in active:
-            j = state.closest_point(branch)
-            if j < 0:
-                branch.active = False
-                continue
-            bar.update(1)
-            state.owner[j] = branch.id
-            if not branch.seeded():
-                branch.add(j)
-                state.push_neighbours(branch, j)
-                continue
-            distance, t_d = branch.tentative_distance(j)
-            factor = params.k_r[0] if t_d < params.t_split else params.k_r[1]
-            anchor = state.significant(branch.parent)
-            if distance > factor * branch.reference_radius() or \
-                    (anchor is not None and distance > anchor.reference_radius()):
-                state.owner[j] = -1
-                state.new_branch(j, branch, branch.order + 1)
-            else:
-                branch.add(j)
-                state.push_neighbours(branch, j)
-        active = [b for b in active if b.active] + branches[born:]
+        while active:
+            born = len(branches)
+            for branch in active:
+                j = state.closest_point(branch)
+                if j < 0:
+                    branch.active = False
+                    continue
+                bar.update(1)
+                state.owner[j] = branch.id
+                if not branch.seeded():
+                    branch.add(j)
+                    state.push_neighbours(branch, j)
+                    continue
+                distance, t_d = branch.tentative_distance(j)
+                factor = params.k_r[0] if t_d < params.t_split else params.k_r[1]
+                anchor = state.significant(branch.parent)
+                if distance > factor * branch.reference_radius() or \
+                        (anchor is not None and distance > anchor.reference_radius()):
+                    state.owner[j] = -1
+                    state.new_branch(j, branch, branch.order + 1)
+                else:
+                    branch.add(j)
+                    state.push_neighbours(branch, j)
+            active = [b for b in active if b.active] + branches[born:]
+        if params.mode == "strict" and params.bridge_m > 0:
+            active = state.bridge()
     bar.close()
     for branch in branches:
         branch.heap = []
         branch.refit()
     return branches, state.owner
+
+
+def _root_points(points: np.ndarray, graph: np.ndarray, params, precision: float) -> list[int]:
+    """The points the trunk starts from, lowest first.
+
+    The paper starts from the lowest point. A lone stray return below the
+    tree (a mixed pulse, a grazing edge) would then grow nothing, so the
+    lowest point with three neighbours within ``precision`` is taken; in
+    strict mode the trunk starts from all the points connected to it
+    (through the neighbour graph) within four ``precision`` above it: the
+    base of the stem, whatever pulse happens to be lowest, from which a
+    first axis is fitted (a single point's first neighbours on a one-sided
+    stem are a patch, whose axis can lie anywhere).
+
+    Parameters
+    ----------
+    points : ndarray, (n, 3)
+        The cloud, m.
+    graph : ndarray of int32, (n, k)
+        Neighbour indices (-1: none).
+    params : woody.cylinders.FollowParams
+        Settings (``mode``).
+    precision : float
+        Largest point-to-branch distance for inclusion, m.
+
+    Returns
+    -------
+    list of int
+        Indices into ``points``.
+    """
+    third = graph[:, min(2, graph.shape[1] - 1)]
+    supported = (third >= 0) & (np.linalg.norm(points[np.maximum(third, 0)] - points, axis=1) < precision)
+    candidates = np.flatnonzero(supported) if supported.any() else np.arange(len(points))
+    root = int(candidates[np.argmin(points[candidates, 2])])
+    if params.mode != "strict":
+        return [root]
+    top = points[root, 2] + 4.0 * precision
+    seen, queue = {root}, [root]
+    while queue:
+        near = graph[queue.pop()]
+        for j in near[near >= 0].tolist():
+            if j not in seen and points[j, 2] <= top:
+                seen.add(j)
+                queue.append(j)
+    return sorted(seen, key=lambda j: (points[j, 2], j))
 
 
 class _Growth:
@@ -159,3 +208,58 @@ class _Growth:
         while branch is not None and not is_significant(branch.order, branch.n, self.params):
             branch = branch.parent
         return branch
+
+    def bridge(self) -> list[Branch]:
+        """Start a branch on each part of the cloud that growth could not reach, nearest parts first.
+
+        A single scan falls apart where leaves, other branches or the stem
+        itself hide a branch. Each unreached part (connected through the
+        neighbour graph, at least ``min_branch_points`` points) whose gap to
+        the grown points is at most ``bridge_m`` and at most twice the
+        smallest such gap plus ``precision`` is started at its point nearest
+        to the grown points, as a child of the branch that owns the grown
+        point across the gap: it grows away from the tree, with the
+        free-seed count of its order and under its significant ancestor's
+        radius, instead of as a trunk of its own. Parts farther off wait for
+        the next round, when the parts attached now may have brought the
+        tree closer to them.
+
+        Returns
+        -------
+        list of Branch
+            The branches started (empty when no part is within reach).
+        """
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
+        free = np.flatnonzero(self.owner < 0)
+        grown = np.flatnonzero(self.owner >= 0)
+        if not len(free) or not len(grown):
+            return []
+        local = np.full(len(self.points), -1, np.int64)
+        local[free] = np.arange(len(free))
+        rows = np.repeat(np.arange(len(free)), self.graph.shape[1])
+        cols = self.graph[free].ravel()
+        cols = np.where(cols >= 0, local[np.maximum(cols, 0)], -1)
+        keep = cols >= 0
+        adjacency = coo_matrix((np.ones(int(keep.sum()), np.int8), (rows[keep], cols[keep])),
+                               shape=(len(free), len(free)))
+        _, part = connected_components(adjacency, directed=False)
+        sizes = np.bincount(part)
+        large = sizes[part] >= self.params.min_branch_points
+        if not large.any():
+            return []
+        gap, nearest = cKDTree(self.points[grown]).query(self.points[free[large]],
+                                                         distance_upper_bound=self.params.bridge_m)
+        parts = part[large]
+        order = np.lexsort((gap, parts))  # within each part, its nearest point first
+        first = order[np.r_[True, np.diff(parts[order]) != 0]]
+        first = first[np.isfinite(gap[first])]
+        if not len(first):
+            return []
+        first = first[gap[first] <= 2.0 * gap[first].min() + self.precision]
+        started = []
+        for row in first[np.argsort(gap[first], kind="stable")]:
+            parent = self.branches[int(self.owner[grown[nearest[row]]])]
+            started.append(self.new_branch(int(free[large][row]), parent, parent.order + 1))
+        return started
