@@ -151,7 +151,7 @@ def attribute_mixed(range_m: np.ndarray, surfaces: np.ndarray, band_px: int, int
         Intensities, DN: the pure intensities of the two surfaces are
         extrapolated to each mixed pulse as well (for :func:`geometric_share`).
     radius_px : float
-        Radius of the local planes extrapolating a surface's distances, pixels.
+        Radius of the local planes extrapolating a surface's distances, pixels (at least ``band_px``).
     tolerance_m : float
         How far outside the two surfaces' distances a measured range may lie
         (range noise), m.
@@ -179,6 +179,9 @@ def attribute_mixed(range_m: np.ndarray, surfaces: np.ndarray, band_px: int, int
     # Surfaces are extrapolated from their pulses at least `margin` pixels inside: their outermost pulses can
     # still hold a little of the other surface's power (steps within the noise link them).
     images = _Images(range_m, intensity, surfaces, _cores(surfaces, band, max(1, band // 3)))
+    # A surface is extrapolated up to the band's width from its cores: planes fitted over less than that width
+    # multiply their slope error by the lever (near leaves have bands of tens of pixels).
+    radius_px = max(float(radius_px), float(band))
     # A footprint's share of a surface falls from all to nothing within about two 1/e^2 radii of its edge (the band
     # is three radii, see band_pixels): a mixed pulse lies no farther than two radii from a pulse that is not mixed
     # (a surface's, or a no-return). Unlinked pulses deeper inside a run of them are the pure pulses of a piece too
