@@ -28,7 +28,7 @@ import numpy as np
 from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 
-from leafsfs.canopy import edge_pulses, pulse_noise, split_necks, wood_surfaces
+from leafsfs.canopy import dark_surfaces, edge_pulses, pulse_noise, split_necks, wood_surfaces
 from leafsfs.edges import MixedPulses, attribute_mixed, band_pixels
 from leafsfs.errors import SfsError
 from tlssim.pattern import beam_frame
@@ -197,7 +197,9 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     max_slope_deg : float
         Steepest plausible slope without (or beyond) alpha, degrees.
     alpha_margin_deg : float
-        Tolerance on the intensity-derived incidence, degrees.
+        Tolerance on the intensity-derived incidence, degrees; a surface
+        whose median intensity-derived incidence exceeds that of its range
+        plane by more than it is no leaf (:func:`leafsfs.canopy.dark_surfaces`).
     noise_m : float, optional
         Standard deviation of the range noise, m (default: estimated,
         :func:`range_noise`). Links allow 3 sigma of the difference of two
@@ -277,6 +279,8 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
                             reach_px=band_pixels(reach_m, range_m, surfaces, step) if reach_m > 0 else 0)
     leaf = (surface_widths(surfaces, range_m, step) >= min_width_m) & \
         ~wood_surfaces(surfaces, range_m, theta, psi, step, alpha, max_aspect=max_aspect, min_fill=min_fill)
+    if alpha is not None:
+        leaf &= ~dark_surfaces(surfaces, range_m, alpha, step, math.radians(alpha_margin_deg))
     leaf[0] = False
     if drop_border:
         leaf &= ~_border_labels(surfaces)

@@ -9,7 +9,8 @@ import pytest
 import scenes
 import tlssim
 from leafsfs import SfsError, reconstruct
-from leafsfs.canopy import edge_pulses, plane_fits, rim_shares, split_necks, visibility, wood_surfaces
+from leafsfs.canopy import (dark_surfaces, edge_pulses, plane_fits, rim_shares, split_necks, visibility,
+                            wood_surfaces)
 from leafsfs.leaves import range_noise
 from leafsfs.leaves import segment_scan
 from leafsfs.preprocess import scan_alpha
@@ -89,6 +90,37 @@ def test_wood_surfaces_are_elongated_or_sparse_whatever_their_scale():
         wood_surfaces(labels, range_m, theta, psi, STEP, max_aspect=0.5)
 
 
+def test_dark_surfaces_a_bark_cylinder_is_darker_than_its_plane_a_leaf_is_not():
+    rng = np.random.default_rng(1)
+    theta, psi = _grid(80, 120)
+    rows, cols = np.mgrid[0:80, 0:120]
+    for distance in (1.5, 5.0):
+        spacing = distance * STEP
+        labels = np.zeros(rows.shape, int)
+        range_m = np.full(rows.shape, np.nan)
+        alpha = np.full(rows.shape, np.nan)
+        # a leaf tilted 50 deg along the rows, its intensity giving its own incidence (alpha noise 5 deg)
+        leaf = (rows < 40) & (cols < 50)
+        labels[leaf], range_m[leaf] = 1, distance + spacing * math.tan(math.radians(50)) * rows[leaf]
+        alpha[leaf] = math.radians(50) + math.radians(5) * rng.standard_normal(leaf.sum())
+        # a vertical cylinder 30 pixels across, its front (the pulses within 0.8 of its radius from the axis:
+        # the rest are edge pulses); bark reflecting 0.73 of a leaf: cos(alpha) = 0.73 cos(incidence)
+        radius = 15 * spacing
+        x = (cols - 85) * spacing
+        bark = (np.abs(x) < 0.8 * radius) & (rows > 10)
+        incidence = np.arcsin(np.abs(x[bark]) / radius)
+        labels[bark], range_m[bark] = 2, distance - np.sqrt(radius ** 2 - x[bark] ** 2)
+        alpha[bark] = np.arccos(0.73 * np.cos(incidence))
+        # the same cylinder with a leaf's reflectance: its curvature alone is within the tolerance
+        leaf_like = alpha.copy()
+        leaf_like[bark] = incidence
+        same = dark_surfaces(labels, range_m, leaf_like, STEP, math.radians(25))
+        assert dark_surfaces(labels, range_m, alpha, STEP, math.radians(25)).tolist() == [False, False, True]
+        assert same.tolist() == [False, False, False]
+    with pytest.raises(SfsError):
+        dark_surfaces(labels, range_m, alpha, STEP, -1.0)
+
+
 # --- small simulated canopies (0.036 deg, 2 m: a 9 cm leaf spans about 70 pulses) ------------------------------
 
 LEAF = {"type": "leaf", "preset": "pear", "seed": 7, "length": 0.09, "material": "pear-leaf"}
@@ -102,6 +134,8 @@ CANOPIES = {
     # a twig (6 mm across) 3 cm in front of the leaf, crossing it at 30 deg from vertical
     "twig": [{**WOOD, "name": "twig", "radius": 0.003,
               "pose": {"translate": [1.97, 0.01, 0.0], "rotate": {"axis": [1, 0, 0], "angle_deg": 60}}}],
+    # a short piece of branch (4 cm long, 1.6 cm across: 2.5 : 1, as wide as a leaf) beside the leaf
+    "stub": [{**WOOD, "name": "stub", "radius": 0.008, "length": 0.04, "pose": {"translate": [2.0, 0.07, 0.0]}}],
 }
 
 
