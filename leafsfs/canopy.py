@@ -449,6 +449,86 @@ def dark_surfaces(surfaces: np.ndarray, range_m: np.ndarray, alpha: np.ndarray, 
     return dark
 
 
+def _range_plane(rows: np.ndarray, cols: np.ndarray, range_m: np.ndarray) -> np.ndarray:
+    """Least-squares plane of the ranges over the pixel rows and columns: ``(r0, dr/drow, dr/dcol)``."""
+    design = np.stack([np.ones(len(range_m)), rows, cols], axis=1).astype(float)
+    return np.linalg.lstsq(design, range_m, rcond=None)[0]
+
+
+def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndarray, gap_px: float,
+                  tolerance_m: float) -> np.ndarray:
+    """Surfaces cut apart by an occluder in front of them joined into one (the label of the first).
+
+    Two candidate surfaces are the parts of one leaf when they come within
+    ``gap_px`` of each other, most valid pulses of the gap between them
+    (within ``gap_px`` of both, on neither) lie nearer than both their range
+    planes by more than ``tolerance_m`` (something in front of the leaf cut
+    it: a twig or a petiole; a gap showing what lies behind, or nothing,
+    separates two leaves), and each part's range plane predicts the other's
+    ranges within ``tolerance_m`` (median absolute residual: one plane).
+
+    Parameters
+    ----------
+    surfaces : ndarray of int, 2-D
+        Surface labels (0: none).
+    range_m : ndarray, 2-D
+        Ranges, m (NaN: no return).
+    candidates : ndarray of bool
+        Surfaces that may be joined (index = label), e.g. the leaves.
+    gap_px : float
+        Widest occluder, pixels.
+    tolerance_m : float
+        Range tolerance of the plane tests, m.
+
+    Returns
+    -------
+    ndarray of int, 2-D
+        Surface labels, each joined group under its smallest label (the others no longer used).
+    """
+    if not gap_px > 0 or not tolerance_m > 0:
+        raise SfsError(f"gap_px and tolerance_m must be positive, got {gap_px!r} and {tolerance_m!r}")
+    parent = np.arange(int(surfaces.max(initial=0)) + 1)
+
+    def root(k):
+        while parent[k] != k:
+            parent[k] = parent[parent[k]]
+            k = parent[k]
+        return k
+
+    boxes = ndimage.find_objects(surfaces)
+    reach = int(math.ceil(gap_px))
+    disc = np.hypot(*np.mgrid[-reach:reach + 1, -reach:reach + 1]) <= gap_px
+    planes = {}
+    for k in np.nonzero(candidates[:len(boxes) + 1])[0]:
+        if k > 0 and boxes[k - 1] is not None:
+            rows, cols = np.nonzero(surfaces[boxes[k - 1]] == k)
+            rows, cols = rows + boxes[k - 1][0].start, cols + boxes[k - 1][1].start
+            planes[k] = (rows, cols, _range_plane(rows, cols, range_m[rows, cols]))
+    for k, (rows_k, cols_k, plane_k) in planes.items():
+        box = tuple(slice(max(s.start - 2 * reach, 0), min(s.stop + 2 * reach, n))
+                    for s, n in zip(boxes[k - 1], surfaces.shape))
+        sub = surfaces[box]
+        inside = sub == k
+        grown = ndimage.binary_dilation(inside, disc)
+        for m in np.unique(sub[grown & ~inside]):
+            if m <= k or m not in planes or root(m) == root(k):
+                continue
+            other = sub == m
+            gap = grown & ndimage.binary_dilation(other, disc) & ~inside & ~other
+            rows, cols = np.nonzero(gap)
+            rows, cols = rows + box[0].start, cols + box[1].start
+            rows_m, cols_m, plane_m = planes[m]
+            plane = 0.5 * (plane_k + plane_m)
+            with np.errstate(invalid="ignore"):
+                nearer = np.mean(range_m[rows, cols] < plane[0] + plane[1] * rows + plane[2] * cols - tolerance_m)
+            off_m = np.median(np.abs(range_m[rows_m, cols_m] - plane_k[0] - plane_k[1] * rows_m - plane_k[2] * cols_m))
+            off_k = np.median(np.abs(range_m[rows_k, cols_k] - plane_m[0] - plane_m[1] * rows_k - plane_m[2] * cols_k))
+            if len(rows) and nearer >= 0.5 and max(off_m, off_k) <= tolerance_m:
+                parent[root(m)] = root(k)
+    roots = np.array([root(k) for k in range(len(parent))])
+    return roots[surfaces]
+
+
 def rim_shares(region: np.ndarray, intensity: np.ndarray, gain_dn: float, rim_px: float) -> np.ndarray:
     """Share of each pulse's footprint on a region, from its intensity deficit at the region's outline (1 inside).
 
