@@ -31,7 +31,7 @@ from matplotlib.figure import Figure
 from benchmarks import heightfields, metrics, scoring, summary, sweeps
 from benchmarks.history import history_figures
 from benchmarks.generators import build_scene
-from benchmarks.registry import get_variant
+from benchmarks.registry import get_variant, variant_names
 from benchmarks.runner import case_variant, scan_setup, simulate_case
 from benchmarks.store import Store
 from benchmarks.suite import Case
@@ -801,13 +801,15 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
               "Area and angle errors: medians over cases of the median absolute error over the leaves ≥ 80 % "
               "visible. Runtime: median per case.</p>"]
     pictures = []
-    showcase = pick_showcase(rows) if before_after else None
+    # The pictures re-run variants: rows of a variant no longer registered are left out of them.
+    rerunnable = [r for r in rows if r["variant"] in set(variant_names())]
+    showcase = pick_showcase(rerunnable) if before_after else None
     if showcase is not None:
-        shown = [r for r in rows if r["case_name"] == showcase["name"] and not r["error"] and r["metrics"]["targets"]
+        shown = [r for r in rerunnable if r["case_name"] == showcase["name"] and not r["error"] and r["metrics"]["targets"]
                  and all("rop_before" in t for t in r["metrics"]["targets"])]  # leaf methods only
         specs = list({r["variant"]: {"name": r["variant"], "params": r["params"]} for r in shown}.values())
         pictures.append(("Before / after on one leaf", plot_before_after(showcase, specs)))
-    tree = pick_tree_showcase(rows) if before_after else None
+    tree = pick_tree_showcase(rerunnable) if before_after else None
     if tree is not None:
         pictures.append(("Before / after on a tree", plot_tree_before_after(*tree)))
     if pictures or before_after:

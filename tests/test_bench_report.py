@@ -186,3 +186,14 @@ def test_a_tree_case_gets_one_before_after_figure_with_fewer_outliers_after(tmp_
     half = pixels.shape[1] // 2
     before, after = int(red[:, :half].sum()), int(red[:, half:].sum())
     assert before > 500 and after < before / 4, (before, after)
+
+
+def test_a_run_of_a_variant_no_longer_registered_still_reports(tmp_path):
+    suite = {"name": "retired", "cases": [SUITE["cases"][1]]}
+    (tmp_path / "suite.yaml").write_text(yaml.safe_dump(suite))
+    with Store(tmp_path / "r.sqlite") as store:
+        outcome = execute(load_suite(str(tmp_path / "suite.yaml")), registry.resolve(["raw", "shadow"]), store,
+                          workers=0, progress=False)
+        store._db.execute("UPDATE results SET variant = 'retired-filter' WHERE variant = 'shadow'")
+        text = write_html(store, outcome.run_id, tmp_path / "report.html").read_text()
+    assert "retired-filter" in text and "<h3>Before / after on one leaf</h3>" in text
