@@ -135,7 +135,8 @@ def test_join_occluded_joins_the_parts_of_a_leaf_behind_a_twig_only():
                                     (plane - 0.03, 0.02, False)):  # a twig in front, the parts 2 cm apart in range
         range_m = np.where(gap, between, plane + np.where(labels == 2, behind, 0.0))
         out = join_occluded(labels, range_m, candidates, 6.0, 0.005)
-        assert (out[labels == 2] == 1).all() == joined and (out[labels == 1] == 1).all() and (out[labels == 3] == 3).all()
+        assert (out[labels == 2] == 1).all() == joined
+        assert (out[labels == 1] == 1).all() and (out[labels == 3] == 3).all()
     assert (join_occluded(labels, range_m, candidates, 3.0, 0.005) == labels).all()  # the gap wider than an occluder
     with pytest.raises(SfsError):
         join_occluded(labels, range_m, candidates, 0.0, 0.005)
