@@ -149,12 +149,20 @@ def case_rows(case: dict, variants: list[dict]):
         variant is scored; a variant that fails on the case gets a row with
         its ``error``.
     """
+    from tlssim.simulate import BYTES_PER_PULSE, simulate
+
     case = Case.from_dict(case)
     if heightfields.is_heightfield(case.scene):
         yield from _heightfield_rows(case, variants)
         return
     try:
-        (scene, scan), simulate_s, _ = measured(simulate_case, case)
+        scene, build_s, _ = measured(build_scene, case.scene)
+        setup = scan_setup(case, scene)
+        if setup.window.shape[0] * setup.window.shape[1] * BYTES_PER_PULSE > TILED_SCAN_BYTES:
+            yield from _tiled_rows(case, scene, setup, build_s, variants)
+            return
+        scan, simulate_s, _ = measured(lambda: simulate(scene, setup, seed=case.seed, progress=False))
+        simulate_s += build_s
         leaves = scoring.prepare_leaves(scene, scan, None if case.targets is None else list(case.targets))
         wood = scoring.prepare_wood(scene, scan)
     except Exception as exc:  # noqa: BLE001 - a broken case is recorded, not fatal to the run
@@ -186,6 +194,135 @@ def case_rows(case: dict, variants: list[dict]):
             yield _row(case, spec, {"targets": scores, "case": counts}, runtime, peak, simulate_s, None)
         except Exception as exc:  # noqa: BLE001 - a failing variant is recorded, the others still run
             yield _row(case, spec, {"targets": []}, None, None, simulate_s, _message(exc))
+
+
+#: A case whose scan would hold more than this in memory (:data:`~tlssim.simulate.BYTES_PER_PULSE` per pulse) is
+#: simulated into tiles on disk and scored window by window (:func:`_tiled_rows`), bytes.
+TILED_SCAN_BYTES = 2 * 1024**3
+#: Memory of one scoring window of a tiled case (the scan's columns, the truth, the variant's outputs), bytes.
+TILED_WINDOW_BYTES = 2e9
+
+
+def tiles_root() -> Path:
+    """Where the tiled scans of large cases are kept: ``$TLSBENCH_TILES``, else ``<tmp>/tlsbench-tiles``.
+
+    A scan is written once per case description and reused (its tiles check
+    by SHA-256; an interrupted one resumes).
+    """
+    import tempfile
+
+    return Path(os.environ.get("TLSBENCH_TILES") or Path(tempfile.gettempdir()) / "tlsbench-tiles")
+
+
+def _tiled_rows(case: Case, scene, setup, build_s: float, variants: list[dict]):
+    """Rows of a case too large for memory: simulated into tiles, scored window by window.
+
+    The scan's columns are cut into cores; each core is scored in a window
+    widened by the columns the largest leaf spans at its nearest pulses
+    (:func:`leafsfs.tiled.margin_columns`), so a leaf cut by a core border
+    lies whole in the window of the core that holds its centroid column,
+    and is scored there only. Variants of scope ``scan`` run on every window;
+    of their regions only those whose centroid lies in the core count
+    (a leaf matched to a region centred across the border counts as not
+    found: a small undercount near the borders). Counts are summed over the
+    windows; ``runtime_s`` sums the variant's time over the windows and
+    ``peak_mem_mb`` is the largest window's. Wood variants are not scored
+    on tiled cases.
+    """
+    import numpy as np
+
+    from leafsfs.tiled import LEAF_SIZE_M, core_columns, margin_columns
+    from tlssim.simulate import simulate_tiled
+
+    try:
+        digest = hashlib.sha256(json.dumps(case.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
+        tiled, simulate_s, _ = measured(lambda: simulate_tiled(
+            scene, setup, tiles_root() / f"{case.name}-{digest}", seed=case.seed, progress=False))
+        simulate_s += build_s
+    except Exception as exc:  # noqa: BLE001 - a broken case is recorded, not fatal to the run
+        for spec in variants:
+            yield error_row(case, spec, _message(exc))
+        return
+    rows, cols = tiled.shape
+    first = tiled.load_columns(0, min(cols, tiled.tile_cols))
+    core = core_columns(rows, TILED_WINDOW_BYTES, margin_columns(first, LEAF_SIZE_M, cols))
+    del first
+    chosen = {spec["name"]: case_variant(case, spec) for spec in variants}
+    acc = {name: {"scores": [], "counts": {}, "runtime": 0.0, "peaks": [], "pulses": 0, "error": None}
+           for name in chosen}
+    for name, variant in chosen.items():
+        if variant.target == "wood":
+            acc[name]["error"] = "BenchError: wood variants are not scored on tiled cases"
+    for c0 in range(0, cols, core):
+        c1 = min(cols, c0 + core)
+        margin = margin_columns(tiled.load_columns(c0, c1), LEAF_SIZE_M, cols)
+        w0, w1 = max(0, c0 - margin), min(cols, c1 + margin)
+        scan = tiled.load_columns(w0, w1)
+        try:
+            window_leaves = scoring.prepare_leaves(scene, scan, None if case.targets is None else list(case.targets))
+        except Exception as exc:  # noqa: BLE001 - recorded on every variant
+            for state in acc.values():
+                state["error"] = state["error"] or _message(exc)
+            continue
+        leaves = [leaf for leaf in window_leaves if c0 <= np.mean(leaf.own_pixels()[1]) + w0 < c1]
+        for name, variant in chosen.items():
+            state = acc[name]
+            if state["error"] is not None or not leaves:
+                continue
+            try:
+                if variant.prepare is not None:
+                    variant.prepare(scan)
+                if variant.scope == "scan":
+                    output, runtime, peak = measured(variant, scan, scoring.target_labels(scan.shape, window_leaves))
+                    output = _core_regions(output, w0, c0, c1)
+                    scores, counts = scoring.score_scan(leaves, output, scene, scan)
+                    state["peaks"].append(peak)
+                    state["pulses"] = rows * cols  # every pulse is in one core
+                else:
+                    scores, runtime, counts = [], 0.0, {}
+                    for target in leaves:
+                        out, elapsed, peak = measured(variant, target.scan, target.mask)
+                        runtime += elapsed
+                        state["peaks"].append(peak)
+                        state["pulses"] += target.scan.shape[0] * target.scan.shape[1]
+                        scores.append(scoring.score_leaf(target, out))
+                state["scores"] += scores
+                state["runtime"] += runtime
+                for key, value in counts.items():
+                    state["counts"][key] = state["counts"].get(key, 0) + value
+            except Exception as exc:  # noqa: BLE001 - a failing variant is recorded, the others still run
+                state["error"] = _message(exc)
+        del scan
+    for spec in variants:
+        state = acc[spec["name"]]
+        if state["error"] is not None:
+            yield _row(case, spec, {"targets": []}, None, None, simulate_s, state["error"])
+            continue
+        peaks = state["peaks"]
+        found = scoring.found_counts(state["scores"]) if chosen[spec["name"]].scope == "scan" else {}
+        counts = {**state["counts"], **found, "n_pulses": state["pulses"], "tiled_core_cols": core}
+        peak = None if not peaks or any(p is None for p in peaks) else max(peaks)
+        yield _row(case, spec, {"targets": state["scores"], "case": counts}, state["runtime"], peak, simulate_s,
+                   None)
+
+
+def _core_regions(output, w0: int, c0: int, c1: int):
+    """A scan-scope output keeping only the regions whose centroid column lies in the core ``c0:c1``."""
+    import dataclasses
+
+    import numpy as np
+
+    if output.labels is None or output.regions is None:
+        return output
+    labels = np.asarray(output.labels)
+    n = int(labels.max(initial=0)) + 1
+    count = np.bincount(labels.ravel(), minlength=n)
+    column = np.broadcast_to(np.arange(labels.shape[1]) + w0, labels.shape)
+    centroid = np.bincount(labels.ravel(), weights=column.ravel(), minlength=n) / np.maximum(count, 1)
+    keep = (centroid >= c0) & (centroid < c1)
+    keep[0] = False
+    regions = {label: traits for label, traits in output.regions.items() if int(label) < n and keep[int(label)]}
+    return dataclasses.replace(output, labels=np.where(keep[labels], labels, 0), regions=regions)
 
 
 def case_variant(case: Case, spec: dict) -> Variant:

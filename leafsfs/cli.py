@@ -23,7 +23,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("reconstruct", help="correct the leaf distances of a scan",
                        description="Re-estimate the leaf distances of a scan from its intensity (PROP-SFS) and "
                                    "write corrected.npz, mesh.ply, traits.json and preview.png.")
-    p.add_argument("scan", help="scan file: .npz (tlssim), .e57 or .ptx")
+    p.add_argument("scan", help="scan file: .npz (tlssim), .e57 or .ptx, or a tiled scan directory ('tlssim scan "
+                                "-o DIR --tile-cols/--memory-budget'), reconstructed window by window")
     p.add_argument("-o", "--outdir", required=True, help="output directory")
     p.add_argument("--variant", choices=VARIANTS, default="buffer", help="PROP-SFS variant (default buffer)")
     p.add_argument("--calibration", required=True,
@@ -32,6 +33,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mask", help="NPZ file with a boolean or integer label array 'mask' of the scan's shape "
                                   "(default: automatic leaf segmentation)")
     p.add_argument("--params", help="JSON file of PROP-SFS parameters (leafsfs.SfsParams fields)")
+    p.add_argument("--core-cols", type=int,
+                   help="tiled scan: columns per output tile, each reconstructed in a window of it plus margins "
+                        "(default: from --memory-budget)")
+    p.add_argument("--memory-budget", type=float, default=2.0,
+                   help="tiled scan: memory of one window's reconstruction, GB (default 2)")
+    p.add_argument("--leaf-size-m", type=float,
+                   help="tiled scan: largest leaf extent, m; a window's margin is the columns it spans at the "
+                        "nearest pulses (default 0.12)")
     p.set_defaults(func=_reconstruct)
     p = sub.add_parser("calibrate", help="fit the intensity calibration from a panel table and a goniometer table",
                        description="Fit the distance correction (panel table) and the intensity-incidence relation "
@@ -58,7 +67,9 @@ def _reconstruct(args) -> int:
     from leafsfs.params import SfsParams
     from leafsfs.reconstruct import reconstruct
 
-    scan = _load_scan(Path(args.scan))
+    from leafsfs.tiled import is_tiled
+
+    scan = None if is_tiled(args.scan) else _load_scan(Path(args.scan))
     mask = None
     if args.mask:
         try:
@@ -75,12 +86,43 @@ def _reconstruct(args) -> int:
         if not isinstance(changes, dict):
             raise SfsError(f"{args.params}: parameters must be a JSON object of SfsParams fields")
         params = params.replace(**{k: tuple(v) if isinstance(v, list) else v for k, v in changes.items()})
+    if is_tiled(args.scan):
+        return _reconstruct_tiled(args, params, mask)
     result = reconstruct(scan, mask, args.variant, params, calibration=args.calibration)
     paths = write_outputs(result, args.outdir)
     print(f"{len(result.leaves)} leaves, {int(result.corrected.sum())} distances corrected, "
           f"{int(result.outlier.sum())} outliers; rppp_1 {result.rppp()['rppp_1']:.3f}")
     for kind, path in paths.items():
         print(f"  {kind:10s} {path}")
+    return 0
+
+
+def _reconstruct_tiled(args, params, mask) -> int:
+    from tqdm import tqdm
+
+    from leafsfs.errors import SfsError
+    from leafsfs.tiled import (LEAF_SIZE_M, RECONSTRUCT_BYTES_PER_PULSE, core_columns, margin_columns,
+                               reconstruct_tiled)
+    from tlssim.tiled import open_tiled
+
+    if mask is not None:
+        raise SfsError("--mask is not supported on a tiled scan (leaves are found window by window)")
+    tiled = open_tiled(args.scan)
+    leaf_size = args.leaf_size_m if args.leaf_size_m is not None else LEAF_SIZE_M
+    core_cols = args.core_cols
+    # The margins are not known before the data are read: those of the first tile's columns stand for all.
+    margin = margin_columns(tiled.load_columns(0, min(tiled.shape[1], tiled.tile_cols)), leaf_size, 2048)
+    if core_cols is None:
+        core_cols = core_columns(tiled.shape[0], args.memory_budget * 1e9, margin)
+    window = min(tiled.shape[1], core_cols + 2 * margin)
+    print(f"windows of about {window} columns ({core_cols} + 2 x {margin} margin): about "
+          f"{window * tiled.shape[0] * RECONSTRUCT_BYTES_PER_PULSE / 1e9:.1f} GB each")
+    with tqdm(total=tiled.shape[0] * tiled.shape[1], unit="pulse", unit_scale=True, desc="reconstruct") as bar:
+        result = reconstruct_tiled(tiled, args.outdir, args.variant, params, calibration=args.calibration,
+                                   core_cols=core_cols, leaf_size_m=leaf_size, progress=bar.update)
+    print(f"{len(result.traits)} leaves in {len(result.scan.tiles)} tiles of {core_cols} columns; "
+          f"{result.windows} windows run in {result.elapsed_s:.1f} s: {result.pulses_per_s:,.0f} pulses/s")
+    print(f"  corrected  {result.scan.path}\n  traits     {Path(args.outdir) / 'traits.json'}")
     return 0
 
 

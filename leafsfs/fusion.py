@@ -28,9 +28,13 @@ Per inner-curve point and annulus:
    20 %, it rejected 99 % of the measurements). The ray follows the fused
    gradient (outward, or the curve normal if it is nearly tangent).
 4. *Height*: predicted ``h' = h + g . (x' - x)`` with variance
-   ``P + dx^T P_g dx``; measured ``Mh(x')`` with ``sigma_range^2``; an
-   innovation beyond ``gate_sigma`` standard deviations is rejected (these
-   are the measured outliers), otherwise the Kalman update moves the end
+   ``P + dx^T P_g dx``; measured ``Mh(x')`` with ``sigma_range^2``; a
+   measurement is rejected when its innovation is beyond ``gate_sigma``
+   standard deviations and it also leaves the quadratic surface of its
+   neighbours' measured heights by more than ``gate_sigma`` range-noise
+   deviations (these are the measured outliers; the innovation gate alone
+   let the heights drift away for good once they passed it), otherwise the
+   Kalman update moves the end
    height and the line's plane is tilted to reach it, so that the fill and
    the next curve follow.
 """
@@ -164,7 +168,18 @@ class Fusion:
         ok = lines.valid & np.isfinite(measured)
         r = self.sigma_range**2
         innovation = measured - lines.end_h
-        accept = ok & (innovation**2 <= self.gate_sigma**2 * (predicted_var + r))
+        # A measurement is accepted when the prediction expects it (within ``gate_sigma`` deviations), or when it
+        # agrees with the measured surface around it (within the gate of a quadratic surface of its neighbours that
+        # fits them that well): once the propagated height had drifted beyond the gate, the innovation gate alone
+        # rejected every later measurement and the drift grew unchecked from the seed outwards. A measured outlier
+        # fails both.
+        centres = np.rint(self._pixels(lines.end)).astype(int)
+        planes = local_planes(self.height, self.valid, self.grid, centres, self.radius, order=2)
+        local = planes.height + np.sum(planes.gradient * (lines.end - self.grid.to_continuous(centres)), axis=1)
+        tolerance = self.gate_sigma * self.sigma_range
+        with np.errstate(invalid="ignore"):
+            consistent = (planes.count >= 10) & (planes.rms <= tolerance) & (np.abs(measured - local) <= tolerance)
+            accept = ok & ((innovation**2 <= self.gate_sigma**2 * (predicted_var + r)) | consistent)
         gain = predicted_var / (predicted_var + r)
         change = np.where(accept, gain * innovation, 0.0)
         lines.end_h = lines.end_h + change

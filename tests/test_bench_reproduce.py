@@ -8,7 +8,7 @@ import pytest
 from benchmarks.cli import main
 from benchmarks.compare import compare_runs
 from benchmarks.errors import BenchError
-from benchmarks.reproduce import core, sensors2011, thesis_ch5
+from benchmarks.reproduce import core, sensors2011, thesis_ch5, thesis_ch7
 from benchmarks.reproduce.cli import load_experiments, run_experiments
 from benchmarks.reproduce.core import OUTSIDE, REPORTED, WITHIN, Outcome, Row, count_within, verdict
 from benchmarks.reproduce.output import read_csv, store_outcomes, summary_line, write_csv
@@ -81,7 +81,7 @@ def test_registry_select_and_duplicates():
     # heavy experiments leave --quick unless named one by one
     assert "step-ds1a" in {e.name for e in core.select(None)} - {e.name for e in core.select(None, quick=True)}
     assert [e.name for e in core.select(["step-ds1a"], quick=True)] == ["step-ds1a"]
-    assert [e.name for e in core.select(["mendez-*"], quick=True)] == ["mendez-table6"]
+    assert [e.name for e in core.select(["mendez-*"], quick=True)] == ["mendez-table6", "mendez-table9"]
     with pytest.raises(BenchError, match="heavy"):
         core.select(["step-*"], quick=True)
     with pytest.raises(BenchError, match="twice"):
@@ -131,8 +131,29 @@ def test_ch5_experiments_quick_table_shapes():
     assert signed["upper/bias +0/signed"] < signed["median/bias +0/signed"] - 5
     # and the lower-bound rule (the inner curve's alpha) too shallow
     assert signed["lower/bias +0/signed"] > signed["median/bias +0/signed"] + 2
-    assert [r.x for r in vase if r.holds is None] == [20.0, 10.0, 5.0] * len(thesis_ch5.RULES)
+    assert [r.x for r in vase if r.x is not None] == [20.0, 10.0, 5.0] * (len(thesis_ch5.RULES) + 2)
+    # the diagnosis: with the floor in the mask the seed is the floor (alpha ties at 0), without it none of it
+    on_floor = {r.series: r.ours for r in vase if r.key.endswith("seed on the floor")}
+    assert on_floor["median"] > 95.0 and on_floor["median, floor out"] == 0.0
     assert all(r.claim and r.source for r in bias + vase if r.holds is not None)
+
+
+def test_ch5_smoothing_rows_separate_noise_from_smoothing(monkeypatch):
+    calls = []
+
+    def fake(surface, side, *, noise_deg=0.0, n_smooth=0, rule="median", seed=0, **kwargs):
+        calls.append((noise_deg, n_smooth))
+        # noise costs 2 % without smoothing and nothing after; smoothing adds 0.1 % per pass
+        error = 0.01 + 0.001 * n_smooth + (0.02 if noise_deg and n_smooth == 0 else 0.0)
+        return {"abs_eps_mean": error, "within_5pct": 0.99, "completeness": 1.0}
+
+    monkeypatch.setattr(thesis_ch5, "reconstruct", fake)
+    rows = {r.key: r for r in thesis_ch5._smoothing_rows("median", 25, (0, 5, 20, 80), 0)}
+    assert rows["median/noise 5.7/noise left after 2+ passes"].ours == pytest.approx(0.0)
+    assert rows["median/noise 5.7/20-70 passes better than 2-10"].verdict == OUTSIDE
+    assert rows["median/noise 5.7/no smoothing is poor"].verdict == WITHIN
+    assert rows["median/no noise/20 passes/|error|"].ours == pytest.approx(3.0)
+    assert len(calls) == 4 * (1 + len(thesis_ch5.NOISES_DEG))
 
 
 def test_cli_list_and_quick_run(tmp_path, capsys):
@@ -186,3 +207,116 @@ def test_insitu_claims_on_known_distributions(monkeypatch):
     verdicts = {r.key: r.verdict for r in rows if r.holds is not None}
     assert verdicts == {"1.5 m/skewed and shifted": WITHIN, "3 m/skewed and shifted": WITHIN,
                         "no clear difference between distances": OUTSIDE}
+
+
+def _validation_row(variant, success, err):
+    row = {key: 1.0 for key in thesis_ch7.summary.VALIDATION_KEYS}
+    return {**row, "variant": variant, "success": success, "area_rel_err_median": err, "n_leaves": 4, "n_success": 4}
+
+
+def test_ch7_shell_set_rows_and_claim(monkeypatch):
+    table = [_validation_row("buffer-T1", 1.0, 0.05), _validation_row("buffer-T2", 1.0, 0.04),
+             _validation_row("buffer", 1.0, 0.03), _validation_row("buffer-T3*", 0.75, 0.02)]
+    groups = [{"variant": "buffer", "group": "A", "pixels": "<2000", "n_leaves": 2, "rppp_1": 0.9}]
+    monkeypatch.setattr(thesis_ch7.summary, "validation_table", lambda results: table)
+    monkeypatch.setattr(thesis_ch7.summary, "rppp_groups", lambda results: groups)
+    rows = thesis_ch7.shell_rows([])
+    reported = [r for r in rows if r.holds is None]
+    assert len(reported) == 4 * len(thesis_ch7.QUANTITIES) + 1
+    assert {r.key.split("/")[0] for r in reported} == {"T1", "T2", "T3", "T3*"}
+    assert [r.verdict for r in rows if r.holds is not None] == [WITHIN]
+    table[2] = _validation_row("buffer", 0.75, 0.03)  # T3 loses a leaf that T1 and T2 keep
+    assert [r.verdict for r in thesis_ch7.shell_rows([]) if r.holds is not None] == [OUTSIDE]
+
+
+def test_ch7_leaf_cases_in_the_thesis_ranges():
+    cases = thesis_ch7.leaf_cases(8, seed=3)
+    assert cases == thesis_ch7.leaf_cases(8, seed=3) and len({c["name"] for c in cases}) == 8
+    scenes = [c["scene"] for c in cases]
+    assert [s["length_m"] for s in scenes] == list(thesis_ch7.LENGTHS_M) * 2
+    assert all(0.8 <= s["distance_m"] <= 2.0 and 0 <= s["incidence_deg"] <= 60 for s in scenes)
+
+
+def test_dask_scheduler_runs_each_experiment_as_a_task(monkeypatch, tmp_path, capsys):
+    from distributed import LocalCluster
+
+    def fake(quick, seed):
+        return [Row("a", "q", "cm", 1.0 + seed, 1.0, 0.5, "test", "src"), Row("b", "claim", "", 2.0, holds=quick)]
+
+    def broken(quick, seed):
+        raise ValueError("no data")
+
+    load_experiments()
+    monkeypatch.setitem(core.EXPERIMENTS, "fake-ok", core.Experiment("fake-ok", "a fake table", fake))
+    monkeypatch.setitem(core.EXPERIMENTS, "fake-broken", core.Experiment("fake-broken", "a broken one", broken))
+    local = run_experiments(["fake-ok", "fake-broken"], quick=True, seed=0, echo=lambda text: None)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, host="127.0.0.1", protocol="tcp://",
+                      dashboard_address=None) as cluster:
+        remote = run_experiments(["fake-ok", "fake-broken"], quick=True, seed=0, echo=lambda text: None,
+                                 scheduler=cluster.scheduler_address)
+        code = main(["reproduce", "fake-ok", "--quick", "--scheduler", cluster.scheduler_address, "-o",
+                     str(tmp_path), "--db", str(tmp_path / "r.sqlite")])
+    assert [o.experiment.name for o in remote] == ["fake-ok", "fake-broken"]
+    assert [o.rows for o in remote] == [o.rows for o in local] and remote[0].rows[1].verdict == WITHIN
+    assert "ValueError: no data" in remote[1].error and not remote[1].rows
+    assert code == 0 and capsys.readouterr().out.strip().endswith("2/2 rows within tolerance")
+    assert [r.key for r in read_csv(tmp_path / "fake-ok.csv")] == ["a", "b"]
+    with Store(tmp_path / "r.sqlite") as store:
+        (run,) = store.runs("reproduce-quick")
+        assert {r["variant"] for r in store.results(run["run_id"])} == {"fake-ok/a", "fake-ok/b"}
+
+
+def test_dask_scheduler_unreachable_is_one_clear_error():
+    with pytest.raises(BenchError, match="cannot reach the Dask scheduler"):
+        run_experiments(["ch5-vase"], quick=True, seed=0, echo=lambda text: None, scheduler="tcp://127.0.0.1:9")
+
+
+def test_mendez_table9_slope_against_the_law():
+    from benchmarks.reproduce import woody_papers
+
+    n = np.array([1000.0, 2000.0, 4000.0, 8000.0])
+    runs = [{"points": int(k), "branches": 20, "cpu_s": 1e-4 * k * np.log(k), "stats": {}} for k in n]
+    rows = woody_papers.table9_rows(runs)
+    (exponent,) = [r for r in rows if r.published is not None]
+    assert len(rows) == len(n) + 1 and exponent.verdict == WITHIN  # time growing as N log N follows the law
+    assert exponent.published == pytest.approx(woody_papers.loglog_slope(n, n * np.log(n)))
+    runs = [{**r, "cpu_s": 1e-8 * r["points"] ** 2} for r in runs]
+    assert [r.verdict for r in woody_papers.table9_rows(runs) if r.published is not None] == [OUTSIDE]
+
+
+def _follow(branches, order, share):
+    return {"branches": branches, "max_order": order, "largest_share": share, "volume_error_pct": 5.0,
+            "radius_bias_mm": 1.0}
+
+
+def test_mendez_fig4_claims():
+    from benchmarks.reproduce import woody_papers
+
+    runs = {"Table 7": _follow(50, 7, 0.4), "k_r 1.2": _follow(40, 6, 0.5), "k_r 1.22": _follow(30, 5, 0.6),
+            "k_r 1.23": _follow(1, 1, 1.0), "n_s 4": _follow(300, 20, 0.1)}
+    rows = {r.key: r for r in woody_papers.fig4_rows("paper", runs, (1.2, 1.22, 1.23))}
+    assert len(rows) == 4 * len(runs) + 4 and len({r.x for r in rows.values() if r.x is not None}) == len(runs)
+    assert rows["paper/smallest k_r that collapses"].ours == 1.23
+    assert [rows[f"paper/{k}"].verdict for k in ("smallest k_r that collapses", "k_r >= 1.23 gives one cylinder",
+                                                 "k_r 1.22 still a tree", "n_s 4 over-branches")] == [WITHIN] * 4
+    runs["k_r 1.2"] = _follow(2, 2, 0.97)  # collapses early, as the literal mode does on our tree
+    runs["n_s 4"] = _follow(60, 9, 0.1)  # more branches, but not twice as many
+    rows = {r.key: r for r in woody_papers.fig4_rows("paper", runs, (1.2, 1.22, 1.23))}
+    assert rows["paper/smallest k_r that collapses"].ours == 1.2
+    assert rows["paper/smallest k_r that collapses"].verdict == WITHIN  # 0.03 from 1.23, inside the stated 0.05
+    assert rows["paper/n_s 4 over-branches"].verdict == OUTSIDE
+
+
+def test_step_ds4_claims_and_the_cap_that_does_not_bind():
+    from benchmarks.reproduce import woody_papers
+
+    def run(completeness, cpu, tuboids):
+        return {"completeness": completeness, "radius_mae_cm": 1.0, "cpu_s": cpu, "tuboids": tuboids, "points": 100}
+
+    runs = {(0, 0.1, 0.04, None): run(0.2, 10.0, 14), (0, 0.1, 0.04, 10): run(0.2, 6.0, 10),
+            (0, 0.1, 0.05, None): run(0.8, 9.0, 12), (0, 0.1, 0.05, 10): run(0.8, 5.0, 10)}
+    rows = woody_papers.ds4_rows(runs)
+    assert len(rows) == len(runs) + 2
+    assert [r.verdict for r in rows if r.claim] == [WITHIN, WITHIN]
+    small = {k: {**r, "tuboids": 4} for k, r in runs.items()}
+    assert [r.verdict for r in woody_papers.ds4_rows(small) if r.claim] == [WITHIN, REPORTED]

@@ -191,3 +191,30 @@ def test_unlinked_pulses_deeper_than_a_footprint_edge_are_no_mixed_pulses():
     # the piece's pulses at its border (where a footprint edge would lie) are still paired with the plate and wall
     rim = piece & (ndimage.distance_transform_edt(piece) <= 2)
     assert (mixed.pair[rim] > 0).all(axis=-1).mean() > 0.9
+
+
+def test_a_pulse_straddling_a_leaf_and_a_branch_4cm_behind_gets_both_shares():
+    # A plate (leaf) 3 m away whose edge runs along the middle of a 3 cm branch (a cylinder along the rows) 4 cm
+    # behind it; 1 mm pixels, footprint edge profile 8 px wide, 0.5 mm range noise. The shares come from the range,
+    # and a pulse the leaf dominates lands on the leaf's plane. (Near the branch's silhouette its plane
+    # extrapolation is not the cylinder's distance: not asserted here, a known shortfall.)
+    rng = np.random.default_rng(3)
+    rows, cols = np.mgrid[0:60, 0:80]
+    share = np.clip(0.5 + (cols - 39.5) / 8.0, 0.0, 1.0)  # the leaf covers the right half
+    leaf = 3.0 + 0.0002 * cols + 0.0001 * rows
+    x = (cols - 39.5) * 0.001  # m across the branch, its axis under the leaf's edge
+    behind = 3.04 + 0.015 - np.sqrt(np.clip(0.015**2 - x**2, 0, None))
+    branch = np.abs(x) < 0.0145
+    share = np.where(branch, share, np.where(share > 0, share, np.nan))
+    range_m = np.where(branch, share * leaf + (1 - share) * behind, leaf) + 0.0005 * rng.standard_normal(rows.shape)
+    range_m[~branch & (share < 1)] = np.nan  # beside the branch only the leaf returns (no sky pulse mixes)
+    surfaces = np.where(branch & (share == 0.0), 2, np.where(share == 1.0, 1, 0))
+    mixed = attribute_mixed(range_m, surfaces, 12, tolerance_m=0.0015)
+    straddling = branch & (share > 0.05) & (share < 0.95)
+    assert straddling.sum() > 100
+    # the branch's plane, extrapolated up to 8 px from its pulses, misses its curvature by up to 2 mm: 5 % of 4 cm
+    assert np.median(np.abs(mixed.share_of(1) - share)[straddling]) < 0.1
+    decided = straddling & (np.abs(share - 0.5) > 0.15)
+    assert np.mean((mixed.owner[decided] == 1) == (share[decided] >= 0.5)) > 0.95
+    owned_by_leaf = decided & (mixed.owner == 1)
+    assert np.all(np.abs(mixed.owner_range() - leaf)[owned_by_leaf] < 0.002)

@@ -289,3 +289,43 @@ def test_mixed_pulses_of_a_leaf_without_heights_take_the_leaf_planes_distance(le
     # one: a noise tail, about 1 in 10^4)
     pure = (result.labels > 0) & (scan.mixed_fraction < 1e-3)
     assert np.mean(result.range[pure] != scan.range[pure]) < 1e-3 and pure.sum() > 1000
+
+
+def test_outline_pulses_mostly_off_their_leaf_take_its_corrected_distance(monkeypatch):
+    # A 6 cm pear leaf 3 m away at 35 deg incidence with nothing behind it, at the FARO protocol's 0.018 deg. The
+    # pulses whose beam axis misses the leaf (truth range NaN) return the range of the lit part of their footprint,
+    # off the axis. In a canopy the edge test does not flag all of them; here they are made to look pure (part of
+    # the leaf's surface): their intensity deficit alone (leafsfs.canopy.rim_shares) must mark them unreliable.
+    scene = scenes.scene_from_spec({"objects": [
+        {"name": "leaf", "type": "leaf", "preset": "pear", "seed": 3, "length": 0.06, "material": "pear-leaf",
+         "pose": {"center": [3.0, 0, 0], "facing": "scanner", "incidence_deg": 35}}]})
+    setup = tlssim.setup_from_section({"window": {"theta_deg": [-0.8, 0.8], "psi_deg": [89.2, 90.8],
+                                                  "step_deg": 0.018}})
+    scan = tlssim.simulate(scene, setup, seed=0, progress=False)
+    calibration = simulated_calibration(scan.scanner.model)
+    module = sys.modules["leafsfs.reconstruct"]
+    segment = module.segment_scan
+    off_axis = scan.valid & ~np.isfinite(scan.truth_range)
+
+    def pure_outline(*args, **kwargs):
+        out = segment(*args, **kwargs)
+        mixed, leaf = out.mixed, out.leaf_surfaces[0]
+        hide = off_axis & (out.leaves == 1)
+        mixed.surfaces[hide], mixed.owner[hide], mixed.pair[hide], mixed.share[hide] = leaf, leaf, 0, np.nan
+        return out
+
+    monkeypatch.setattr(module, "segment_scan", pure_outline)
+    from benchmarks.metrics import SurfaceDistance
+
+    truth = SurfaceDistance(scene.objects[0].vertices, scene.objects[0].faces)
+    results = {}
+    for share in (0.0, module.RIM_PARTIAL_SHARE):
+        monkeypatch.setattr(module, "RIM_PARTIAL_SHARE", share)
+        results[share] = reconstruct(scan, variant="fused", calibration=calibration)
+    outline = off_axis & (results[0.0].labels > 0)
+    assert outline.sum() > 150
+    off = {share: np.abs(truth(result.corrected_scan().xyz[outline], signed=True)) > 0.003
+           for share, result in results.items()}
+    moved = {share: result.outlier[outline].mean() for share, result in results.items()}
+    assert moved[module.RIM_PARTIAL_SHARE] > 0.5 and moved[module.RIM_PARTIAL_SHARE] > moved[0.0] + 0.2
+    assert off[module.RIM_PARTIAL_SHARE].sum() < 0.5 * off[0.0].sum()

@@ -4,6 +4,9 @@ Each experiment prints the published values and ours side by side with a
 verdict per row and writes ``NAME.csv`` and ``NAME.png`` under the output
 directory; all of them go to ``reproduction.html`` there and to one run of
 the results store. The last line reads ``N/M rows within tolerance``.
+With ``--scheduler ADDRESS`` each experiment runs as one task on that Dask
+cluster; its rows come back as plain fields and are printed, written and
+stored the same way.
 """
 
 from __future__ import annotations
@@ -14,12 +17,14 @@ import time
 import traceback
 from pathlib import Path
 
-from benchmarks.reproduce.core import EXPERIMENTS, Outcome, count_within, select
+from benchmarks.errors import BenchError
+from benchmarks.reproduce.core import EXPERIMENTS, Outcome, Row, count_within, select
 from benchmarks.reproduce.output import format_rows, store_outcomes, summary_line, write_csv, write_png
 from benchmarks.store import Store
 
 #: Modules that register experiments, in the order of the page.
-MODULES = ("benchmarks.reproduce.sensors2011", "benchmarks.reproduce.thesis_ch5", "benchmarks.reproduce.thesis_ch2",
+MODULES = ("benchmarks.reproduce.sensors2011", "benchmarks.reproduce.thesis_ch5", "benchmarks.reproduce.thesis_ch7",
+           "benchmarks.reproduce.thesis_ch2",
            "benchmarks.reproduce.woody_papers")
 
 
@@ -46,10 +51,61 @@ def add_parser(sub) -> None:
                    help="results database (default reproduction.sqlite: a store of its own, so that the suites' "
                         "'latest' run stays a suite run; compare two runs with tlsbench compare A B --db ...)")
     p.add_argument("--no-store", action="store_true", help="do not write the rows to the results store")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="Dask scheduler address (tcp://host:port): each experiment runs as one task there")
     p.set_defaults(func=run)
 
 
-def run_experiments(names: list[str] | None, quick: bool, seed: int, echo=print) -> list[Outcome]:
+def run_one(name: str, quick: bool, seed: int) -> dict:
+    """Run one registered experiment, catching its failure (the unit of work sent to Dask).
+
+    Parameters
+    ----------
+    name : str
+        Registered experiment name.
+    quick : bool
+        Run the tiny version.
+    seed : int
+        Seed of the simulations.
+
+    Returns
+    -------
+    dict
+        ``rows`` (the rows' fields, plain values), ``seconds`` and ``error`` (empty when it ran).
+    """
+    experiment = load_experiments()[name]
+    start = time.perf_counter()
+    rows, error = [], ""
+    try:
+        rows = [{k: v for k, v in r.as_dict().items() if k != "verdict"} for r in experiment.run(quick, seed)]
+    except Exception as exc:  # one failing experiment must not hide the others' rows
+        error = f"{type(exc).__name__}: {exc}"
+        traceback.print_exc(file=sys.stderr)
+    return {"rows": rows, "seconds": time.perf_counter() - start, "error": error}
+
+
+def _dispatch_dask(names: list[str], quick: bool, seed: int, address: str):
+    """Yield ``(name, run_one result)`` as the experiments finish on the Dask cluster at ``address``."""
+    from distributed import Client, as_completed
+
+    try:
+        client = Client(address, timeout="30s")
+    except (OSError, TimeoutError) as exc:
+        raise BenchError(f"cannot reach the Dask scheduler at {address!r} ({exc})") from None
+    with client:
+        futures = {client.submit(run_one, name, quick, seed, pure=False): name for name in names}
+        try:
+            for future in as_completed(futures):
+                try:
+                    yield futures[future], future.result()
+                except Exception as exc:  # noqa: BLE001 - e.g. a lost worker: the experiment is reported failed
+                    yield futures[future], {"rows": [], "seconds": 0.0, "error": f"Dask: {type(exc).__name__}: {exc}"}
+        finally:
+            client.cancel(list(futures))
+
+
+def run_experiments(names: list[str] | None, quick: bool, seed: int, echo=print,
+                    scheduler: str | None = None) -> list[Outcome]:
     """Run the named experiments, printing each table; an experiment that fails is reported, not raised.
 
     Parameters
@@ -62,23 +118,27 @@ def run_experiments(names: list[str] | None, quick: bool, seed: int, echo=print)
         Seed of the simulations.
     echo : callable
         Where the tables go (``print``).
+    scheduler : str or None
+        Dask scheduler address: run each experiment as a task there (tables
+        printed as they finish; outcomes kept in registration order).
+
+    Returns
+    -------
+    list of Outcome
+        One per experiment, in registration order.
     """
     load_experiments()
-    outcomes = []
-    for experiment in select(names, quick):
-        start = time.perf_counter()
-        outcome = Outcome(experiment)
-        try:
-            outcome.rows = experiment.run(quick, seed)
-        except Exception as exc:  # one failing experiment must not hide the others' rows
-            outcome.error = f"{type(exc).__name__}: {exc}"
-            traceback.print_exc(file=sys.stderr)
-        outcome.seconds = time.perf_counter() - start
+    chosen = [e.name for e in select(names, quick)]
+    results = (_dispatch_dask(chosen, quick, seed, scheduler) if scheduler
+               else ((name, run_one(name, quick, seed)) for name in chosen))
+    outcomes = {}
+    for name, result in results:
+        outcome = Outcome(EXPERIMENTS[name], [Row(**row) for row in result["rows"]], result["seconds"], result["error"])
         within, compared = count_within(outcome.rows)
-        echo(f"\n== {experiment.name}: {experiment.title} ({within}/{compared} within, {outcome.seconds:.1f} s)")
+        echo(f"\n== {name}: {outcome.experiment.title} ({within}/{compared} within, {outcome.seconds:.1f} s)")
         echo(format_rows(outcome.rows) if outcome.rows else f"failed: {outcome.error}")
-        outcomes.append(outcome)
-    return outcomes
+        outcomes[name] = outcome
+    return [outcomes[name] for name in chosen]
 
 
 def run(args) -> int:
@@ -89,7 +149,7 @@ def run(args) -> int:
         return 0
     from benchmarks.reproduce.page import write_page  # imports benchmarks.report and its modules: only when run
 
-    outcomes = run_experiments(args.names, args.quick, args.seed)
+    outcomes = run_experiments(args.names, args.quick, args.seed, scheduler=args.scheduler)
     out = Path(args.output)
     for outcome in outcomes:
         if outcome.rows:

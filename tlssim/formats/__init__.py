@@ -34,7 +34,7 @@ FORMATS = {".e57": (e57.write, e57.read), ".ptx": (ptx.write, ptx.read),
            ".las": (las.write, las.read), ".laz": (las.write, las.read)}
 
 #: Extensions whose writer streams a tiled scan tile by tile.
-STREAMED = (".ptx", ".las", ".laz")
+STREAMED = (".e57", ".ptx", ".las", ".laz")
 
 
 def _codec(path: Path):
@@ -47,10 +47,8 @@ def _codec(path: Path):
 def export_scan(scan: Scan | TiledScan, path) -> Path:
     """Write ``scan`` in the format of ``path``'s extension (``.e57``, ``.ptx``, ``.las``, ``.laz``).
 
-    A tiled scan (:mod:`tlssim.tiled`) is streamed tile by tile to PTX and
-    LAS/LAZ, with the bytes of the same scan in memory; E57 is written from
-    the whole scan in memory (``pye57.E57.write_scan_raw`` takes all points
-    at once).
+    A tiled scan (:mod:`tlssim.tiled`) is streamed tile by tile to every
+    format, with the bytes of the same scan in memory.
 
     Parameters
     ----------

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -11,39 +12,125 @@ from tlssim.errors import ScanError
 from tlssim.formats.grid import angles_of, complete_angles, grid_indices, local_points, scan_from_local
 from tlssim.pattern import ScannerPose
 from tlssim.scan import Scan
+from tlssim.tiled import TiledScan, scan_tiles
 
 #: Row and column indices are stored as 16-bit unsigned integers by pye57.
 MAX_INDEX = 65535
 
 
-def write(scan: Scan, path: Path) -> None:
-    """Write the whole grid as one structured E57 scan (scanner frame, with the pose).
+#: Points handed to libE57 per write call (the writer's buffers hold this many of each field).
+CHUNK_POINTS = 1 << 20
+#: Namespace of the scans' GUIDs (uuid5 of the scan's name and shape: the same scan gives the same file).
+_GUID_NAMESPACE = uuid.UUID("6f1c1b8e-2d0e-4f4b-9a59-0c6a1e2f7a57")
+
+
+def write(scan: Scan | TiledScan, path: Path) -> None:
+    """Write the whole grid as one structured E57 scan (scanner frame, with the pose), tile by tile.
+
+    Points are written column by column (``columnIndex``, then ``rowIndex``)
+    through libE57's compressed-vector writer in chunks of
+    :data:`CHUNK_POINTS`, so a tiled scan is read twice (bounds, then points)
+    but never held whole: the file is the same for a scan in memory and for
+    any tiling of it.
 
     Parameters
     ----------
-    scan : Scan
+    scan : Scan or TiledScan
         The scan to write; coordinates in m.
     path : Path
         Output ``.e57`` file.
     """
     import pye57
+    from pye57 import libe57
 
     rows, cols = scan.shape
     if max(rows, cols) - 1 > MAX_INDEX:
         raise ScanError(f"{path}: a {rows} x {cols} grid exceeds the E57 writer's {MAX_INDEX + 1} rows or columns")
-    local = local_points(scan).reshape(-1, 3)
-    row, col = np.indices(scan.shape)
-    data = {
-        "cartesianX": local[:, 0], "cartesianY": local[:, 1], "cartesianZ": local[:, 2],
-        "intensity": np.nan_to_num(scan.intensity, nan=0.0).ravel().astype(np.float32),
-        "rowIndex": row.ravel().astype(np.uint16), "columnIndex": col.ravel().astype(np.uint16),
-        # 0: valid point; 1: the cartesian vector is only a direction (no return)
-        "cartesianInvalidState": np.where(scan.valid.ravel(), 0, 1).astype(np.int8),
-    }
+    name = str(scan.meta.get("scene") or "tlssim scan")
+    local_lo, local_hi = np.full(3, np.inf), np.full(3, -np.inf)
+    world_lo, world_hi = np.full(3, np.inf), np.full(3, -np.inf)
+    i_lo, i_hi, invalid_states = np.inf, -np.inf, set()
+    for _, tile in scan_tiles(scan):
+        fields = _tile_fields(tile, 0)
+        local = np.stack([fields["cartesianX"], fields["cartesianY"], fields["cartesianZ"]], axis=1)
+        local_lo, local_hi = np.minimum(local_lo, local.min(axis=0)), np.maximum(local_hi, local.max(axis=0))
+        if tile.valid.any():
+            world = tile.xyz[tile.valid]
+            world_lo, world_hi = np.minimum(world_lo, world.min(axis=0)), np.maximum(world_hi, world.max(axis=0))
+        i_lo, i_hi = min(i_lo, float(fields["intensity"].min())), max(i_hi, float(fields["intensity"].max()))
+        invalid_states |= set(np.unique(fields["cartesianInvalidState"]).tolist())
+    if not np.all(np.isfinite(world_lo)):
+        world_lo = world_hi = np.asarray(scan.pose.position, float)
     x, y, z, w = Rotation.from_matrix(scan.pose.rotation).as_quat()
     with pye57.E57(str(path), mode="w") as e57:
-        e57.write_scan_raw(data, name=str(scan.meta.get("scene") or "tlssim scan"),
-                           rotation=np.array([w, x, y, z]), translation=scan.pose.position)
+        image = e57.image_file
+        node = libe57.StructureNode(image)
+        node.set("guid", libe57.StringNode(image, "{%s}" % uuid.uuid5(_GUID_NAMESPACE, f"{name} {rows} {cols}")))
+        node.set("name", libe57.StringNode(image, name))
+        node.set("description", libe57.StringNode(image, "tlssim"))
+        bounds = libe57.StructureNode(image)
+        for key, value in (("rowMinimum", 0), ("rowMaximum", rows - 1), ("columnMinimum", 0),
+                           ("columnMaximum", cols - 1), ("returnMinimum", 0), ("returnMaximum", 0)):
+            bounds.set(key, libe57.IntegerNode(image, int(value)))
+        node.set("indexBounds", bounds)
+        limits = libe57.StructureNode(image)
+        limits.set("intensityMinimum", libe57.FloatNode(image, i_lo))
+        limits.set("intensityMaximum", libe57.FloatNode(image, i_hi))
+        node.set("intensityLimits", limits)
+        box = libe57.StructureNode(image)
+        for axis, k in (("x", 0), ("y", 1), ("z", 2)):
+            box.set(f"{axis}Minimum", libe57.FloatNode(image, float(world_lo[k])))
+            box.set(f"{axis}Maximum", libe57.FloatNode(image, float(world_hi[k])))
+        node.set("cartesianBounds", box)
+        pose = libe57.StructureNode(image)
+        rotation = libe57.StructureNode(image)
+        for key, value in (("w", w), ("x", x), ("y", y), ("z", z)):
+            rotation.set(key, libe57.FloatNode(image, float(value)))
+        translation = libe57.StructureNode(image)
+        for key, value in zip("xyz", np.asarray(scan.pose.position, float)):
+            translation.set(key, libe57.FloatNode(image, float(value)))
+        pose.set("rotation", rotation)
+        pose.set("translation", translation)
+        node.set("pose", pose)
+        prototype = libe57.StructureNode(image)
+        # Bounds widened by a few single-precision steps: libE57 checks the stored (rounded) values against them.
+        pad = 1e-6 * np.maximum(np.abs(local_lo), np.abs(local_hi)) + 1e-9
+        lo, hi = local_lo - pad, local_hi + pad
+        for k, key in enumerate(("cartesianX", "cartesianY", "cartesianZ")):
+            prototype.set(key, libe57.FloatNode(image, float(0.5 * (lo[k] + hi[k])), libe57.E57_SINGLE, float(lo[k]),
+                                                float(hi[k])))
+        prototype.set("intensity", libe57.FloatNode(image, i_lo, libe57.E57_SINGLE, i_lo, i_hi))
+        prototype.set("rowIndex", libe57.IntegerNode(image, 0, 0, rows - 1))
+        prototype.set("columnIndex", libe57.IntegerNode(image, 0, 0, cols - 1))
+        prototype.set("cartesianInvalidState", libe57.IntegerNode(image, 0, min(invalid_states), max(invalid_states)))
+        names = ["cartesianX", "cartesianY", "cartesianZ", "intensity", "rowIndex", "columnIndex",
+                 "cartesianInvalidState"]
+        arrays, buffers = e57.make_buffers(names, CHUNK_POINTS)
+        points = libe57.CompressedVectorNode(image, prototype, libe57.VectorNode(image, True))
+        node.set("points", points)
+        e57.data3d.append(node)
+        writer = points.writer(buffers)
+        for col0, tile in scan_tiles(scan):
+            fields = _tile_fields(tile, col0)
+            for a in range(0, len(fields["rowIndex"]), CHUNK_POINTS):
+                n = min(CHUNK_POINTS, len(fields["rowIndex"]) - a)
+                for key in names:
+                    arrays[key][:n] = fields[key][a:a + n]
+                writer.write(n)
+        writer.close()
+
+
+def _tile_fields(tile: Scan, col0: int) -> dict[str, np.ndarray]:
+    """The E57 point fields of a tile whose first column is ``col0``, column by column (column-major)."""
+    local = np.swapaxes(local_points(tile), 0, 1).reshape(-1, 3)
+    col, row = np.indices(tile.shape[::-1])
+    return {
+        "cartesianX": local[:, 0], "cartesianY": local[:, 1], "cartesianZ": local[:, 2],
+        "intensity": np.nan_to_num(tile.intensity.T, nan=0.0).ravel().astype(np.float32),
+        "rowIndex": row.ravel().astype(np.uint16), "columnIndex": (col.ravel() + col0).astype(np.uint16),
+        # 0: valid point; 1: the cartesian vector is only a direction (no return)
+        "cartesianInvalidState": np.where(tile.valid.T.ravel(), 0, 1).astype(np.int8),
+    }
 
 
 def read(path: Path, intensity_max_dn: float = 2047.0) -> Scan:

@@ -1,0 +1,156 @@
+"""Thesis ch.7 §2: the shell-rule parameter sets T1, T2, T3 and T3* compared on single leaves.
+
+The thesis reconstructs 58 field leaves (0.8-2 m, 12-65 cm², 29-272
+pts/cm²) with the four shell-rule sets of ``SfsParams.shell_set`` (mu =
+2, 3, 4, 4 and nu = 2, 2, 2, 1: ``eps_alpha = mu 4 (Theta - 1) / a_tot``,
+``eps_seed = nu eps_alpha``; prop-sfs §3.2), 20 smoothing passes, and
+tabulates area, elevation and azimuth against the hand measurements, the
+area BIAS of eq 2.1, the rppp by leaf group and the share of leaves
+reconstructed. Its Tables 1-3 are images whose numbers the spec does not
+hold (prop-sfs §5, "held back"): the published column is empty, our
+table is reported for a comparison by hand, and one row tests the choice
+the thesis made (T3 for its leaves, prop-sfs §3.2).
+
+The leaves are the benchmark's ``single-leaf`` cases (procedural pear
+leaves before a wall), run and scored by :func:`benchmarks.runner.run_case`
+with the ``buffer`` variant (T3) and ``buffer-T1/T2/T3*``; the table is
+:func:`benchmarks.summary.validation_table`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from benchmarks import summary
+from benchmarks.registry import resolve
+from benchmarks.reproduce.core import Row, register
+from benchmarks.runner import run_case, variant_specs
+from benchmarks.suite import parse_suite
+
+SOURCE = "thesis ch.7 §2 Tables 1-3 (values held back)"
+#: Shell-rule set of each benchmark variant (``buffer`` runs the default set, T3).
+VARIANTS = {"T1": "buffer-T1", "T2": "buffer-T2", "T3": "buffer", "T3*": "buffer-T3*"}
+#: Blade lengths, m: pear leaves of 12, 24, 40 and 59 cm² (the thesis' 12-65 cm², area ~ length²).
+LENGTHS_M = (0.05, 0.07, 0.09, 0.11)
+#: Scanner step, deg: 0.036 gives 40-300 pts/cm² over 0.8-2 m, the thesis' stated 29-272 (an assumption: its
+#: stated step of 0.018 deg gives four times that density on our scanner model).
+STEP_DEG = 0.036
+#: Reported quantities of the validation table: key, label, unit.
+QUANTITIES = (("success", "share of leaves reconstructed", "fraction"),
+              ("area_slope", "area: slope (estimated vs true)", ""),
+              ("area_intercept_cm2", "area: intercept", "cm^2"),
+              ("area_r2", "area: R^2", ""),
+              ("area_bias_cm2", "area BIAS (eq 2.1)", "cm^2"),
+              ("area_rel_err_median", "area: median |relative error|", "fraction"),
+              ("elevation_r2", "elevation: R^2", ""),
+              ("elevation_precision_deg", "elevation: precision", "deg"),
+              ("azimuth_r2", "azimuth: R^2", ""),
+              ("azimuth_precision_deg", "azimuth: precision", "deg"))
+
+
+def leaf_cases(count: int, seed: int) -> list[dict]:
+    """The leaves of the experiment as benchmark cases (``Case.to_dict``), in the thesis' ranges.
+
+    Parameters
+    ----------
+    count : int
+        Number of leaves; lengths cycle through :data:`LENGTHS_M`.
+    seed : int
+        Seed of the draws (distance 0.8-2 m, incidence 0-60 deg, midrib spin 0-120 deg, tilt axis) and of
+        the leaves' shapes.
+
+    Returns
+    -------
+    list of dict
+        One case per leaf.
+    """
+    rng = np.random.default_rng(seed)
+    entries = []
+    for i in range(count):
+        scene = {"generator": "single-leaf", "length_m": LENGTHS_M[i % len(LENGTHS_M)],
+                 "distance_m": round(float(rng.uniform(0.8, 2.0)), 2),
+                 "incidence_deg": round(float(rng.uniform(0.0, 60.0)), 1),
+                 "spin_deg": round(float(rng.uniform(0.0, 120.0)), 1),
+                 "axis": ("vertical", "horizontal")[int(rng.integers(2))], "seed": seed * 1000 + i}
+        entries.append({"name": f"ch7-leaf{i}", "scene": scene, "scanner": {"step_deg": STEP_DEG}})
+    return [c.to_dict() for c in parse_suite({"name": "ch7-shell-sets", "cases": entries}).cases]
+
+
+def shell_rows(results: list[dict]) -> list[Row]:
+    """Rows of the comparison from benchmark result rows of the four variants.
+
+    Parameters
+    ----------
+    results : list of dict
+        :func:`benchmarks.runner.run_case` rows of the :data:`VARIANTS`.
+
+    Returns
+    -------
+    list of Row
+        Reported rows per set and quantity, rppp_1 per leaf group, and the
+        claim that T3 is at least as good as T1 and T2.
+    """
+    table = {row["variant"]: row for row in summary.validation_table(results)}
+    rows = []
+    for x, (name, variant) in enumerate(VARIANTS.items()):
+        row = table.get(variant)
+        if row is None:
+            continue
+        for key, label, unit in QUANTITIES:
+            value = row[key]
+            rows.append(Row(f"{name}/{key}", label, unit, float("nan") if value is None else float(value), x=x,
+                            series="shell-rule sets", source=SOURCE, note=f"{variant}; {row['n_success']} of "
+                            f"{row['n_leaves']} leaves"))
+    for group in summary.rppp_groups(results):
+        name = next((n for n, v in VARIANTS.items() if v == group["variant"]), None)
+        if name is not None:
+            rows.append(Row(f"{name}/group {group['group']}/rppp_1", "rppp_1 by leaf group", "fraction",
+                            float(group["rppp_1"]), x=list(VARIANTS).index(name), series=f"group {group['group']}",
+                            source=SOURCE, note=f"{group['n_leaves']} leaves, region {group['pixels']} px"))
+    if all(VARIANTS[n] in table for n in ("T1", "T2", "T3")):
+        t1, t2, t3 = (table[VARIANTS[n]] for n in ("T1", "T2", "T3"))
+        err = {n: table[VARIANTS[n]]["area_rel_err_median"] for n in ("T1", "T2", "T3")}
+        holds = (t3["success"] >= max(t1["success"], t2["success"]) and None not in err.values()
+                 and err["T3"] <= min(err["T1"], err["T2"]))
+        rows.append(Row("T3 at least as good as T1 and T2", "claim", "fraction",
+                        float("nan") if err["T3"] is None else float(err["T3"]),
+                        source="thesis ch.7 (T3, mu = 4, nu = 2, is the set kept for leaves: prop-sfs §3.2)",
+                        claim="the set the thesis kept (T3) reconstructs at least as many leaves as T1 and T2, with "
+                              "a median |area error| no higher than either (ours: the choice read as a result)",
+                        holds=bool(holds), series="claim",
+                        note="median |area error| " + ", ".join(f"{n} {'-' if e is None else f'{e:.4f}'}"
+                                                                 for n, e in err.items())))
+    return rows
+
+
+@register("ch7-shell-sets", "Thesis ch.7 §2, Tables 1-3: shell-rule sets T1, T2, T3, T3* on single leaves",
+          description="Procedural pear leaves of 12-59 cm² (5-11 cm), 0.8-2 m from the scanner, 0-60 deg "
+                      "incidence, midrib spin 0-120 deg, before a wall, at a step of 0.036 deg (40-300 pts/cm², the "
+                      "thesis' stated density); PROP-SFS buffer with 20 smoothing passes and the shell rule of each "
+                      "set; area, midrib elevation and azimuth against the truth (the thesis' hand measurements), "
+                      "area BIAS (eq 2.1), share reconstructed and rppp_1 per leaf group (A-D by region size).",
+          findings="The thesis' Tables 1-3 are held back from the spec: our table is reported for a comparison by "
+                   "hand. Measured (16 leaves, seed 0): every set reconstructs every leaf; the area is good under all "
+                   "four (R^2 0.994-0.998, median |error| 1.3-1.5 %, BIAS 0.19-0.43 cm^2), so the sets differ in "
+                   "the angles: the azimuth precision is 3.5 / 6.8 deg with T2 / T3 against 28 deg with T1 and "
+                   "T3* (azimuth R^2 0.86 against 0.99-1.00: a few leaves far off, not looked into further). T3, "
+                   "the thesis' choice, is not the best on area here (1.46 % against 1.40 % for T1): the claim row "
+                   "fails by 0.06 %, inside what 16 leaves can separate. Differences of protocol, named: our leaves "
+                   "are simulated single leaves (no neighbours, no wind), scored against exact truth where the "
+                   "thesis used flatbed areas and 5-10 deg hand angles; 16 leaves against its 58; step 0.036 deg "
+                   "chosen to match its stated point density.")
+def shell_sets(quick: bool, seed: int) -> list[Row]:
+    """Rows of the shell-set comparison.
+
+    Parameters
+    ----------
+    quick : bool
+        Four leaves (one of each length) instead of sixteen.
+    seed : int
+        Seed of the leaves, their poses and the scans.
+    """
+    specs = variant_specs(resolve(list(VARIANTS.values())))
+    results = []
+    for case in leaf_cases(4 if quick else 16, seed):
+        results += run_case(case, specs)
+    return shell_rows(results)

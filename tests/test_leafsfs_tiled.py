@@ -1,0 +1,96 @@
+"""PROP-SFS on a tiled scan: a leaf cut by tile borders is reconstructed once, as on the whole scan; resume."""
+
+import json
+
+import numpy as np
+import pytest
+
+import scenes
+import tlssim
+from benchmarks.experiments.calibration import simulated_calibration
+from leafsfs import SfsError, reconstruct
+from leafsfs.cli import main
+from leafsfs.tiled import GUARD_COLS, margin_columns, reconstruct_tiled
+from tlssim.simulate import simulate_tiled
+from tlssim.tiled import open_tiled
+
+# The 9 cm pear leaf 1.5 m from the scanner spans columns 25-213 of the 309 of its scan (0.018 deg).
+LEAF_SIZE_M = 0.06  # smaller than the leaf: the margin that follows from it must grow (and does)
+
+
+@pytest.fixture(scope="module")
+def tiled_leaf(tmp_path_factory, llvm):
+    scene = scenes.build("leaf-1.5m")
+    path = tmp_path_factory.mktemp("tiled-leaf") / "scan"
+    tiled = simulate_tiled(scene, tlssim.setup_from_section(scene.scanner), path, seed=3, tile_cols=50,
+                           progress=False, backend="llvm")
+    calibration = simulated_calibration(tiled.scanner.model)
+    whole = reconstruct(tiled.load(), variant="buffer", calibration=calibration)
+    return tiled, calibration, whole
+
+
+@pytest.fixture(scope="module")
+def by_core(tiled_leaf, tmp_path_factory):
+    tiled, calibration, _ = tiled_leaf
+    out = tmp_path_factory.mktemp("tiled-out")
+    return {core: reconstruct_tiled(tiled, out / str(core), "buffer", calibration=calibration, core_cols=core,
+                                    leaf_size_m=LEAF_SIZE_M) for core in (77, 120)}
+
+
+def test_a_leaf_cut_by_tile_borders_is_reconstructed_once_as_on_the_whole_scan(tiled_leaf, by_core):
+    tiled, _, whole = tiled_leaf
+    leaf_pixels = tiled.load().truth_id == tiled.object_names.index("leaf")
+    (expected,) = whole.traits()
+    for core, result in by_core.items():
+        cols = np.nonzero(leaf_pixels.any(axis=0))[0]
+        assert len({int(c) // core for c in cols}) >= 2, "the leaf must straddle a core border"
+        (leaf,) = result.traits  # one leaf, not one per window
+        assert leaf["area_m2"] == pytest.approx(expected["area_m2"], rel=0.02)
+        assert leaf["elevation_deg"] == pytest.approx(expected["elevation_deg"], abs=0.5)
+        assert leaf["n_points"] == pytest.approx(expected["n_points"], rel=0.02)
+        assert not leaf["cut_by_border"]
+        corrected = result.scan.load()
+        assert set(np.unique(corrected.layers["leaf"][leaf_pixels])) <= {0, leaf["leaf"]}
+        assert np.mean(corrected.layers["leaf"][whole.labels > 0] == leaf["leaf"]) > 0.98
+        # the distances the whole-scan run corrected are corrected alike
+        same = np.isclose(corrected.range, whole.range, atol=1e-4, equal_nan=True)
+        assert np.mean(same[whole.corrected]) > 0.9
+        # traits.json gathers the leaves of all tiles
+        report = json.loads((result.scan.path.parent / "traits.json").read_text())
+        assert [entry["leaf"] for entry in report["leaves"]] == [leaf["leaf"]]
+
+
+def test_margin_grows_with_the_leaf_size_and_nearness(tiled_leaf):
+    tiled, _, _ = tiled_leaf
+    core = tiled.load_columns(100, 150)
+    small, large = margin_columns(core, 0.03, 4096), margin_columns(core, 0.12, 4096)
+    # at 1.5 m a column is 1.5 m x 0.018 deg = 0.47 mm wide: 0.03 m spans about 64 columns
+    assert small - GUARD_COLS == pytest.approx(0.03 / (1.5 * np.radians(0.018)), rel=0.1)
+    assert large - GUARD_COLS == pytest.approx(4 * (small - GUARD_COLS), rel=0.05)
+    assert margin_columns(core, 0.12, 100) == 100
+
+
+def test_resume_rewrites_only_the_missing_tiles(tiled_leaf, by_core):
+    tiled, calibration, _ = tiled_leaf
+    result = by_core[77]
+    out = result.scan.path.parent
+    before = {t.file: t.sha256 for t in result.scan.tiles}
+    last = result.scan.tiles[-1]
+    (result.scan.path / last.file).unlink()
+    again = reconstruct_tiled(tiled, out, "buffer", calibration=calibration, core_cols=77, leaf_size_m=LEAF_SIZE_M)
+    assert again.windows == 2  # the last core's window and its neighbour's, not all five
+    assert again.pulses == tiled.shape[0] * (last.col1 - last.col0)
+    assert {t.file: t.sha256 for t in open_tiled(out / "corrected").tiles} == before
+    assert [t["leaf"] for t in again.traits] == [t["leaf"] for t in result.traits]
+    with pytest.raises(SfsError, match="another scan"):
+        reconstruct_tiled(tiled, out, "fused", calibration=calibration, core_cols=77, leaf_size_m=LEAF_SIZE_M)
+
+
+def test_reconstruct_command_on_a_tiled_scan(tiled_leaf, tmp_path, capsys):
+    tiled, calibration, _ = tiled_leaf
+    cal = calibration.save(tmp_path / "calibration.json")
+    assert main(["reconstruct", str(tiled.path), "--calibration", str(cal), "-o", str(tmp_path / "out"),
+                 "--core-cols", "150"]) == 0
+    out = capsys.readouterr().out
+    assert "1 leaves in 3 tiles of 150 columns" in out and "pulses/s" in out
+    assert open_tiled(tmp_path / "out" / "corrected").complete
