@@ -21,12 +21,18 @@ steps, all from range and the scan grid (no truth), separate them:
   principal axis much shorter than the first) are twigs, branches and
   trunks. Points in 3-D are free of the foreshortening that makes a leaf
   seen edge-on look thin in the scan image.
+* :func:`dark_surfaces`: surfaces whose intensity says a steeper incidence
+  than the plane of their ranges by more than the intensity's tolerance
+  are no leaves: short twig and branch pieces (a bulging front that a
+  plane fits as facing the beam, and bark darker than a leaf).
 
 Where it fails: a leaf touching another at the same distance (no range
 step, only a crease of the normal) stays merged with it; a leaf narrower
 than ``1 / max_aspect`` of its length (grass, willow) is taken for wood; a
 short twig piece seen between two leaves (shorter than ``max_aspect`` times
-its diameter) is taken for a leaf.
+its diameter) is taken for a leaf unless it is dark for its plane; a leaf
+darker than the calibrated leaf (seen through another, or of a lower
+reflectance) is taken for wood.
 """
 
 from __future__ import annotations
@@ -377,6 +383,150 @@ def wood_surfaces(surfaces: np.ndarray, range_m: np.ndarray, theta: np.ndarray, 
     wood[0] = False
     return wood
 
+
+
+def dark_surfaces(surfaces: np.ndarray, range_m: np.ndarray, alpha: np.ndarray, step_rad: float,
+                  tolerance_rad: float) -> np.ndarray:
+    """Which surfaces return less power than a leaf on their own plane would (index = label; False for 0).
+
+    A leaf is a flat Lambertian surface of the calibrated reflectance: the
+    incidence its intensity gives (``alpha``, through the leaf calibration)
+    is the incidence of the plane its ranges span. A surface whose median
+    ``alpha`` exceeds the incidence of its least-squares range plane (range
+    against the pulses' row and column, ``tan = |gradient| / (r step)`` at
+    its median range) by more than ``tolerance_rad`` is no leaf: a piece of
+    twig or branch, whose front faces the beam as a plane while its pulses
+    see the bulging surface at up to 90 deg and bark reflects less than a
+    leaf. Range noise only steepens a fitted plane, so a narrow piece is
+    spared rather than taken. Surfaces without a finite ``alpha`` are not dark.
+
+    Parameters
+    ----------
+    surfaces : ndarray of int, 2-D
+        Surface labels (0: none).
+    range_m : ndarray, 2-D
+        Ranges, m (NaN: no return).
+    alpha : ndarray, 2-D
+        Intensity-derived incidence, rad (NaN: unknown).
+    step_rad : float
+        Angle between neighbouring beams, rad.
+    tolerance_rad : float
+        Largest excess of the intensity's incidence over the plane's, rad.
+    """
+    if not tolerance_rad >= 0 or not step_rad > 0:
+        raise SfsError(f"tolerance_rad must be non-negative and step_rad positive, got {tolerance_rad!r} and "
+                       f"{step_rad!r}")
+    count = int(surfaces.max(initial=0)) + 1
+    dark = np.zeros(count, dtype=bool)
+    sel = (surfaces > 0) & np.isfinite(range_m)
+    if not sel.any():
+        return dark
+    label = surfaces[sel]
+    rows, cols = np.nonzero(sel)
+    n = np.bincount(label, minlength=count).astype(float)
+    safe = np.maximum(n, 1)
+    centred = [v - (np.bincount(label, v, minlength=count) / safe)[label] for v in (rows.astype(float),
+                                                                                 cols.astype(float), range_m[sel])]
+    di, dj, dr = centred
+    moments = [[np.bincount(label, a * b, minlength=count) for b in (di, dj)] for a in (di, dj)]
+    rhs = [np.bincount(label, a * dr, minlength=count) for a in (di, dj)]
+    det = moments[0][0] * moments[1][1] - moments[0][1] * moments[1][0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        gi = (moments[1][1] * rhs[0] - moments[0][1] * rhs[1]) / det
+        gj = (moments[0][0] * rhs[1] - moments[1][0] * rhs[0]) / det
+    median_range = np.full(count, np.nan)
+    present = np.unique(label)
+    median_range[present] = ndimage.median(range_m, np.where(sel, surfaces, 0), present)
+    plane = np.arctan(np.hypot(gi, gj) / (median_range * step_rad))
+    known = sel & np.isfinite(alpha)
+    median_alpha = np.full(count, np.nan)
+    present = np.unique(surfaces[known])
+    if len(present):
+        median_alpha[present] = ndimage.median(alpha, np.where(known, surfaces, 0), present)
+    with np.errstate(invalid="ignore"):
+        dark = (median_alpha > plane + tolerance_rad) & (n >= 3)
+    dark[0] = False
+    return dark
+
+
+def _range_plane(rows: np.ndarray, cols: np.ndarray, range_m: np.ndarray) -> np.ndarray:
+    """Least-squares plane of the ranges over the pixel rows and columns: ``(r0, dr/drow, dr/dcol)``."""
+    design = np.stack([np.ones(len(range_m)), rows, cols], axis=1).astype(float)
+    return np.linalg.lstsq(design, range_m, rcond=None)[0]
+
+
+def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndarray, gap_px: float,
+                  tolerance_m: float) -> np.ndarray:
+    """Surfaces cut apart by an occluder in front of them joined into one (the label of the first).
+
+    Two candidate surfaces are the parts of one leaf when they come within
+    ``gap_px`` of each other, most valid pulses of the gap between them
+    (within ``gap_px`` of both, on neither) lie nearer than both their range
+    planes by more than ``tolerance_m`` (something in front of the leaf cut
+    it: a twig or a petiole; a gap showing what lies behind, or nothing,
+    separates two leaves), and each part's range plane predicts the other's
+    ranges within ``tolerance_m`` (median absolute residual: one plane).
+
+    Parameters
+    ----------
+    surfaces : ndarray of int, 2-D
+        Surface labels (0: none).
+    range_m : ndarray, 2-D
+        Ranges, m (NaN: no return).
+    candidates : ndarray of bool
+        Surfaces that may be joined (index = label), e.g. the leaves.
+    gap_px : float
+        Widest occluder, pixels.
+    tolerance_m : float
+        Range tolerance of the plane tests, m.
+
+    Returns
+    -------
+    ndarray of int, 2-D
+        Surface labels, each joined group under its smallest label (the others no longer used).
+    """
+    if not gap_px > 0 or not tolerance_m > 0:
+        raise SfsError(f"gap_px and tolerance_m must be positive, got {gap_px!r} and {tolerance_m!r}")
+    parent = np.arange(int(surfaces.max(initial=0)) + 1)
+
+    def root(k):
+        while parent[k] != k:
+            parent[k] = parent[parent[k]]
+            k = parent[k]
+        return k
+
+    boxes = ndimage.find_objects(surfaces)
+    reach = int(math.ceil(gap_px))
+    disc = np.hypot(*np.mgrid[-reach:reach + 1, -reach:reach + 1]) <= gap_px
+    planes = {}
+    for k in np.nonzero(candidates[:len(boxes) + 1])[0]:
+        if k > 0 and boxes[k - 1] is not None:
+            rows, cols = np.nonzero(surfaces[boxes[k - 1]] == k)
+            rows, cols = rows + boxes[k - 1][0].start, cols + boxes[k - 1][1].start
+            planes[k] = (rows, cols, _range_plane(rows, cols, range_m[rows, cols]))
+    for k, (rows_k, cols_k, plane_k) in planes.items():
+        box = tuple(slice(max(s.start - 2 * reach, 0), min(s.stop + 2 * reach, n))
+                    for s, n in zip(boxes[k - 1], surfaces.shape))
+        sub = surfaces[box]
+        inside = sub == k
+        grown = ndimage.binary_dilation(inside, disc)
+        for m in np.unique(sub[grown & ~inside]):
+            if m <= k or m not in planes or root(m) == root(k):
+                continue
+            other = sub == m
+            gap = grown & ndimage.binary_dilation(other, disc) & ~inside & ~other
+            rows, cols = np.nonzero(gap)
+            rows, cols = rows + box[0].start, cols + box[1].start
+            rows_m, cols_m, plane_m = planes[m]
+            plane = 0.5 * (plane_k + plane_m)
+            with np.errstate(invalid="ignore"):
+                nearer = np.mean(range_m[rows, cols] < plane[0] + plane[1] * rows + plane[2] * cols - tolerance_m)
+            off_m = np.median(np.abs(range_m[rows_m, cols_m] - plane_k[0] - plane_k[1] * rows_m - plane_k[2] * cols_m))
+            off_k = np.median(np.abs(range_m[rows_k, cols_k] - plane_m[0] - plane_m[1] * rows_k - plane_m[2] * cols_k))
+            if len(rows) and nearer >= 0.5 and max(off_m, off_k) <= tolerance_m:
+                parent[root(m)] = root(k)
+    roots = np.array([root(k) for k in range(len(parent))])
+    return roots[surfaces]
 
 
 def rim_shares(region: np.ndarray, intensity: np.ndarray, gain_dn: float, rim_px: float) -> np.ndarray:

@@ -28,7 +28,7 @@ import numpy as np
 from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 
-from leafsfs.canopy import edge_pulses, pulse_noise, split_necks, wood_surfaces
+from leafsfs.canopy import dark_surfaces, edge_pulses, join_occluded, pulse_noise, split_necks, wood_surfaces
 from leafsfs.edges import MixedPulses, attribute_mixed, band_pixels
 from leafsfs.errors import SfsError
 from tlssim.pattern import beam_frame
@@ -177,7 +177,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
                  band_m: float = 0.01, min_width_m: float = 0.004, reach_m: float = 0.05,
                  intensity: np.ndarray | None = None, edge_radius_m: float = 0.0025, edge_factor: float = 2.5,
                  neck_ratio: float = 0.3, gain_dn: float | None = None, max_aspect: float = 4.0,
-                 min_fill: float = 0.5) -> Segmentation:
+                 min_fill: float = 0.5, occluder_gap_m: float = 0.01) -> Segmentation:
     """Surfaces, mixed pulses and leaf regions of a scan.
 
     Parameters
@@ -197,7 +197,9 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     max_slope_deg : float
         Steepest plausible slope without (or beyond) alpha, degrees.
     alpha_margin_deg : float
-        Tolerance on the intensity-derived incidence, degrees.
+        Tolerance on the intensity-derived incidence, degrees; a surface
+        whose median intensity-derived incidence exceeds that of its range
+        plane by more than it is no leaf (:func:`leafsfs.canopy.dark_surfaces`).
     noise_m : float, optional
         Standard deviation of the range noise, m (default: estimated,
         :func:`range_noise`). Links allow 3 sigma of the difference of two
@@ -242,6 +244,12 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         Surfaces more elongated or sparser than a leaf are wood
         (:func:`leafsfs.canopy.wood_surfaces`; ``max_aspect=inf`` and
         ``min_fill=0``: none).
+    occluder_gap_m : float
+        Leaf surfaces up to this far apart (at the scan's median range),
+        separated by something nearer than both and on one range plane
+        within 3 sigma, are one leaf cut by an occluder
+        (:func:`leafsfs.canopy.join_occluded`; assumption: 1 cm, twigs and
+        petioles in front of a leaf; 0: not joined).
     """
     valid = np.isfinite(range_m)
     if not valid.any():
@@ -272,14 +280,20 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     surfaces = split_thin_parts(lookup[component], range_m, step, min_width_m, piece_px)
     if neck_ratio > 0:
         surfaces = split_necks(surfaces, neck_ratio, piece_px, keep=_border_labels(surfaces) if drop_border else None)
-    band = band_pixels(band_m, range_m, surfaces, step)
-    mixed = attribute_mixed(range_m, surfaces, band, intensity, tolerance_m=3 * sigma,
-                            reach_px=band_pixels(reach_m, range_m, surfaces, step) if reach_m > 0 else 0)
     leaf = (surface_widths(surfaces, range_m, step) >= min_width_m) & \
         ~wood_surfaces(surfaces, range_m, theta, psi, step, alpha, max_aspect=max_aspect, min_fill=min_fill)
+    if alpha is not None:
+        leaf &= ~dark_surfaces(surfaces, range_m, alpha, step, math.radians(alpha_margin_deg))
     leaf[0] = False
     if drop_border:
         leaf &= ~_border_labels(surfaces)
+    if occluder_gap_m > 0:
+        surfaces = join_occluded(surfaces, range_m, leaf, occluder_gap_m / (float(np.nanmedian(range_m)) * step),
+                                 3 * sigma)
+        leaf &= np.bincount(surfaces.ravel(), minlength=len(leaf)) > 0  # the labels joined into another
+    band = band_pixels(band_m, range_m, surfaces, step)
+    mixed = attribute_mixed(range_m, surfaces, band, intensity, tolerance_m=3 * sigma,
+                            reach_px=band_pixels(reach_m, range_m, surfaces, step) if reach_m > 0 else 0)
     leaf_surfaces = np.nonzero(leaf)[0]
     relabel = np.zeros(len(leaf), dtype=int)
     relabel[leaf_surfaces] = np.arange(1, len(leaf_surfaces) + 1)
