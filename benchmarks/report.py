@@ -805,8 +805,8 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
     rerunnable = [r for r in rows if r["variant"] in set(variant_names())]
     showcase = pick_showcase(rerunnable) if before_after else None
     if showcase is not None:
-        shown = [r for r in rerunnable if r["case_name"] == showcase["name"] and not r["error"] and r["metrics"]["targets"]
-                 and all("rop_before" in t for t in r["metrics"]["targets"])]  # leaf methods only
+        shown = [r for r in rerunnable if r["case_name"] == showcase["name"] and not r["error"]  # leaf methods only
+                 and r["metrics"]["targets"] and all("rop_before" in t for t in r["metrics"]["targets"])]
         specs = list({r["variant"]: {"name": r["variant"], "params": r["params"]} for r in shown}.values())
         pictures.append(("Before / after on one leaf", plot_before_after(showcase, specs)))
     tree = pick_tree_showcase(rerunnable) if before_after else None

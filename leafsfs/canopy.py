@@ -386,7 +386,7 @@ def wood_surfaces(surfaces: np.ndarray, range_m: np.ndarray, theta: np.ndarray, 
 
 
 def dark_surfaces(surfaces: np.ndarray, range_m: np.ndarray, alpha: np.ndarray, step_rad: float,
-                  tolerance_rad: float) -> np.ndarray:
+                  tolerance_rad: float, noise_m: float) -> np.ndarray:
     """Which surfaces return less power than a leaf on their own plane would (index = label; False for 0).
 
     A leaf is a flat Lambertian surface of the calibrated reflectance: the
@@ -398,7 +398,10 @@ def dark_surfaces(surfaces: np.ndarray, range_m: np.ndarray, alpha: np.ndarray, 
     twig or branch, whose front faces the beam as a plane while its pulses
     see the bulging surface at up to 90 deg and bark reflects less than a
     leaf. Range noise only steepens a fitted plane, so a narrow piece is
-    spared rather than taken. Surfaces without a finite ``alpha`` are not dark.
+    spared rather than taken. Surfaces without a finite ``alpha`` are not dark,
+    nor are surfaces whose ranges leave their plane by more than three times
+    the range noise (RMS): their curvature is resolved (a dome, a rolled leaf),
+    so the plane says nothing of the incidence their pulses see.
 
     Parameters
     ----------
@@ -412,6 +415,8 @@ def dark_surfaces(surfaces: np.ndarray, range_m: np.ndarray, alpha: np.ndarray, 
         Angle between neighbouring beams, rad.
     tolerance_rad : float
         Largest excess of the intensity's incidence over the plane's, rad.
+    noise_m : float
+        Range noise (standard deviation), m.
     """
     if not tolerance_rad >= 0 or not step_rad > 0:
         raise SfsError(f"tolerance_rad must be non-negative and step_rad positive, got {tolerance_rad!r} and "
@@ -438,13 +443,15 @@ def dark_surfaces(surfaces: np.ndarray, range_m: np.ndarray, alpha: np.ndarray, 
     present = np.unique(label)
     median_range[present] = ndimage.median(range_m, np.where(sel, surfaces, 0), present)
     plane = np.arctan(np.hypot(gi, gj) / (median_range * step_rad))
+    residual = dr - gi[label] * di - gj[label] * dj
+    flat = np.bincount(label, residual ** 2, minlength=count) / safe <= (3 * noise_m) ** 2
     known = sel & np.isfinite(alpha)
     median_alpha = np.full(count, np.nan)
     present = np.unique(surfaces[known])
     if len(present):
         median_alpha[present] = ndimage.median(alpha, np.where(known, surfaces, 0), present)
     with np.errstate(invalid="ignore"):
-        dark = (median_alpha > plane + tolerance_rad) & (n >= 3)
+        dark = (median_alpha > plane + tolerance_rad) & (n >= 3) & flat
     dark[0] = False
     return dark
 

@@ -283,7 +283,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     leaf = (surface_widths(surfaces, range_m, step) >= min_width_m) & \
         ~wood_surfaces(surfaces, range_m, theta, psi, step, alpha, max_aspect=max_aspect, min_fill=min_fill)
     if alpha is not None:
-        leaf &= ~dark_surfaces(surfaces, range_m, alpha, step, math.radians(alpha_margin_deg))
+        leaf &= ~dark_surfaces(surfaces, range_m, alpha, step, math.radians(alpha_margin_deg), sigma)
     leaf[0] = False
     if drop_border:
         leaf &= ~_border_labels(surfaces)

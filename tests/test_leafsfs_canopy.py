@@ -17,6 +17,7 @@ from leafsfs.preprocess import scan_alpha
 from benchmarks.experiments.calibration import simulated_calibration
 
 STEP = math.radians(0.036)
+NOISE_M = 0.002  # range noise of a FARO-class scanner on a leaf at a few metres, m (assumption)
 
 
 def _grid(rows, cols):
@@ -114,11 +115,29 @@ def test_dark_surfaces_a_bark_cylinder_is_darker_than_its_plane_a_leaf_is_not():
         # the same cylinder with a leaf's reflectance: its curvature alone is within the tolerance
         leaf_like = alpha.copy()
         leaf_like[bark] = incidence
-        same = dark_surfaces(labels, range_m, leaf_like, STEP, math.radians(25))
-        assert dark_surfaces(labels, range_m, alpha, STEP, math.radians(25)).tolist() == [False, False, True]
+        same = dark_surfaces(labels, range_m, leaf_like, STEP, math.radians(25), NOISE_M)
+        assert dark_surfaces(labels, range_m, alpha, STEP, math.radians(25), NOISE_M).tolist() == [False, False, True]
         assert same.tolist() == [False, False, False]
     with pytest.raises(SfsError):
-        dark_surfaces(labels, range_m, alpha, STEP, -1.0)
+        dark_surfaces(labels, range_m, alpha, STEP, -1.0, NOISE_M)
+
+
+def test_dark_surfaces_spare_a_dome_whose_curvature_the_ranges_resolve():
+    # The thesis' hemisphere, 8 cm across at 1.5 m, of a leaf's reflectance: its intensity gives the incidence of
+    # each pulse (45 deg median) while its least-squares plane faces the beam; its ranges leave that plane by
+    # far more than the noise, so the plane is no measure of what its pulses see.
+    theta, psi = _grid(120, 120)
+    rows, cols = np.mgrid[0:120, 0:120]
+    spacing = 1.5 * STEP
+    radius = 0.04
+    rho = np.hypot(rows - 60, cols - 60) * spacing
+    dome = rho < 0.95 * radius
+    labels = np.where(dome, 1, 0)
+    range_m = np.where(dome, 1.5 - np.sqrt(np.clip(radius ** 2 - rho ** 2, 0, None)), np.nan)
+    alpha = np.where(dome, np.arcsin(np.clip(rho / radius, 0, 1)), np.nan)
+    assert dark_surfaces(labels, range_m, alpha, STEP, math.radians(25), NOISE_M).tolist() == [False, False]
+    # were the same ranges within the noise of a plane, the intensity would make it dark
+    assert dark_surfaces(labels, range_m, alpha, STEP, math.radians(25), 0.01).tolist() == [False, True]
 
 
 def test_join_occluded_joins_the_parts_of_a_leaf_behind_a_twig_only():
