@@ -21,6 +21,7 @@ COMMAND_MODULES = (
     "tlssim.commands.preview",
     "tlssim.commands.formats",
     "tlssim.commands.calibrate",
+    "tlssim.commands.diff",
 )
 
 
