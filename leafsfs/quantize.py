@@ -7,6 +7,15 @@ quantiles of the (smoothed, masked) alpha values so that the seed domain
 covers the fraction ``eps_seed`` of the pixels and every further domain
 ``eps_alpha``; the last (shell) domain takes the remainder (digest §3.2).
 
+Seeds are the regions of locally minimal alpha. A plateau of pixels sharing
+exactly the lowest alpha (a flat floor at alpha = 0) that covers ``eps_seed``
+or more would make ``alpha_0`` its own value: the seed domain would be the
+plateau alone, no other alpha minimum (a crest beside the floor) could be a
+seed, and the next domains would collapse into it. Such a plateau stays in
+the seed domain but the fractions are then measured on the pixels above it
+(ours, not in the thesis: its quantile rule assumes a continuous alpha
+distribution). A smaller plateau, or none, leaves the rule as it is.
+
 The *shell rule* of chapter 7 ties ``eps_alpha`` to the size of the object:
 ``eps_alpha = mu * a_shell / a_tot``, with ``a_shell`` the number of pixels of
 a one-pixel-wide shell of the object (its contour; ``4 (Theta - 1)`` for a
@@ -50,7 +59,10 @@ def quantile_thresholds(values: np.ndarray, eps_alpha: float, eps_seed: float) -
     """Thresholds ``alpha_0 .. alpha_n`` (rad, strictly increasing, last = pi/2) from area fractions.
 
     ``alpha_0 = Q(eps_seed)``, ``alpha_i = Q(eps_seed + i eps_alpha)`` while the
-    fraction is below 1 (digest §3.2). Equal quantiles (flat alpha) collapse.
+    fraction is below 1 (digest §3.2). ``Q`` is the quantile of all values,
+    or of those above the lowest one when ``Q(eps_seed)`` is that value (a tied
+    plateau fills the seed; see the module docstring). Equal quantiles (flat
+    alpha) collapse.
 
     Parameters
     ----------
@@ -66,6 +78,10 @@ def quantile_thresholds(values: np.ndarray, eps_alpha: float, eps_seed: float) -
     ndarray
         The thresholds, rad.
     """
+    values = np.asarray(values, dtype=float).ravel()
+    above = values[values > values.min()]
+    if len(above) and np.quantile(values, eps_seed) <= values.min():
+        values = above  # a plateau tied at the lowest alpha fills the seed: fractions of the pixels above it
     fractions = np.arange(eps_seed, 1.0 - 1e-9, eps_alpha)
     inner = np.quantile(values, fractions) if len(fractions) else np.zeros(0)
     return np.unique(np.append(np.minimum(inner, np.pi / 2), np.pi / 2))

@@ -132,9 +132,10 @@ def test_ch5_experiments_quick_table_shapes():
     # and the lower-bound rule (the inner curve's alpha) too shallow
     assert signed["lower/bias +0/signed"] > signed["median/bias +0/signed"] + 2
     assert [r.x for r in vase if r.x is not None] == [20.0, 10.0, 5.0] * (len(thesis_ch5.RULES) + 2)
-    # the diagnosis: with the floor in the mask the seed is the floor (alpha ties at 0), without it none of it
+    # the diagnosis: with the floor in the mask the seed holds the floor (alpha ties at 0) and the body's crest,
+    # without it none of the floor
     on_floor = {r.series: r.ours for r in vase if r.key.endswith("seed on the floor")}
-    assert on_floor["median"] > 95.0 and on_floor["median, floor out"] == 0.0
+    assert 50.0 < on_floor["median"] < 95.0 and on_floor["median, floor out"] == 0.0
     assert all(r.claim and r.source for r in bias + vase if r.holds is not None)
 
 
