@@ -600,7 +600,7 @@ def plot_tree_before_after(case_spec: dict, variant_spec: dict, max_pulses: int 
 
 def preview_cases(rows: list[dict]) -> tuple[list[dict], int]:
     """The cases that get a picture: up to :data:`PREVIEWS_PER_KIND` per kind of scene, :data:`PREVIEWS_MAX` in
-    all; also the number of cases of the run.
+    all (height-field cases have no scene to scan: none of them); also the number of cases of the run.
 
     Parameters
     ----------
@@ -617,6 +617,8 @@ def preview_cases(rows: list[dict]) -> tuple[list[dict], int]:
     chosen, per_kind = [], {}
     for spec in specs.values():
         kind = summary.scene_kind(spec)
+        if heightfields.is_heightfield(spec["scene"]):
+            continue
         if per_kind.get(kind, 0) < PREVIEWS_PER_KIND and len(chosen) < PREVIEWS_MAX:
             per_kind[kind] = per_kind.get(kind, 0) + 1
             chosen.append(spec)

@@ -197,3 +197,14 @@ def test_a_run_of_a_variant_no_longer_registered_still_reports(tmp_path):
         store._db.execute("UPDATE results SET variant = 'retired-filter' WHERE variant = 'shadow'")
         text = write_html(store, outcome.run_id, tmp_path / "report.html").read_text()
     assert "retired-filter" in text and "<h3>Before / after on one leaf</h3>" in text
+
+
+def test_a_run_of_height_fields_only_reports_without_case_pictures(tmp_path):
+    # A height-field case has no scene to scan: it gets no range/intensity preview, and the page is still written.
+    suite = {"name": "heights", "cases": [{"name": "dome", "scene": {"heightfield": "hemisphere", "side": 25}}]}
+    (tmp_path / "suite.yaml").write_text(yaml.safe_dump(suite))
+    with Store(tmp_path / "r.sqlite") as store:
+        outcome = execute(load_suite(str(tmp_path / "suite.yaml")), registry.resolve(["buffer"]), store,
+                          workers=0, progress=False)
+        text = write_html(store, outcome.run_id, tmp_path / "report.html").read_text()
+    assert "hemisphere" in text and "<figcaption>dome" not in text
