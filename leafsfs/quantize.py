@@ -7,14 +7,16 @@ quantiles of the (smoothed, masked) alpha values so that the seed domain
 covers the fraction ``eps_seed`` of the pixels and every further domain
 ``eps_alpha``; the last (shell) domain takes the remainder (digest §3.2).
 
-Seeds are the regions of locally minimal alpha. A plateau of pixels sharing
-exactly the lowest alpha (a flat floor at alpha = 0) that covers ``eps_seed``
-or more would make ``alpha_0`` its own value: the seed domain would be the
-plateau alone, no other alpha minimum (a crest beside the floor) could be a
-seed, and the next domains would collapse into it. Such a plateau stays in
-the seed domain but the fractions are then measured on the pixels above it
-(ours, not in the thesis: its quantile rule assumes a continuous alpha
-distribution). A smaller plateau, or none, leaves the rule as it is.
+Seeds are the regions of locally minimal alpha. A flat plateau, pixels
+sharing exactly the lowest alpha (a flat floor at alpha = 0, or an alpha
+clipped at 0), is one value, not a spread of them: it belongs to the seed
+domain but does not count in the fractions, which are measured on the pixels
+above it. Counted, a plateau near or above ``eps_seed`` would make
+``alpha_0`` its own value: the seed domain would be the plateau alone, no
+other alpha minimum (a crest beside the floor) could be a seed, and the next
+domains would collapse into it (ours, not in the thesis: its quantile rule
+assumes a continuous alpha distribution). Fewer than :data:`PLATEAU_PX` tied
+pixels are no plateau and leave the rule as it is.
 
 The *shell rule* of chapter 7 ties ``eps_alpha`` to the size of the object:
 ``eps_alpha = mu * a_shell / a_tot``, with ``a_shell`` the number of pixels of
@@ -29,6 +31,9 @@ import numpy as np
 
 from leafsfs.contour import contour_pixels
 
+#: Pixels tied at the lowest alpha that make a flat plateau: more than the 8 that the symmetries of the square
+#: pixel grid can make equal around an isolated minimum (the 4 centre pixels of an even-sided dome, say).
+PLATEAU_PX = 9
 #: Chapter-7 parameter sets: shell number mu and seed factor nu.
 SHELL_SETS = {"T1": (2, 2), "T2": (3, 2), "T3": (4, 2), "T3*": (4, 1)}
 
@@ -60,8 +65,8 @@ def quantile_thresholds(values: np.ndarray, eps_alpha: float, eps_seed: float) -
 
     ``alpha_0 = Q(eps_seed)``, ``alpha_i = Q(eps_seed + i eps_alpha)`` while the
     fraction is below 1 (digest §3.2). ``Q`` is the quantile of all values,
-    or of those above the lowest one when ``Q(eps_seed)`` is that value (a tied
-    plateau fills the seed; see the module docstring). Equal quantiles (flat
+    or of those above the lowest one when :data:`PLATEAU_PX` or more values
+    tie at it (a flat plateau; see the module docstring). Equal quantiles (flat
     alpha) collapse.
 
     Parameters
@@ -80,8 +85,8 @@ def quantile_thresholds(values: np.ndarray, eps_alpha: float, eps_seed: float) -
     """
     values = np.asarray(values, dtype=float).ravel()
     above = values[values > values.min()]
-    if len(above) and np.quantile(values, eps_seed) <= values.min():
-        values = above  # a plateau tied at the lowest alpha fills the seed: fractions of the pixels above it
+    if len(above) and len(values) - len(above) >= PLATEAU_PX:
+        values = above  # a plateau tied at the lowest alpha: the fractions are those of the pixels above it
     fractions = np.arange(eps_seed, 1.0 - 1e-9, eps_alpha)
     inner = np.quantile(values, fractions) if len(fractions) else np.zeros(0)
     return np.unique(np.append(np.minimum(inner, np.pi / 2), np.pi / 2))

@@ -6,7 +6,7 @@ import pytest
 from leafsfs.engine import reconstruct_heights
 from leafsfs.grid import PixelGrid
 from leafsfs.params import SfsParams
-from leafsfs.quantize import assign_levels, quantile_thresholds
+from leafsfs.quantize import PLATEAU_PX, assign_levels, quantile_thresholds
 from leafsfs.segment import split_parts
 
 
@@ -36,23 +36,32 @@ def test_a_tied_floor_does_not_fill_the_seed():
         assert np.any(levels[parts == k] == 0)
 
 
-def test_a_plateau_smaller_than_the_seed_keeps_the_plain_quantiles():
-    values = np.concatenate([np.zeros(10), np.linspace(0.1, 1.0, 90)])  # 10 % tied at 0, seed fraction 20 %
+def test_a_plateau_is_left_out_of_the_fractions_whatever_its_share_but_symmetric_ties_are_not():
+    spread = np.linspace(0.1, 1.0, 200)
+    for share in (0.05, 0.19, 0.2, 0.5):  # a plateau just under the seed fraction must not starve the other seeds
+        values = np.concatenate([np.zeros(int(share * 200 / (1 - share))), spread])
+        assert np.allclose(quantile_thresholds(values, 0.2, 0.2),
+                           np.append(np.quantile(spread, [0.2, 0.4, 0.6, 0.8]), np.pi / 2), rtol=0, atol=1e-12)
+    # fewer ties than PLATEAU_PX (the 4 centre pixels of an even-sided dome): the plain quantiles
+    values = np.concatenate([np.zeros(PLATEAU_PX - 1), spread])
     assert np.allclose(quantile_thresholds(values, 0.2, 0.2),
                        np.append(np.quantile(values, [0.2, 0.4, 0.6, 0.8]), np.pi / 2), rtol=0, atol=1e-12)
     assert np.array_equal(quantile_thresholds(np.full(50, 0.2), 0.1, 0.2), [0.2, np.pi / 2])
 
 
-def test_a_half_cylinder_on_a_floor_is_reconstructed_from_its_crest():
-    # Height field of a half cylinder (radius 8 px) lying on a flat floor that covers 60 % of the matrix: seeded
-    # by the floor alone, the body would be reached through its vertical walls (mean error 67 % of its height).
+@pytest.mark.parametrize("radius", [8.0, 16.0])
+def test_a_half_cylinder_on_a_floor_is_reconstructed_from_its_crest(radius):
+    # Height field of a half cylinder lying on a flat floor that covers 60 % or exactly the seed fraction (20 %) of
+    # the matrix: seeded by the floor alone, the body would be reached through its vertical walls (mean errors of
+    # 67 and 137 % of its height).
     y = np.arange(40.0)[:, None] - 19.5 + np.zeros((1, 40))
-    body = np.abs(y) < 8.0
-    height = np.where(body, np.sqrt(np.maximum(64.0 - y**2, 0.0)), 0.0)
-    alpha = np.where(body, np.arctan(np.abs(y) / np.sqrt(np.maximum(64.0 - y**2, 1e-9))), 0.0)
+    body = np.abs(y) < radius
+    height = np.where(body, np.sqrt(np.maximum(radius**2 - y**2, 0.0)), 0.0)
+    alpha = np.where(body, np.arctan(np.abs(y) / np.sqrt(np.maximum(radius**2 - y**2, 1e-9))), 0.0)
     params = SfsParams(n_smooth=0, quantization="percentile", eps_alpha=0.1, eps_seed=0.2, alpha_max_deg=85,
                        seed_cutoff=None, rim_px=0)
     result = reconstruct_heights(alpha, height, np.ones(alpha.shape, bool), PixelGrid(), "buffer", params)
-    error = np.abs(result.height - height)[body] / 8.0
+    error = np.abs(result.height - height)[body] / radius
     assert result.parts.max() == 3
-    assert np.isfinite(error).all() and np.mean(error) < 0.02
+    done = np.isfinite(error)
+    assert np.mean(done) > 0.98 and np.mean(error[done]) < 0.02
