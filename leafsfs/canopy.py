@@ -82,8 +82,8 @@ def pulse_noise(noise_m: float, intensity: np.ndarray | None, gain_dn: float | N
     return noise_m * np.exp(-NOISE_POWER_EXPONENT * np.clip(level, -3 * gain_dn, 3 * gain_dn) / gain_dn)
 
 
-def plane_fits(range_m: np.ndarray, radius_px: float,
-               side: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def plane_fits(range_m: np.ndarray, radius_px: float, side: tuple[int, int] | None = None,
+               where: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Least-squares plane fitted to the ranges within ``radius_px`` of every pulse.
 
     Parameters
@@ -96,6 +96,8 @@ def plane_fits(range_m: np.ndarray, radius_px: float,
         Only the half of the disc on this side of the pulse: the offsets
         ``(di, dj)`` with ``di * side[0] + dj * side[1] >= 0`` (the pulse and
         the diameter through it included; default: the whole disc).
+    where : ndarray of bool, 2-D, optional
+        Pulses to fit a plane around (default: every pulse with a range).
 
     Returns
     -------
@@ -113,13 +115,13 @@ def plane_fits(range_m: np.ndarray, radius_px: float,
         pulse off the plane of the others shows at its full offset however
         many pulses share the residuals.
 
-    All NaN where fewer than 5 neighbours returned.
+    All NaN where fewer than 5 neighbours returned, and off ``where``.
     """
     offsets = _disc_offsets(radius_px, side)
     r = int(np.abs(offsets).max())
     design = np.stack([np.ones(len(offsets)), offsets[:, 0], offsets[:, 1]], axis=1).astype(float)
     padded = np.pad(range_m, r, constant_values=np.nan)
-    centres = np.argwhere(np.isfinite(range_m))
+    centres = np.argwhere(np.isfinite(range_m) if where is None else np.isfinite(range_m) & where)
     out = np.full((4, *range_m.shape), np.nan)
     for start in range(0, len(centres), CHUNK):
         c = centres[start:start + CHUNK]
@@ -154,12 +156,15 @@ def _disc_offsets(radius_px: float, side: tuple[int, int] | None) -> np.ndarray:
     return np.stack([di[keep], dj[keep]], axis=1)
 
 
-def _least_over(image: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """Smallest value of ``image`` over the pixel offsets around every pixel (outside the image: ignored)."""
+def _least_at(image: np.ndarray, offsets: np.ndarray, at: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Smallest value of ``image`` over the pixel offsets around the pixels ``at`` (outside the image: ignored)."""
     r = int(np.abs(offsets).max())
-    footprint = np.zeros((2 * r + 1, 2 * r + 1), dtype=bool)
-    footprint[offsets[:, 0] + r, offsets[:, 1] + r] = True
-    return ndimage.minimum_filter(np.asarray(image, dtype=float), footprint=footprint, mode="constant", cval=np.inf)
+    padded = np.pad(np.asarray(image, dtype=float), r, constant_values=np.inf)
+    out = np.empty(len(at[0]))
+    for start in range(0, len(out), CHUNK):
+        rows, cols = at[0][start:start + CHUNK, None] + r, at[1][start:start + CHUNK, None] + r
+        out[start:start + CHUNK] = padded[rows + offsets[None, :, 0], cols + offsets[None, :, 1]].min(axis=1)
+    return out
 
 
 #: Sides of the half discs of :func:`edge_pulses` (every 45 deg: a straight edge is within 22.5 deg of one
@@ -219,15 +224,20 @@ def edge_pulses(range_m: np.ndarray, radius_px: float, noise_m: np.ndarray | flo
         raise SfsError(f"noise_m and factor must be positive, got {noise_m!r} and {factor!r}")
     plausible = np.zeros(range_m.shape, dtype=bool)
     for side in HALF_DISC_SIDES:
-        rms, slope, slope_noise, deviation = plane_fits(range_m, radius_px, side)
+        # Only the pulses no side has shown plausible yet: most are plausible on the first side.
+        todo = np.isfinite(range_m) & ~plausible
+        at = np.nonzero(todo)
+        rms, slope, slope_noise, deviation = (v[at] for v in plane_fits(range_m, radius_px, side, where=todo))
         offsets = _disc_offsets(radius_px, side)
-        steepest = _least_over(max_slope, offsets) if np.ndim(max_slope) else max_slope
+        steepest = _least_at(max_slope, offsets, at) if np.ndim(max_slope) else max_slope
         # rms^2 / sigma^2 of a plane is chi-square over its n - 3 degrees of freedom: mean 1, variance 2 / (n - 3)
         spread = 1 + factor * math.sqrt(2 / max(len(offsets) - 3, 1))
-        least_noise = _least_over(noise_m, offsets) if np.ndim(noise_m) else noise_m
+        least_noise = _least_at(noise_m, offsets, at) if np.ndim(noise_m) else noise_m
+        spacing = spacing_m[at] if np.ndim(spacing_m) else spacing_m
+        noise = noise_m[at] if np.ndim(noise_m) else noise_m
         with np.errstate(invalid="ignore"):
-            plausible |= (rms ** 2 <= spread * least_noise ** 2) & (np.abs(deviation) <= factor * least_noise) \
-                & (slope <= spacing_m * steepest + factor * noise_m * slope_noise)
+            plausible[at] = (rms ** 2 <= spread * least_noise ** 2) & (np.abs(deviation) <= factor * least_noise) \
+                & (slope <= spacing * steepest + factor * noise * slope_noise)
     return np.isfinite(range_m) & ~plausible
 
 
