@@ -397,6 +397,8 @@ def shifted(image: np.ndarray, di: int, dj: int, fill) -> np.ndarray:
     """``out[i, j] = image[i + di, j + dj]`` (``fill`` outside)."""
     out = np.full_like(image, fill)
     rows, cols = image.shape[:2]
+    if abs(di) >= rows or abs(dj) >= cols:
+        return out
     out[max(-di, 0):rows - max(di, 0), max(-dj, 0):cols - max(dj, 0)] = \
         image[max(di, 0):rows + min(di, 0) or None, max(dj, 0):cols + min(dj, 0) or None]
     return out

@@ -10,7 +10,7 @@ import scenes
 import tlssim
 from leafsfs import SfsError, reconstruct
 from leafsfs.canopy import (crease_pulses, dark_surfaces, edge_pulses, join_occluded, plane_fits, rim_shares,
-                            split_creases, split_necks,
+                            shifted, split_creases, split_necks,
                             visibility, wood_surfaces)
 from leafsfs.leaves import range_noise
 from leafsfs.leaves import segment_scan
@@ -85,6 +85,11 @@ def test_crease_pulses_mark_where_two_planes_meet_not_a_curved_leaf():
     assert not crease_pulses(cup, known, spacing, 0.0015).any()
     with pytest.raises(SfsError):
         crease_pulses(roof, known, spacing, 0.0015, max_angle_deg=0)
+    # a surface narrower than the planes' offset has no crease (and no error)
+    assert not crease_pulses(roof[:4, :5], known[:4, :5], spacing, 0.0015).any()
+    image = np.arange(12.0).reshape(3, 4)
+    assert np.array_equal(shifted(image, 1, -1, -1.0), [[-1, 4, 5, 6], [-1, 8, 9, 10], [-1, -1, -1, -1]])
+    assert (shifted(image, 0, 4, -1.0) == -1).all() and (shifted(image, -3, 0, -1.0) == -1).all()
 
 
 def test_split_creases_cuts_two_touching_leaves_apart_and_keeps_a_curved_one_whole():
