@@ -21,13 +21,17 @@ steps, all from range and the scan grid (no truth), separate them:
   principal axis much shorter than the first) are twigs, branches and
   trunks. Points in 3-D are free of the foreshortening that makes a leaf
   seen edge-on look thin in the scan image.
+* :func:`split_creases`: a surface taken for a leaf is cut where two
+  planes meet at an angle with no range step (:func:`crease_pulses`: a
+  leaf touching another at the same distance, a leaf lying on a branch),
+  and its parts are judged again.
 * :func:`dark_surfaces`: surfaces whose intensity says a steeper incidence
   than the plane of their ranges by more than the intensity's tolerance
   are no leaves: short twig and branch pieces (a bulging front that a
   plane fits as facing the beam, and bark darker than a leaf).
 
-Where it fails: a leaf touching another at the same distance (no range
-step, only a crease of the normal) stays merged with it; a leaf narrower
+Where it fails: a leaf touching another at the same distance and turned
+less than the crease angle (40 deg) from it stays merged with it; a leaf narrower
 than ``1 / max_aspect`` of its length (grass, willow) is taken for wood; a
 short twig piece seen between two leaves (shorter than ``max_aspect`` times
 its diameter) is taken for a leaf unless it is dark for its plane; a leaf
@@ -43,6 +47,7 @@ import numpy as np
 from scipy import ndimage
 
 from leafsfs.errors import SfsError
+from leafsfs.grid import gaussian_planes
 from tlssim.pattern import beam_frame
 
 #: Incidence at which the area of a pulse stops growing as 1 / cos(alpha), deg (the intensity is unreliable
@@ -82,8 +87,8 @@ def pulse_noise(noise_m: float, intensity: np.ndarray | None, gain_dn: float | N
     return noise_m * np.exp(-NOISE_POWER_EXPONENT * np.clip(level, -3 * gain_dn, 3 * gain_dn) / gain_dn)
 
 
-def plane_fits(range_m: np.ndarray, radius_px: float,
-               side: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def plane_fits(range_m: np.ndarray, radius_px: float, side: tuple[int, int] | None = None,
+               where: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Least-squares plane fitted to the ranges within ``radius_px`` of every pulse.
 
     Parameters
@@ -96,6 +101,8 @@ def plane_fits(range_m: np.ndarray, radius_px: float,
         Only the half of the disc on this side of the pulse: the offsets
         ``(di, dj)`` with ``di * side[0] + dj * side[1] >= 0`` (the pulse and
         the diameter through it included; default: the whole disc).
+    where : ndarray of bool, 2-D, optional
+        Pulses to fit a plane around (default: every pulse with a range).
 
     Returns
     -------
@@ -113,13 +120,13 @@ def plane_fits(range_m: np.ndarray, radius_px: float,
         pulse off the plane of the others shows at its full offset however
         many pulses share the residuals.
 
-    All NaN where fewer than 5 neighbours returned.
+    All NaN where fewer than 5 neighbours returned, and off ``where``.
     """
     offsets = _disc_offsets(radius_px, side)
     r = int(np.abs(offsets).max())
     design = np.stack([np.ones(len(offsets)), offsets[:, 0], offsets[:, 1]], axis=1).astype(float)
     padded = np.pad(range_m, r, constant_values=np.nan)
-    centres = np.argwhere(np.isfinite(range_m))
+    centres = np.argwhere(np.isfinite(range_m) if where is None else np.isfinite(range_m) & where)
     out = np.full((4, *range_m.shape), np.nan)
     for start in range(0, len(centres), CHUNK):
         c = centres[start:start + CHUNK]
@@ -154,12 +161,15 @@ def _disc_offsets(radius_px: float, side: tuple[int, int] | None) -> np.ndarray:
     return np.stack([di[keep], dj[keep]], axis=1)
 
 
-def _least_over(image: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """Smallest value of ``image`` over the pixel offsets around every pixel (outside the image: ignored)."""
+def _least_at(image: np.ndarray, offsets: np.ndarray, at: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Smallest value of ``image`` over the pixel offsets around the pixels ``at`` (outside the image: ignored)."""
     r = int(np.abs(offsets).max())
-    footprint = np.zeros((2 * r + 1, 2 * r + 1), dtype=bool)
-    footprint[offsets[:, 0] + r, offsets[:, 1] + r] = True
-    return ndimage.minimum_filter(np.asarray(image, dtype=float), footprint=footprint, mode="constant", cval=np.inf)
+    padded = np.pad(np.asarray(image, dtype=float), r, constant_values=np.inf)
+    out = np.empty(len(at[0]))
+    for start in range(0, len(out), CHUNK):
+        rows, cols = at[0][start:start + CHUNK, None] + r, at[1][start:start + CHUNK, None] + r
+        out[start:start + CHUNK] = padded[rows + offsets[None, :, 0], cols + offsets[None, :, 1]].min(axis=1)
+    return out
 
 
 #: Sides of the half discs of :func:`edge_pulses` (every 45 deg: a straight edge is within 22.5 deg of one
@@ -219,16 +229,179 @@ def edge_pulses(range_m: np.ndarray, radius_px: float, noise_m: np.ndarray | flo
         raise SfsError(f"noise_m and factor must be positive, got {noise_m!r} and {factor!r}")
     plausible = np.zeros(range_m.shape, dtype=bool)
     for side in HALF_DISC_SIDES:
-        rms, slope, slope_noise, deviation = plane_fits(range_m, radius_px, side)
+        # Only the pulses no side has shown plausible yet: most are plausible on the first side.
+        todo = np.isfinite(range_m) & ~plausible
+        at = np.nonzero(todo)
+        rms, slope, slope_noise, deviation = (v[at] for v in plane_fits(range_m, radius_px, side, where=todo))
         offsets = _disc_offsets(radius_px, side)
-        steepest = _least_over(max_slope, offsets) if np.ndim(max_slope) else max_slope
+        steepest = _least_at(max_slope, offsets, at) if np.ndim(max_slope) else max_slope
         # rms^2 / sigma^2 of a plane is chi-square over its n - 3 degrees of freedom: mean 1, variance 2 / (n - 3)
         spread = 1 + factor * math.sqrt(2 / max(len(offsets) - 3, 1))
-        least_noise = _least_over(noise_m, offsets) if np.ndim(noise_m) else noise_m
+        least_noise = _least_at(noise_m, offsets, at) if np.ndim(noise_m) else noise_m
+        spacing = spacing_m[at] if np.ndim(spacing_m) else spacing_m
+        noise = noise_m[at] if np.ndim(noise_m) else noise_m
         with np.errstate(invalid="ignore"):
-            plausible |= (rms ** 2 <= spread * least_noise ** 2) & (np.abs(deviation) <= factor * least_noise) \
-                & (slope <= spacing_m * steepest + factor * noise_m * slope_noise)
+            plausible[at] = (rms ** 2 <= spread * least_noise ** 2) & (np.abs(deviation) <= factor * least_noise) \
+                & (slope <= spacing * steepest + factor * noise * slope_noise)
     return np.isfinite(range_m) & ~plausible
+
+
+#: Rows of the scan whose local planes :func:`crease_pulses` fits at once (memory: about 1 kB per pixel).
+CREASE_STRIP_ROWS = 256
+
+
+def crease_pulses(range_m: np.ndarray, known: np.ndarray, spacing_m: np.ndarray | float, noise_m: np.ndarray | float,
+                  sigma_px: float = 3.0, max_angle_deg: float = 40.0, factor: float = 3.0) -> np.ndarray:
+    """Pulses where two surfaces meet at an angle with no step in range (a crease of the normal).
+
+    Two leaves touching at the same distance, or a leaf lying on a branch,
+    leave no range step between them that the linking could cut, only a
+    change of the normal. Around every pulse ``p`` and along the four grid
+    directions ``u``, the local planes at ``p + d u`` and ``p - d u`` (``d =
+    2 sigma_px``: Gaussian-weighted least-squares planes of the ranges,
+    :func:`leafsfs.grid.gaussian_planes`, which see little of each other)
+    are compared: ``p`` is a crease pulse when their normals differ by more
+    than ``max_angle_deg`` and both planes, extrapolated to ``p``, predict
+    its range within ``factor`` noise standard deviations (the two surfaces
+    meet there). A leaf's own
+    curvature turns its normal by far less over ``2 d`` pixels (about 1 cm
+    at the FARO protocol's step and 3 m). The normal of a plane of range
+    gradient ``g`` (m per pixel) is ``(g / spacing, -1)`` in the beam's frame.
+
+    Parameters
+    ----------
+    range_m : ndarray, 2-D
+        Ranges, m (NaN: no return).
+    known : ndarray of bool, 2-D
+        Pulses the planes are fitted to (the pure ones: not edge pulses).
+    spacing_m : ndarray or float
+        Distance between neighbouring pulses on a surface facing the beam (range times the angular step), m.
+    noise_m : ndarray or float
+        Range noise per pulse (or one for all), m.
+    sigma_px : float
+        Standard deviation of the planes' Gaussian weights, pixels (the
+        slope noise falls as ``sigma_px ** -2``: 3 pixels keep it to about 4
+        deg at a noise of three pulse spacings).
+    max_angle_deg : float
+        Largest angle between the normals of one surface's two sides, deg
+        (assumption: 40; the leaves and branches merged in the leafy tree at
+        0.018 deg meet at 50-90 deg).
+    factor : float
+        Range tolerance of the meeting test, in noise standard deviations.
+
+    Returns
+    -------
+    ndarray of bool, 2-D
+    """
+    if not sigma_px > 0 or not 0 < max_angle_deg < 180 or not factor > 0:
+        raise SfsError(f"sigma_px and factor must be positive and max_angle_deg lie in ]0, 180[, got {sigma_px!r}, "
+                       f"{max_angle_deg!r} and {factor!r}")
+    d = max(1, int(round(2 * sigma_px)))
+    margin = d + int(math.ceil(3 * sigma_px))
+    rows = range_m.shape[0]
+    crease = np.zeros(range_m.shape, dtype=bool)
+    spacing = np.broadcast_to(spacing_m, range_m.shape)
+    noise = np.broadcast_to(noise_m, range_m.shape)
+    limit = math.cos(math.radians(max_angle_deg))
+    for start in range(0, rows, CREASE_STRIP_ROWS):
+        part = slice(max(start - margin, 0), min(start + CREASE_STRIP_ROWS + margin, rows))
+        r = range_m[part]
+        height, slope, fitted = gaussian_planes(np.nan_to_num(r), known[part] & np.isfinite(r), sigma_px)
+        tangent = slope / np.asarray(spacing[part])[..., None]
+        tolerance = factor * np.asarray(noise[part])
+        found = np.zeros(r.shape, dtype=bool)
+        for di, dj in ((0, 1), (1, 0), (1, 1), (1, -1)):
+            sides = []
+            for sign in (1, -1):
+                a, b = sign * d * di, sign * d * dj
+                ok = shifted(fitted, a, b, False)
+                t = shifted(tangent, a, b, 0.0)
+                # the plane at p + (a, b), extrapolated back to p
+                at_p = shifted(height, a, b, np.nan) - a * shifted(slope[..., 0], a, b, 0.0) \
+                    - b * shifted(slope[..., 1], a, b, 0.0)
+                with np.errstate(invalid="ignore"):
+                    sides.append((ok & (np.abs(at_p - r) <= tolerance), t))
+            (ok_a, t_a), (ok_b, t_b) = sides
+            cosine = (1 + np.sum(t_a * t_b, axis=-1)) / np.sqrt((1 + np.sum(t_a ** 2, axis=-1))
+                                                                * (1 + np.sum(t_b ** 2, axis=-1)))
+            found |= ok_a & ok_b & (cosine < limit)
+        keep = slice(start - part.start, start - part.start + min(CREASE_STRIP_ROWS, rows - start))
+        crease[start:start + CREASE_STRIP_ROWS] = found[keep]
+    return crease & np.isfinite(range_m)
+
+
+def split_creases(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndarray, spacing_m: np.ndarray,
+                  noise_m: np.ndarray | float, max_angle_deg: float, min_pixels: int) -> tuple[np.ndarray, bool]:
+    """Candidate surfaces cut along their creases (:func:`crease_pulses`) into parts of at least ``min_pixels``.
+
+    Each candidate's planes are fitted to its own pulses only, so a
+    neighbouring surface does not bend them. Where the crease pulses cut a
+    surface into two or more parts of at least ``min_pixels``, the first
+    part keeps the label, the others are numbered after the existing
+    labels, and the crease pulses and smaller pieces go to the nearest part.
+
+    Parameters
+    ----------
+    surfaces : ndarray of int, 2-D
+        Surface labels (0: none).
+    range_m : ndarray, 2-D
+        Ranges, m.
+    candidates : ndarray of bool
+        Surfaces that may be cut (index = label), e.g. the leaves.
+    spacing_m : ndarray, 2-D
+        Distance between neighbouring pulses on a surface facing the beam, m.
+    noise_m : ndarray or float
+        Range noise per pulse (or one for all), m.
+    max_angle_deg : float
+        Crease angle (:func:`crease_pulses`), deg.
+    min_pixels : int
+        Smallest part, pixels.
+
+    Returns
+    -------
+    surfaces : ndarray of int, 2-D
+        Surface labels.
+    cut : bool
+        Whether any surface was cut.
+    """
+    out = surfaces.copy()
+    count = int(surfaces.max(initial=0))
+    noise = np.broadcast_to(noise_m, range_m.shape)
+    cut = False
+    for k, box in enumerate(ndimage.find_objects(surfaces), start=1):
+        if box is None or k >= len(candidates) or not candidates[k]:
+            continue
+        inside = surfaces[box] == k
+        if inside.sum() < 2 * min_pixels:
+            continue
+        crease = crease_pulses(range_m[box], inside, spacing_m[box], noise[box], max_angle_deg=max_angle_deg) & inside
+        if not crease.any():
+            continue
+        parts, n = ndimage.label(inside & ~crease)
+        sizes = np.bincount(parts.ravel(), minlength=n + 1)
+        sizes[0] = 0
+        big = np.nonzero(sizes >= min_pixels)[0]
+        if len(big) < 2:
+            continue
+        lookup = np.zeros(n + 1, dtype=int)
+        lookup[big] = np.r_[k, count + 1 + np.arange(len(big) - 1)]
+        count += len(big) - 1
+        labels = lookup[parts]
+        nearest = tuple(ndimage.distance_transform_edt(labels == 0, return_distances=False, return_indices=True))
+        out[box][inside] = labels[nearest][inside]
+        cut = True
+    return out, cut
+
+
+def shifted(image: np.ndarray, di: int, dj: int, fill) -> np.ndarray:
+    """``out[i, j] = image[i + di, j + dj]`` (``fill`` outside)."""
+    out = np.full_like(image, fill)
+    rows, cols = image.shape[:2]
+    if abs(di) >= rows or abs(dj) >= cols:
+        return out
+    out[max(-di, 0):rows - max(di, 0), max(-dj, 0):cols - max(dj, 0)] = \
+        image[max(di, 0):rows + min(di, 0) or None, max(dj, 0):cols + min(dj, 0) or None]
+    return out
 
 
 def split_necks(surfaces: np.ndarray, ratio: float = 0.3, min_pixels: int = 30,

@@ -28,7 +28,8 @@ import numpy as np
 from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 
-from leafsfs.canopy import dark_surfaces, edge_pulses, join_occluded, pulse_noise, split_necks, wood_surfaces
+from leafsfs.canopy import (dark_surfaces, edge_pulses, join_occluded, pulse_noise, shifted,
+                            split_creases, split_necks, wood_surfaces)
 from leafsfs.edges import MixedPulses, attribute_mixed, band_pixels
 from leafsfs.errors import SfsError
 from tlssim.pattern import beam_frame
@@ -38,15 +39,6 @@ from tlssim.pattern import beam_frame
 MIN_EDGE_RADIUS_PX = 2.5
 #: Range noise assumed when a scan has too few consecutive returns to measure it, m.
 NOISE_FLOOR_M = 0.001
-
-
-def _shift(image: np.ndarray, di: int, dj: int, fill):
-    """``out[i, j] = image[i + di, j + dj]`` (``fill`` outside)."""
-    out = np.full_like(image, fill)
-    rows, cols = image.shape[:2]
-    out[max(-di, 0):rows - max(di, 0), max(-dj, 0):cols - max(dj, 0)] = \
-        image[max(di, 0):rows + min(di, 0) or None, max(dj, 0):cols + min(dj, 0) or None]
-    return out
 
 
 def link_components(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha: np.ndarray | None = None, *,
@@ -86,13 +78,13 @@ def link_components(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alp
     index = np.arange(r.size).reshape(r.shape)
     rows, cols = [], []
     for di, dj in ((1, 0), (0, 1)):
-        other = _shift(r, di, dj, np.nan)
-        angle = np.arccos(np.clip(np.sum(axis * _shift(axis, di, dj, 0.0), axis=-1), -1, 1))
-        allowed = np.fmin(r, other) * angle * np.tan(np.minimum(slope, _shift(slope, di, dj, limit))) + noise_m
+        other = shifted(r, di, dj, np.nan)
+        angle = np.arccos(np.clip(np.sum(axis * shifted(axis, di, dj, 0.0), axis=-1), -1, 1))
+        allowed = np.fmin(r, other) * angle * np.tan(np.minimum(slope, shifted(slope, di, dj, limit))) + noise_m
         with np.errstate(invalid="ignore"):
             ok = valid & np.isfinite(other) & (np.abs(r - other) <= allowed)
         rows.append(index[ok])
-        cols.append(_shift(index, di, dj, -1)[ok])
+        cols.append(shifted(index, di, dj, -1)[ok])
     rows, cols = np.concatenate(rows), np.concatenate(cols)
     graph = sparse.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(r.size, r.size))
     _, component = csgraph.connected_components(graph, directed=False)
@@ -177,7 +169,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
                  band_m: float = 0.01, min_width_m: float = 0.004, reach_m: float = 0.05,
                  intensity: np.ndarray | None = None, edge_radius_m: float = 0.0025, edge_factor: float = 2.5,
                  neck_ratio: float = 0.3, gain_dn: float | None = None, max_aspect: float = 4.0,
-                 min_fill: float = 0.5, occluder_gap_m: float = 0.01) -> Segmentation:
+                 min_fill: float = 0.5, occluder_gap_m: float = 0.01, crease_angle_deg: float = 40.0) -> Segmentation:
     """Surfaces, mixed pulses and leaf regions of a scan.
 
     Parameters
@@ -250,6 +242,11 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         within 3 sigma, are one leaf cut by an occluder
         (:func:`leafsfs.canopy.join_occluded`; assumption: 1 cm, twigs and
         petioles in front of a leaf; 0: not joined).
+    crease_angle_deg : float
+        Surfaces meeting with no range step but normals this far apart are
+        cut there (:func:`leafsfs.canopy.split_creases`: two leaves touching
+        at the same distance, a leaf lying on a branch), deg; only surfaces
+        taken for leaves are cut, and their parts are judged again (0: not cut).
     """
     valid = np.isfinite(range_m)
     if not valid.any():
@@ -275,18 +272,27 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     large[0] = False
     lookup = np.zeros(len(sizes), dtype=int)
     lookup[large] = np.arange(1, large.sum() + 1)
+    surfaces = lookup[component]
     # Pieces split off are surfaces when they hold min_area_m2 at the scan's median range.
     piece_px = max(min_pixels, int(round(min_area_m2 / (float(np.nanmedian(range_m)) * step) ** 2)))
-    surfaces = split_thin_parts(lookup[component], range_m, step, min_width_m, piece_px)
+    surfaces = split_thin_parts(surfaces, range_m, step, min_width_m, piece_px)
     if neck_ratio > 0:
         surfaces = split_necks(surfaces, neck_ratio, piece_px, keep=_border_labels(surfaces) if drop_border else None)
-    leaf = (surface_widths(surfaces, range_m, step) >= min_width_m) & \
-        ~wood_surfaces(surfaces, range_m, theta, psi, step, alpha, max_aspect=max_aspect, min_fill=min_fill)
-    if alpha is not None:
-        leaf &= ~dark_surfaces(surfaces, range_m, alpha, step, math.radians(alpha_margin_deg), sigma)
-    leaf[0] = False
-    if drop_border:
-        leaf &= ~_border_labels(surfaces)
+    def leaves_of(surfaces):
+        leaf = (surface_widths(surfaces, range_m, step) >= min_width_m) & \
+            ~wood_surfaces(surfaces, range_m, theta, psi, step, alpha, max_aspect=max_aspect, min_fill=min_fill)
+        if alpha is not None:
+            leaf &= ~dark_surfaces(surfaces, range_m, alpha, step, math.radians(alpha_margin_deg), sigma)
+        leaf[0] = False
+        return leaf & ~_border_labels(surfaces) if drop_border else leaf
+
+    leaf = leaves_of(surfaces)
+    if crease_angle_deg > 0:
+        # A leaf surface that creases cut into parts is two leaves touching, or a leaf and a branch: judged again.
+        surfaces, cut = split_creases(surfaces, range_m, leaf, range_m * step, pulse_noise(sigma, intensity, gain_dn),
+                                      crease_angle_deg, piece_px)
+        if cut:
+            leaf = leaves_of(surfaces)
     if occluder_gap_m > 0:
         surfaces = join_occluded(surfaces, range_m, leaf, occluder_gap_m / (float(np.nanmedian(range_m)) * step),
                                  3 * sigma)

@@ -9,7 +9,8 @@ import pytest
 import scenes
 import tlssim
 from leafsfs import SfsError, reconstruct
-from leafsfs.canopy import (dark_surfaces, edge_pulses, join_occluded, plane_fits, rim_shares, split_necks,
+from leafsfs.canopy import (crease_pulses, dark_surfaces, edge_pulses, join_occluded, plane_fits, rim_shares,
+                            shifted, split_creases, split_necks,
                             visibility, wood_surfaces)
 from leafsfs.leaves import range_noise
 from leafsfs.leaves import segment_scan
@@ -60,6 +61,48 @@ def test_a_step_between_two_surfaces_is_an_edge_a_steep_plane_is_not():
     steep = 2.0 + math.tan(math.radians(75)) * spacing * cols + 0.0015 * rng.standard_normal(rows.shape)
     flags = edge_pulses(steep, 2.5, 0.0015, 2.5, max_slope=math.tan(math.radians(85)), spacing_m=spacing)
     assert flags[3:-3, 3:-3].mean() < 0.01
+
+
+def _roof_and_cup(noise_m=0.0015, seed=2):
+    """Ranges of two planes meeting at column 60 with normals 70 deg apart (two leaves touching at the same
+    distance), and of a leaf curved with a 5 cm radius (normals turn 17 deg over 12 pulses), 2 m away."""
+    rng = np.random.default_rng(seed)
+    rows, cols = np.mgrid[0:60, 0:120]
+    spacing = 2.0 * STEP
+    x = (cols - 60) * spacing
+    roof = 2.0 + math.tan(math.radians(35)) * np.abs(x)
+    cup = 2.0 + x ** 2 / (2 * 0.05)
+    return [r + noise_m * rng.standard_normal(r.shape) for r in (roof, cup)], spacing, cols
+
+
+def test_crease_pulses_mark_where_two_planes_meet_not_a_curved_leaf():
+    (roof, cup), spacing, cols = _roof_and_cup()
+    known = np.ones(roof.shape, dtype=bool)
+    crease = crease_pulses(roof, known, spacing, 0.0015)
+    inner = slice(8, -8)
+    assert crease[inner, 56:65].sum(axis=1).min() >= 3  # every row is cut at the ridge
+    assert not crease[inner][:, np.abs(cols[0] - 60) > 8].any()  # and nowhere far from it
+    assert not crease_pulses(cup, known, spacing, 0.0015).any()
+    with pytest.raises(SfsError):
+        crease_pulses(roof, known, spacing, 0.0015, max_angle_deg=0)
+    # a surface narrower than the planes' offset has no crease (and no error)
+    assert not crease_pulses(roof[:4, :5], known[:4, :5], spacing, 0.0015).any()
+    image = np.arange(12.0).reshape(3, 4)
+    assert np.array_equal(shifted(image, 1, -1, -1.0), [[-1, 4, 5, 6], [-1, 8, 9, 10], [-1, -1, -1, -1]])
+    assert (shifted(image, 0, 4, -1.0) == -1).all() and (shifted(image, -3, 0, -1.0) == -1).all()
+
+
+def test_split_creases_cuts_two_touching_leaves_apart_and_keeps_a_curved_one_whole():
+    (roof, cup), spacing, cols = _roof_and_cup()
+    one = np.ones(roof.shape, dtype=int)
+    labels, cut = split_creases(one, roof, np.array([False, True]), np.full(roof.shape, spacing), 0.0015, 40.0, 30)
+    assert cut and labels.max() == 2 and (labels > 0).all()
+    assert len(np.unique(labels[:, :58])) == 1 and len(np.unique(labels[:, 63:])) == 1
+    assert labels[0, 0] != labels[0, -1]
+    # not a candidate (wood, say): not cut; a curved leaf: not cut
+    assert not split_creases(one, roof, np.array([False, False]), np.full(roof.shape, spacing), 0.0015, 40.0, 30)[1]
+    same, cut = split_creases(one, cup, np.array([False, True]), np.full(roof.shape, spacing), 0.0015, 40.0, 30)
+    assert not cut and np.array_equal(same, one)
 
 
 def test_split_necks_cuts_an_appendage_off_a_blade_and_keeps_a_leaf_whole():
