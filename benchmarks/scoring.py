@@ -227,10 +227,16 @@ def power_share(scan, object_id: int) -> np.ndarray:
 
 
 def area_elements(scan) -> np.ndarray:
-    """Surface area each pulse's central ray stands for on the surface it hits, ``r² sin(psi) dtheta dpsi / cos(incidence)``, m²."""
+    """Surface area each pulse stands for on the surface it hits, ``r² sin(psi) dtheta dpsi / cos(incidence)``, m².
+
+    ``r`` is the central ray's distance (``truth_range``), or the measured
+    range where the central ray misses while other sub-rays return (an edge
+    pulse), so that every pulse with a return has a finite element.
+    """
     d_theta = np.abs(np.gradient(scan.theta, axis=1))
     d_psi = np.abs(np.gradient(scan.psi, axis=0))
-    return scan.truth_range ** 2 * d_theta * d_psi * np.sin(scan.psi) / np.cos(scan.incidence)
+    r = np.where(np.isfinite(scan.truth_range), scan.truth_range, scan.range)
+    return r ** 2 * d_theta * d_psi * np.sin(scan.psi) / np.cos(scan.incidence)
 
 
 #: Share of a leaf's largest extent that another object must lie in front of the leaf's outline plane to hide it

@@ -9,6 +9,7 @@ from benchmarks import scoring
 from benchmarks.generators import background_wall, elliptic_leaf, scanner_window
 from benchmarks.registry import VariantOutput
 from scenes.scene import Scene
+from tlssim.scan import Scan
 from tlssim.simulate import setup_from_section, simulate
 
 
@@ -21,6 +22,20 @@ def two_leaves():
     scene = Scene(objects + [background_wall(objects, 3.5, 0.3)], scanner_window(objects), "two-leaves")
     scan = simulate(scene, setup_from_section(scene.scanner), seed=1, progress=False)
     return scene, scan, scoring.prepare_leaves(scene, scan)
+
+
+def test_area_elements_use_the_measured_range_where_the_central_ray_misses():
+    """A plate facing the scanner at 2 m: r² dtheta dpsi per pulse, also at an edge pulse whose central ray missed."""
+    step = np.radians(0.1)
+    theta, psi = np.meshgrid(np.arange(5) * step, np.pi / 2 + np.arange(4) * step)
+    rng = np.full(theta.shape, 2.0)
+    truth = rng.copy()
+    truth[1, 4] = np.nan  # the central ray passed the plate's edge; other sub-rays returned at 2 m
+    scan = Scan(rng, np.ones(rng.shape, np.float32), theta, psi, np.zeros(rng.shape + (3,)), truth_range=truth,
+                truth_id=np.zeros(rng.shape, np.int32), mixed_fraction=np.zeros(rng.shape),
+                incidence=np.zeros(rng.shape), truth_normal=np.zeros(rng.shape + (3,)))
+    elements = scoring.area_elements(scan)
+    assert elements == pytest.approx(4.0 * step ** 2 * np.sin(psi), rel=1e-12)
 
 
 def test_leaf_points_include_mixed_pulses_and_visibility_sees_occlusion(two_leaves):
