@@ -52,4 +52,5 @@ def test_a_resolved_tree_keeps_its_radii():
     assert [[s[2] for s in b["sections"]] for b in piped.branches if b["n_points"] >= 100] == \
         [r for r, b in zip(radii, plain.branches) if b["n_points"] >= 100]
     assert piped.volume <= plain.volume
-    assert all(plain.branches[0]["reliable"])
+    assert all(piped.branches[0]["reliable"])
+    assert "reliable" not in plain.branches[0]

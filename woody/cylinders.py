@@ -289,8 +289,9 @@ class FollowResult:
         (trunk = 1), ``children``, ``start``/``end`` (P1, P2, m),
         ``direction``, ``radius_m`` (reported), ``radius_max_m``,
         ``n_points``, ``sections`` (``(start, end, radius)`` of its
-        cylinders, m) and, in strict mode, ``reliable`` (whether the points
-        resolve each section's radius; the others follow the pipe model).
+        cylinders, m) and, with ``pipe_model`` in strict mode, ``reliable``
+        (whether the points resolve each section's radius; the others follow
+        the pipe model).
     labels : ndarray, (n,)
         Branch id of every point (-1: never reached).
     stats : dict
@@ -449,7 +450,8 @@ def follow_cylinders(points, params: FollowParams | None = None, *, progress: bo
 def _records(branches: list[Branch], params: FollowParams, count: int,
              spacing: float) -> tuple[list[dict], np.ndarray]:
     """Branch records with ids renumbered in breadth-first order from the trunk and orders recomputed (D-M14);
-    each record's ``reliable`` says which of its sections the points resolve (:func:`_resolved`)."""
+    with ``pipe_model``, each record's ``reliable`` says which of its sections the points resolve
+    (:func:`_resolved`)."""
     roots = [b for b in branches if b.parent is None]
     order_of, queue = {}, [(r, 1) for r in roots]
     ranked = []
@@ -472,7 +474,7 @@ def _records(branches: list[Branch], params: FollowParams, count: int,
         anchor = records[records[-1]["parent"]] if records[-1]["parent"] >= 0 else None
         if params.mode == "strict" and anchor is not None:
             _cap_radii(records[-1], anchor)
-        if params.mode == "strict":
+        if params.mode == "strict" and params.pipe_model:
             records[-1]["reliable"] = _resolved(records[-1]["sections"], b.coords[b.points], spacing)
     return records, labels
 
