@@ -22,6 +22,7 @@ EXAMPLES = {
     "woody.ground": ("ground_grid",),
     "woody.density": ("point_spacing", "voxel_subsample"),
     "woody.normals": ("pca_normals", "orient_outward"),
+    "woody.pipe": ("pipe_radii",),
 }
 
 

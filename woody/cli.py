@@ -54,6 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-trunk", action="store_true",
                    help="cylinders: plain cylinder following (default: the trunk is followed first from the ground "
                         "up by circle fits, the ground left out)")
+    p.add_argument("--pipe-model", action="store_true",
+                   help="cylinders: radii the points do not resolve (under one point spacing, or scattered) follow "
+                        "the pipe model from their nearest resolved ancestor")
     p.set_defaults(func=run_reconstruct)
 
     p = sub.add_parser("dbh", help="diameter at breast height of the stems of a point cloud",
@@ -93,7 +96,8 @@ def run_reconstruct(args) -> int:
         from woody.cylinders import follow_cylinders
         from woody.trunk import follow_tree
 
-        settings = {"precision_m": args.precision_m, "section_radii": args.sections, "progress": True}
+        settings = {"precision_m": args.precision_m, "section_radii": args.sections,
+                    "pipe_model": args.pipe_model, "progress": True}
         result = follow_cylinders(cloud.points, **settings) if args.no_trunk else \
             follow_tree(cloud.points, ground_z=args.ground_z, **settings)
         nodes, edges = result.skeleton()

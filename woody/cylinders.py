@@ -86,6 +86,14 @@ test trees (spec Part D; each a documented departure in the default mode):
   the radius the points' spread across the axis gives (``sqrt(2 lambda)``),
   and no branch is wider than its parent (the paper's inclusion test uses
   the significant ancestor only);
+- unresolved radii (strict mode, addition, ``pipe_model=True``, off by
+  default): a section whose radius is under one point spacing, or whose
+  branch's points beside it scatter about its surface by more than a
+  quarter of its radius, takes at most its nearest resolved ancestor
+  section's radius times the square root of their growth lengths' ratio
+  (the pipe model, :mod:`woody.pipe`): circles fitted to the noise of
+  twigs thinner than the spacing, or to clusters of twigs, were 5-10
+  times the twigs' radii;
 - clean-up (strict mode, additions): branches with fewer than
   ``min_branch_points`` points are given back to their parents (a stalled
   root to its largest child); a branch whose axis midpoint lies inside an
@@ -128,6 +136,7 @@ from woody.geometry import cylinders_mesh, cylinders_volume, segment_distance
 from woody.growth import grow
 from woody.merge import dissolve_small, merge_contained, merge_into_parents, merge_siblings
 from woody.normals import pca_normals
+from woody.pipe import pipe_radii
 
 #: Table 7 of Méndez et al., apple tree: (order threshold, n_s) pairs, "order <= threshold".
 APPLE_FREE_SEED = ((1, 80), (3, 60), (7, 40), (10, 30), (9999, 20))
@@ -197,6 +206,12 @@ class FollowParams:
         child branches of the tree across gaps up to this length, m (an
         addition; assumption: the cloud is one tree, whose hidden pieces are
         shorter than this; 0 disables it).
+    pipe_model : bool
+        Strict mode: the radii the points do not resolve follow the pipe
+        model from their nearest resolved ancestor (an addition, off by
+        default: it takes the overestimated leafless trees down, and the
+        real clouds, whose limbs come out too thin already, further down;
+        see the README).
     """
 
     free_seed: tuple = APPLE_FREE_SEED
@@ -218,6 +233,7 @@ class FollowParams:
     min_branch_points: int = 10
     max_balance_passes: int = 50
     bridge_m: float = 1.0
+    pipe_model: bool = False
 
     def __post_init__(self):
         problems = []
@@ -272,7 +288,10 @@ class FollowResult:
         One per branch: ``id``, ``parent`` (-1 for the trunk), ``order``
         (trunk = 1), ``children``, ``start``/``end`` (P1, P2, m),
         ``direction``, ``radius_m`` (reported), ``radius_max_m``,
-        ``n_points``.
+        ``n_points``, ``sections`` (``(start, end, radius)`` of its
+        cylinders, m) and, with ``pipe_model`` in strict mode, ``reliable``
+        (whether the points resolve each section's radius; the others follow
+        the pipe model).
     labels : ndarray, (n,)
         Branch id of every point (-1: never reached).
     stats : dict
@@ -419,15 +438,20 @@ def follow_cylinders(points, params: FollowParams | None = None, *, progress: bo
     passes = balance_volume(branches, points, params)
     timings["merge_s"] = time.perf_counter() - clock
 
-    records, labels = _records(branches, params, len(points))
+    records, labels = _records(branches, params, len(points), spacing)
+    if params.mode == "strict" and params.pipe_model:
+        apply_pipe_model(records)
     stats = {"points": len(points), "spacing_m": spacing, "precision_m": precision, "branches_grown": grown,
              "branches": len(records), "unassigned": int((labels < 0).sum()), "balance_passes": passes,
              "max_order": max(b["order"] for b in records), **timings}
     return FollowResult(records, labels, stats)
 
 
-def _records(branches: list[Branch], params: FollowParams, count: int) -> tuple[list[dict], np.ndarray]:
-    """Branch records with ids renumbered in breadth-first order from the trunk and orders recomputed (D-M14)."""
+def _records(branches: list[Branch], params: FollowParams, count: int,
+             spacing: float) -> tuple[list[dict], np.ndarray]:
+    """Branch records with ids renumbered in breadth-first order from the trunk and orders recomputed (D-M14);
+    with ``pipe_model``, each record's ``reliable`` says which of its sections the points resolve
+    (:func:`_resolved`)."""
     roots = [b for b in branches if b.parent is None]
     order_of, queue = {}, [(r, 1) for r in roots]
     ranked = []
@@ -450,7 +474,51 @@ def _records(branches: list[Branch], params: FollowParams, count: int) -> tuple[
         anchor = records[records[-1]["parent"]] if records[-1]["parent"] >= 0 else None
         if params.mode == "strict" and anchor is not None:
             _cap_radii(records[-1], anchor)
+        if params.mode == "strict" and params.pipe_model:
+            records[-1]["reliable"] = _resolved(records[-1]["sections"], b.coords[b.points], spacing)
     return records, labels
+
+
+#: A section's radius is resolved when it is at least this many point spacings (assumption: a circle needs
+#: about three points across the visible half of its circumference, pi r >= 3 spacings) ...
+RESOLVED_SPACINGS = 1.0
+#: ... and its branch's points beside it lie on it: their median distance to its axis within this fraction of
+#: the radius of it and their median absolute deviation from it below this fraction of the radius (a cluster of
+#: twigs, a fork fitted as one piece or a circle fitted to the noise of a twig thinner than the spacing, whose
+#: pieces tilt from one to the next, scatter wider) ...
+RESOLVED_SCATTER = 0.25
+#: ... and there are at least this many of them.
+RESOLVED_POINTS = 8
+
+
+def _resolved(sections: list[tuple], points: np.ndarray, spacing: float) -> list[bool]:
+    """Whether each section ``(start, end, radius)`` of a branch (m) is resolved by the branch's ``points`` (m)
+    that lie beside it (projecting inside it), at the cloud's point ``spacing`` (m)."""
+    out = []
+    for start, end, radius in sections:
+        distance, t = segment_distance(points, np.asarray(start), np.asarray(end))
+        beside = distance[(t > 0) & (t < 1)]
+        if len(beside) < RESOLVED_POINTS or radius < RESOLVED_SPACINGS * spacing:
+            out.append(False)
+            continue
+        median = float(np.median(beside))
+        deviation = float(np.median(np.abs(beside - median)))
+        out.append(abs(median - radius) <= RESOLVED_SCATTER * radius and deviation <= RESOLVED_SCATTER * radius)
+    return out
+
+
+def apply_pipe_model(records: list[dict]) -> None:
+    """Shrink the radii the points do not resolve (``record["reliable"]`` False) by the pipe model from their
+    nearest resolved ancestor section (:func:`woody.pipe.pipe_radii`), in place. Records without ``reliable``
+    count as resolved."""
+    rows = [(i, k) for i, record in enumerate(records) for k in range(len(record["sections"]))]
+    cylinders = FollowResult(records, np.zeros(0, np.int64)).cylinders()
+    lengths = [float(np.linalg.norm(np.subtract(c["end"], c["start"]))) for c in cylinders]
+    reliable = [records[i].get("reliable", [True] * len(records[i]["sections"]))[k] for i, k in rows]
+    radii = pipe_radii([c["radius_m"] for c in cylinders], lengths, [c["parent"] for c in cylinders], reliable)
+    for (i, k), radius in zip(rows, radii.tolist()):
+        start, end, _ = records[i]["sections"][k]
+        records[i]["sections"][k] = (start, end, radius)
 
 
 def _cap_radii(record: dict, parent: dict) -> None:

@@ -1,0 +1,56 @@
+"""The pipe model of unresolved radii: growth lengths and the shrinking of unresolved cylinders only."""
+
+import numpy as np
+
+from woody.pipe import growth_length, pipe_radii
+
+# A stem of two cylinders (1 m, 0.5 m); the second carries two twigs of 0.25 m, one of which carries a 0.1 m tip.
+PARENTS = np.array([-1, 0, 1, 1, 3])
+LENGTHS = np.array([1.0, 0.5, 0.25, 0.25, 0.1])
+
+
+def test_growth_length_sums_everything_a_cylinder_carries():
+    assert growth_length(LENGTHS, PARENTS).tolist() == [2.1, 1.1, 0.25, 0.35, 0.1]
+
+
+def test_only_unresolved_radii_shrink_by_the_square_root_of_their_share():
+    fitted = np.array([0.04, 0.03, 0.02, 0.02, 0.02])
+    reliable = np.array([True, True, False, False, False])
+    out = pipe_radii(fitted, LENGTHS, PARENTS, reliable)
+    assert out[:2].tolist() == fitted[:2].tolist()
+    assert np.isclose(out[2], 0.03 * np.sqrt(0.25 / 1.1))
+    assert np.isclose(out[3], 0.03 * np.sqrt(0.35 / 1.1))
+    assert np.isclose(out[4], 0.03 * np.sqrt(0.1 / 1.1))  # its anchor is the resolved stem, not its parent
+    # Cross-sections are conserved where the fitted twigs were too wide: the twigs carry the stem's area.
+    assert np.isclose(out[2] ** 2 + out[3] ** 2, 0.03**2 * 0.6 / 1.1)
+
+
+def test_the_fitted_radius_stays_an_upper_bound():
+    fitted = np.array([0.04, 0.03, 0.001, 0.02, 0.02])
+    out = pipe_radii(fitted, LENGTHS, PARENTS, [True, True, False, False, False])
+    assert np.all(out <= fitted)
+    assert out[2] == 0.001
+
+
+def test_without_a_resolved_ancestor_radii_are_kept():
+    fitted = np.array([0.04, 0.03, 0.02, 0.02, 0.02])
+    assert pipe_radii(fitted, LENGTHS, PARENTS, [False] * 5).tolist() == fitted.tolist()
+    # A resolved twig below an unresolved stem anchors its own tip only.
+    out = pipe_radii(fitted, LENGTHS, PARENTS, [False, False, False, True, False])
+    assert out[:4].tolist() == fitted[:4].tolist()
+    assert np.isclose(out[4], 0.02 * np.sqrt(0.1 / 0.35))
+
+
+def test_a_resolved_tree_keeps_its_radii():
+    from woody import follow_cylinders
+    from woody.synthetic import sample_cylinders
+    from test_woody_cylinders import Y
+
+    points = sample_cylinders(Y, 1e4, seed=2).points
+    plain, piped = follow_cylinders(points), follow_cylinders(points, pipe_model=True)
+    radii = [[s[2] for s in b["sections"]] for b in plain.branches]
+    assert [[s[2] for s in b["sections"]] for b in piped.branches if b["n_points"] >= 100] == \
+        [r for r, b in zip(radii, plain.branches) if b["n_points"] >= 100]
+    assert piped.volume <= plain.volume
+    assert all(piped.branches[0]["reliable"])
+    assert "reliable" not in plain.branches[0]
