@@ -36,7 +36,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
+from scipy import ndimage, sparse
+from scipy.sparse import csgraph
 
 from leafsfs.grid import PixelGrid, local_planes
 
@@ -164,7 +165,9 @@ def attribute_mixed(range_m: np.ndarray, surfaces: np.ndarray, band_px: int, int
         with the surfaces its 8-connected run of mixed pulses touches up to
         ``reach_px`` away, the far one at the distance of its nearest core
         pulse (where the part is attached: the thin part's own distance is
-        unknown); these pulses are flagged ``thin``.
+        unknown); these pulses are flagged ``thin``. Such a pulse keeps no
+        pair unless a chain of pulses with its owner joins it to that
+        owner's pure pulses (:func:`attached`).
 
     Returns
     -------
@@ -199,7 +202,57 @@ def attribute_mixed(range_m: np.ndarray, surfaces: np.ndarray, band_px: int, int
                                tolerance_m=tolerance_m,
                                allowed=lambda pixel, k: np.isin(keys.ravel()[pixel] + k, touching)))
         out.thin = unresolved & (out.pair[..., 0] > 0)  # the pulses that only the second pass paired
+        _unpair(out, out.thin & ~attached(out.owner, surfaces))
     return out
+
+
+def attached(owner: np.ndarray, surfaces: np.ndarray) -> np.ndarray:
+    """Pulses joined to a pure pulse of their owner surface by a chain of 8-neighbours with that same owner.
+
+    A thin part (a petiole) dominates the pulses along its axis from where it
+    leaves its surface: they form such a chain. A pulse paired beyond the
+    band whose range gives most of its power to a surface it has no such
+    chain to is not a part attached there; its pair is a guess (on a canopy
+    it is mostly a piece of a leaf that has no surface of its own, given to a
+    surface several footprints away).
+
+    Parameters
+    ----------
+    owner : ndarray of int, 2-D
+        Owner surface of every pulse (0: none); equal to ``surfaces`` on pure pulses.
+    surfaces : ndarray of int, 2-D
+        Pure pulses labelled by surface (0: mixed or none).
+
+    Returns
+    -------
+    ndarray of bool, 2-D
+        Pulses with an owner that such a chain joins to one of that owner's pure pulses.
+    """
+    rows, cols = owner.shape
+    index = np.arange(owner.size).reshape(owner.shape)
+    heads, tails = [], []
+    for di, dj in ((0, 1), (1, -1), (1, 0), (1, 1)):
+        a = (slice(0, rows - di), slice(max(-dj, 0), cols - max(dj, 0)))
+        b = (slice(di, rows), slice(max(dj, 0), cols + min(dj, 0) or None))
+        same = (owner[a] > 0) & (owner[a] == owner[b])
+        heads.append(index[a][same])
+        tails.append(index[b][same])
+    heads, tails = np.concatenate(heads), np.concatenate(tails)
+    graph = sparse.coo_matrix((np.ones(len(heads), bool), (heads, tails)), shape=(owner.size, owner.size))
+    _, component = csgraph.connected_components(graph.tocsr(), directed=False)
+    rooted = np.zeros(component.max() + 1, bool)
+    rooted[component[(surfaces > 0).ravel()]] = True
+    return (owner > 0) & rooted[component].reshape(owner.shape)
+
+
+def _unpair(out: MixedPulses, pulses: np.ndarray) -> None:
+    """Leave ``pulses`` without a pair (they keep their measured distance)."""
+    out.pair[pulses] = 0
+    out.pair_range[pulses] = np.nan
+    out.pair_intensity[pulses] = np.nan
+    out.share[pulses] = np.nan
+    out.owner[pulses] = 0
+    out.thin &= ~pulses
 
 
 def _cores(surfaces: np.ndarray, band: int, margin: int) -> np.ndarray:

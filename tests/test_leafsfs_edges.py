@@ -133,18 +133,18 @@ def test_a_short_twig_stub_leaving_the_window_is_split_off():
     assert inside[60, 90] == inside[60, 50]
 
 
-def _petiole_scene():
+def _petiole_scene(root_share=0.7):
     """A square plate 1.5 m away with a thin strip (a petiole) leaving its right edge, a wall 2.5 m away.
 
     The strip, 60 px long, is narrower than the footprint: its share falls from 0.7 on its axis across a
-    Gaussian profile (no pure pulse). A second, detached strip floats 40 px below. Returns the range image,
-    the plate's and strips' power share of every pulse, the surface labels of the pure pulses, the attached
-    strip's pulses and the wall's distance.
+    Gaussian profile (no pure pulse); ``root_share`` on its first 20 px. A second, detached strip floats 40 px
+    below. Returns the range image, the plate's and strips' power share of every pulse, the surface labels of
+    the pure pulses, the attached strip's pulses and the wall's distance.
     """
     rows, cols = np.mgrid[0:100, 0:150]
     inside = np.minimum.reduce([rows - 19.5, 59.5 - rows, cols - 19.5, 59.5 - cols])
     share = np.clip(0.5 + inside / 8.0, 0.0, 1.0)
-    strip = 0.7 * np.exp(-0.5 * ((rows - 40) / 2.0) ** 2) * (cols >= 60) * (cols < 120)
+    strip = np.where(cols < 80, root_share, 0.7) * np.exp(-0.5 * ((rows - 40) / 2.0) ** 2) * (cols >= 60) * (cols < 120)
     detached = 0.7 * np.exp(-0.5 * ((rows - 85) / 2.0) ** 2) * (cols >= 60) * (cols < 120)
     share = np.maximum.reduce([share, strip, detached])
     wall = 2.5 + 0.0004 * cols
@@ -171,6 +171,22 @@ def test_the_mixed_pulses_of_a_thin_part_attached_to_a_surface_go_to_the_dominan
     # the pulses paired within the band keep their pairs
     paired = plain.pair[..., 0] > 0
     assert np.array_equal(mixed.pair[paired], plain.pair[paired]) and not mixed.thin[paired].any()
+
+
+def test_pulses_beyond_the_band_that_no_chain_joins_to_their_owner_are_not_paired():
+    # The same strip whose first 20 px are faint (share 0.2: the wall dominates them): the strip's far part is
+    # dominated by something its run does not join to the plate (on a canopy, a piece of a hidden leaf), so its
+    # pulses get no pair and keep their measured distance; the wall-dominated ones are still paired.
+    range_m, share, surfaces, strip, _, wall = _petiole_scene(root_share=0.2)
+    mixed = attribute_mixed(range_m, surfaces, 12, tolerance_m=0.003, reach_px=80)
+    far = strip & (share >= 0.5)
+    assert far.sum() >= 40 and (mixed.pair[far] == 0).all() and not mixed.thin[far].any()
+    assert np.isnan(mixed.owner_range()[far]).all()
+    walled = strip & (share < 0.45)
+    assert (mixed.owner[walled] == 2).all() and mixed.thin[walled].all()
+    # joined by the strip's own pulses (the petiole of the other tests), they are the plate's
+    range_m, _, surfaces, *_ = _petiole_scene()
+    assert (attribute_mixed(range_m, surfaces, 12, tolerance_m=0.003, reach_px=80).owner[far] == 1).all()
 
 
 def test_unlinked_pulses_deeper_than_a_footprint_edge_are_no_mixed_pulses():
