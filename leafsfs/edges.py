@@ -36,8 +36,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage, sparse
-from scipy.sparse import csgraph
+from scipy import ndimage
 
 from leafsfs.grid import PixelGrid, local_planes
 
@@ -166,7 +165,7 @@ def attribute_mixed(range_m: np.ndarray, surfaces: np.ndarray, band_px: int, int
         ``reach_px`` away, the far one at the distance of its nearest core
         pulse (where the part is attached: the thin part's own distance is
         unknown); these pulses are flagged ``thin``. Such a pulse keeps no
-        pair unless a chain of pulses with its owner joins it to that
+        pair unless a chain of pulses its owner shares joins it to that
         owner's pure pulses (:func:`attached`).
 
     Returns
@@ -202,47 +201,39 @@ def attribute_mixed(range_m: np.ndarray, surfaces: np.ndarray, band_px: int, int
                                tolerance_m=tolerance_m,
                                allowed=lambda pixel, k: np.isin(keys.ravel()[pixel] + k, touching)))
         out.thin = unresolved & (out.pair[..., 0] > 0)  # the pulses that only the second pass paired
-        _unpair(out, out.thin & ~attached(out.owner, surfaces))
+        _unpair(out, out.thin & ~attached(out))
     return out
 
 
-def attached(owner: np.ndarray, surfaces: np.ndarray) -> np.ndarray:
-    """Pulses joined to a pure pulse of their owner surface by a chain of 8-neighbours with that same owner.
+def attached(mixed: MixedPulses) -> np.ndarray:
+    """Thin-part pulses joined to a pure pulse of their owner surface by a chain of pulses that surface shares.
 
-    A thin part (a petiole) dominates the pulses along its axis from where it
-    leaves its surface: they form such a chain. A pulse paired beyond the
-    band whose range gives most of its power to a surface it has no such
-    chain to is not a part attached there; its pair is a guess (on a canopy
-    it is mostly a piece of a leaf that has no surface of its own, given to a
+    A thin part (a petiole) leaves its surface: the pulses along it, from
+    the surface's pure pulses on, are all paired with that surface (8-connected).
+    A pulse paired beyond the band whose owner it is not joined to that way
+    is not a part attached there; its pair is a guess (on a canopy it is
+    mostly a piece of a leaf that has no surface of its own, given to a
     surface several footprints away).
 
     Parameters
     ----------
-    owner : ndarray of int, 2-D
-        Owner surface of every pulse (0: none); equal to ``surfaces`` on pure pulses.
-    surfaces : ndarray of int, 2-D
-        Pure pulses labelled by surface (0: mixed or none).
+    mixed : MixedPulses
+        Mixed pulses with their pairs, owners and ``thin`` flags.
 
     Returns
     -------
     ndarray of bool, 2-D
-        Pulses with an owner that such a chain joins to one of that owner's pure pulses.
+        The ``thin`` pulses so joined to their owner.
     """
-    rows, cols = owner.shape
-    index = np.arange(owner.size).reshape(owner.shape)
-    heads, tails = [], []
-    for di, dj in ((0, 1), (1, -1), (1, 0), (1, 1)):
-        a = (slice(0, rows - di), slice(max(-dj, 0), cols - max(dj, 0)))
-        b = (slice(di, rows), slice(max(dj, 0), cols + min(dj, 0) or None))
-        same = (owner[a] > 0) & (owner[a] == owner[b])
-        heads.append(index[a][same])
-        tails.append(index[b][same])
-    heads, tails = np.concatenate(heads), np.concatenate(tails)
-    graph = sparse.coo_matrix((np.ones(len(heads), bool), (heads, tails)), shape=(owner.size, owner.size))
-    _, component = csgraph.connected_components(graph.tocsr(), directed=False)
-    rooted = np.zeros(component.max() + 1, bool)
-    rooted[component[(surfaces > 0).ravel()]] = True
-    return (owner > 0) & rooted[component].reshape(owner.shape)
+    out = np.zeros(mixed.owner.shape, dtype=bool)
+    boxes = mixed.extents()
+    for k in np.unique(mixed.owner[mixed.thin]):
+        box = boxes[int(k)]
+        own = mixed.surfaces[box] == k
+        chain, _ = ndimage.label(own | (mixed.pair[box] == k).any(axis=-1), structure=np.ones((3, 3), bool))
+        rooted = np.unique(chain[own])
+        out[box] |= mixed.thin[box] & (mixed.owner[box] == k) & np.isin(chain, rooted[rooted > 0])
+    return out
 
 
 def _unpair(out: MixedPulses, pulses: np.ndarray) -> None:
