@@ -164,7 +164,9 @@ def attribute_mixed(range_m: np.ndarray, surfaces: np.ndarray, band_px: int, int
         with the surfaces its 8-connected run of mixed pulses touches up to
         ``reach_px`` away, the far one at the distance of its nearest core
         pulse (where the part is attached: the thin part's own distance is
-        unknown); these pulses are flagged ``thin``.
+        unknown); these pulses are flagged ``thin``. Such a pulse keeps no
+        pair unless a chain of pulses its owner shares joins it to that
+        owner's pure pulses (:func:`attached`).
 
     Returns
     -------
@@ -199,7 +201,49 @@ def attribute_mixed(range_m: np.ndarray, surfaces: np.ndarray, band_px: int, int
                                tolerance_m=tolerance_m,
                                allowed=lambda pixel, k: np.isin(keys.ravel()[pixel] + k, touching)))
         out.thin = unresolved & (out.pair[..., 0] > 0)  # the pulses that only the second pass paired
+        _unpair(out, out.thin & ~attached(out))
     return out
+
+
+def attached(mixed: MixedPulses) -> np.ndarray:
+    """Thin-part pulses joined to a pure pulse of their owner surface by a chain of pulses that surface shares.
+
+    A thin part (a petiole) leaves its surface: the pulses along it, from
+    the surface's pure pulses on, are all paired with that surface (8-connected).
+    A pulse paired beyond the band whose owner it is not joined to that way
+    is not a part attached there; its pair is a guess (on a canopy it is
+    mostly a piece of a leaf that has no surface of its own, given to a
+    surface several footprints away).
+
+    Parameters
+    ----------
+    mixed : MixedPulses
+        Mixed pulses with their pairs, owners and ``thin`` flags.
+
+    Returns
+    -------
+    ndarray of bool, 2-D
+        The ``thin`` pulses so joined to their owner.
+    """
+    out = np.zeros(mixed.owner.shape, dtype=bool)
+    boxes = mixed.extents()
+    for k in np.unique(mixed.owner[mixed.thin]):
+        box = boxes[int(k)]
+        own = mixed.surfaces[box] == k
+        chain, _ = ndimage.label(own | (mixed.pair[box] == k).any(axis=-1), structure=np.ones((3, 3), bool))
+        rooted = np.unique(chain[own])
+        out[box] |= mixed.thin[box] & (mixed.owner[box] == k) & np.isin(chain, rooted[rooted > 0])
+    return out
+
+
+def _unpair(out: MixedPulses, pulses: np.ndarray) -> None:
+    """Leave ``pulses`` without a pair (they keep their measured distance)."""
+    out.pair[pulses] = 0
+    out.pair_range[pulses] = np.nan
+    out.pair_intensity[pulses] = np.nan
+    out.share[pulses] = np.nan
+    out.owner[pulses] = 0
+    out.thin &= ~pulses
 
 
 def _cores(surfaces: np.ndarray, band: int, margin: int) -> np.ndarray:

@@ -133,13 +133,14 @@ def test_a_short_twig_stub_leaving_the_window_is_split_off():
     assert inside[60, 90] == inside[60, 50]
 
 
-def _petiole_scene():
+def _petiole_scene(cut_root=False):
     """A square plate 1.5 m away with a thin strip (a petiole) leaving its right edge, a wall 2.5 m away.
 
     The strip, 60 px long, is narrower than the footprint: its share falls from 0.7 on its axis across a
-    Gaussian profile (no pure pulse). A second, detached strip floats 40 px below. Returns the range image,
-    the plate's and strips' power share of every pulse, the surface labels of the pure pulses, the attached
-    strip's pulses and the wall's distance.
+    Gaussian profile (no pure pulse). With ``cut_root`` its first 20 px return from 5 cm behind the wall (no
+    pair explains them). A second, detached strip floats 40 px below. Returns the range image, the plate's and
+    strips' power share of every pulse, the surface labels of the pure pulses, the attached strip's pulses and
+    the wall's distance.
     """
     rows, cols = np.mgrid[0:100, 0:150]
     inside = np.minimum.reduce([rows - 19.5, 59.5 - rows, cols - 19.5, 59.5 - cols])
@@ -150,6 +151,9 @@ def _petiole_scene():
     wall = 2.5 + 0.0004 * cols
     range_m = share * 1.5 + (1 - share) * wall
     surfaces = np.where(share >= 0.999, 1, np.where(share <= 0.001, 2, 0))
+    if cut_root:
+        root = (strip > 0.003) & (cols >= 60) & (cols < 80)
+        range_m[root] = wall[root] + 0.05
     # the strip's pulses more than the range noise (3 mm) off the wall, beyond the band of the plate
     return range_m, share, surfaces, (strip > 0.003) & (cols >= 75), (detached > 0.003), wall
 
@@ -171,6 +175,23 @@ def test_the_mixed_pulses_of_a_thin_part_attached_to_a_surface_go_to_the_dominan
     # the pulses paired within the band keep their pairs
     paired = plain.pair[..., 0] > 0
     assert np.array_equal(mixed.pair[paired], plain.pair[paired]) and not mixed.thin[paired].any()
+
+
+def test_pulses_beyond_the_band_that_no_chain_joins_to_their_owner_are_not_paired():
+    # The same strip whose first 20 px no pair explains (they return from behind the wall): its far part is
+    # dominated by something no chain of pulses the plate shares joins to the plate (on a canopy, a piece of a
+    # hidden leaf), so those pulses get no pair and keep their measured distance; the wall-dominated ones are
+    # still paired.
+    range_m, share, surfaces, strip, _, wall = _petiole_scene(cut_root=True)
+    mixed = attribute_mixed(range_m, surfaces, 12, tolerance_m=0.003, reach_px=80)
+    far = strip & (share >= 0.5) & (np.arange(150) >= 80)
+    assert far.sum() >= 40 and (mixed.pair[far] == 0).all() and not mixed.thin[far].any()
+    assert np.isnan(mixed.owner_range()[far]).all()
+    walled = strip & (share < 0.45) & (np.arange(150) >= 80)
+    assert (mixed.owner[walled] == 2).all() and mixed.thin[walled].all()
+    # joined by the strip's own pulses (the petiole of the other tests), they are the plate's
+    range_m, _, surfaces, *_ = _petiole_scene()
+    assert (attribute_mixed(range_m, surfaces, 12, tolerance_m=0.003, reach_px=80).owner[far] == 1).all()
 
 
 def test_unlinked_pulses_deeper_than_a_footprint_edge_are_no_mixed_pulses():
