@@ -235,6 +235,8 @@ def _pulse_reductions(model, t, prim, obj, power, transmitted, pulse_start, coun
         obj_k = dr.gather(mi.Int32, obj, index)
         hit_k = t_k <= model.max_range_m
         returned = hit_k & (power_k > 0)
+        if k == 0:
+            central_t = t_k
         first = dr.select(returned & (first == count), k, first)
         low = dr.select(returned & (obj_k < low), obj_k, low)
         high = dr.select(returned & (obj_k > high), obj_k, high)
@@ -250,7 +252,7 @@ def _pulse_reductions(model, t, prim, obj, power, transmitted, pulse_start, coun
                 sums[2 + 2 * i] += p * sin
     has = first < count
     first_prim = dr.gather(mi.UInt32, prim, pulse_start + mi.UInt32(dr.select(has, first, 0)), has)
-    return [first, low, high, first_prim, dr.gather(mi.Float, t, pulse_start), *sums]
+    return [first, low, high, first_prim, central_t, *sums]
 
 
 class TraceScene:

@@ -282,8 +282,6 @@ def simulate_columns(job: ScanJob, c0: int, c1: int, seed: int = 0, chunk_subray
     theta_axis = theta_axis[c0:c1]
     rows, cols = len(psi_axis), len(theta_axis)
     smear_rad = model.smear_fraction * math.radians(window.step_deg[1])
-    draws = column_draws(seed, c0, c1, rows, smear_rad > 0)
-
     grids = {key: np.empty((rows, cols) + shape, dtype) for key, shape, dtype in _OUTPUT_LAYOUT}
     cols_per_chunk = max(1, chunk_subrays // (rows * job.beam.count))
     for a in range(0, cols, cols_per_chunk):
@@ -293,18 +291,19 @@ def simulate_columns(job: ScanJob, c0: int, c1: int, seed: int = 0, chunk_subray
             """A wavefront's per-pulse values (column-major) as a (psi, theta) view."""
             return np.swapaxes(values.reshape((b - a, rows) + shape), 0, 1)
 
+        draws = column_draws(seed, c0 + a, c0 + b, rows, smear_rad > 0)
         hits = job.traced.trace(model, job.beam, pose, np.repeat(theta_axis[a:b], rows), np.tile(psi_axis, b - a),
-                                draws["spin"][a:b].ravel(), smear_rad,
-                                None if draws["instants"] is None else draws["instants"][a:b].ravel())
+                                draws["spin"].ravel(), smear_rad,
+                                None if draws["instants"] is None else draws["instants"].ravel())
         dist, amp = _pulse_returns(hits, model)
         returns = PulseReturns(distance_m=along_psi(dist), amplitude=along_psi(amp), power=along_psi(hits.total_power))
         grids["range"][:, a:b], grids["intensity"][:, a:b] = detect_with_noise(
-            model, returns, along_psi(draws["amplitude_noise"][a:b]), along_psi(draws["range_noise"][a:b]))
+            model, returns, along_psi(draws["amplitude_noise"]), along_psi(draws["range_noise"]))
         for key, value in pulse_truth(hits, job.traced.face_normals).items():
             grids[key][:, a:b] = along_psi(value, value.shape[1:])
         grids["xyz"][:, a:b] = pose.position + grids["range"][:, a:b, None] * grid_directions(
             theta_axis[a:b], psi_axis, pose.rotation)
-        del hits, returns
+        del hits, returns, draws
         if progress is not None:
             progress((b - a) * rows)
 
