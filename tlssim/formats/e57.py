@@ -282,8 +282,7 @@ def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: i
 
     import pye57
 
-    from tlssim.scan import ScannerDescription
-    from tlssim.tiled import add_tile, open_tiled, start_tiled
+    from tlssim.tiled import open_tiled
 
     outdir = Path(outdir)
     try:
@@ -315,19 +314,35 @@ def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: i
             pose = ScannerPose(translation, Rotation.from_quat(np.roll(rotation, -1)).as_matrix())
         except (ScanError, ValueError) as exc:
             raise ScanError(f"{path}: invalid scanner pose ({exc})") from None
-        tile_cols = tile_cols or max(1, min(cols, budget_bytes // (150 * rows)))
-        resumed = (outdir / "index.json").is_file()
-        if not resumed or not open_tiled(outdir).complete:
+        resumed = open_tiled(outdir) if (outdir / "index.json").is_file() else None
+        if resumed is not None and resumed.complete and resumed.index.get("fingerprint") == fingerprint:
+            return resumed
+        tile_cols = tile_cols or (resumed.tile_cols if resumed else max(1, min(cols, budget_bytes // (150 * rows))))
+        try:
             grids = _scatter_grids(path, e57, header, fields, shape, low, limit, scratch, chunk_points)
+        except BaseException:
+            shutil.rmtree(scratch, ignore_errors=True)
+            raise
     except ScanError:
         raise
     except Exception as exc:
         raise ScanError(f"{path}: malformed or truncated E57 scan ({_first_line(exc)})") from None
     finally:
         e57.close()
-    if resumed and open_tiled(outdir).complete:
-        return open_tiled(outdir)
-    meta = {"source": str(path), "format": "e57"}
+    try:
+        return _write_tiles(outdir, grids, pose, tile_cols, fingerprint, {"source": str(path), "format": "e57"})
+    finally:
+        del grids
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _write_tiles(outdir: Path, grids: dict, pose: ScannerPose, tile_cols: int, fingerprint: str,
+                 meta: dict) -> TiledScan:
+    """Cut the on-disk grids of :func:`_scatter_grids` into the tiles of a tiled scan (those not yet written)."""
+    from tlssim.scan import ScannerDescription
+    from tlssim.tiled import add_tile, open_tiled, start_tiled
+
+    rows, cols = grids["psi"].shape
     column_theta, carry = np.empty(cols), None
     for c0 in range(0, cols, tile_cols):  # the columns' azimuths for the index, one tile at a time
         theta, carry = _unwrap_columns(np.asarray(grids["theta"][:, c0:c0 + tile_cols]), carry)
@@ -349,8 +364,6 @@ def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: i
                                    np.asarray(grids["intensity"][window]), pose, theta,
                                    np.asarray(grids["psi"][window]), dict(meta))
             add_tile(outdir, index, c0, tile)
-    del grids
-    shutil.rmtree(scratch, ignore_errors=True)
     return open_tiled(outdir)
 
 
