@@ -36,6 +36,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--core-cols", type=int,
                    help="tiled scan: columns per output tile, each reconstructed in a window of it plus margins "
                         "(default: from --memory-budget)")
+    p.add_argument("--band-rows", type=int,
+                   help="tiled scan: rows per band, each with margins of its own (default: all rows up to "
+                        "2048 rows, else 1024)")
     p.add_argument("--memory-budget", type=float, default=2.0,
                    help="tiled scan: memory of one window's reconstruction, GB (default 2)")
     p.add_argument("--leaf-size-m", type=float,
@@ -98,28 +101,34 @@ def _reconstruct(args) -> int:
 
 
 def _reconstruct_tiled(args, params, mask) -> int:
+    import numpy as np
     from tqdm import tqdm
 
     from leafsfs.errors import SfsError
-    from leafsfs.tiled import (LEAF_SIZE_M, RECONSTRUCT_BYTES_PER_PULSE, core_columns, margin_columns,
-                               reconstruct_tiled)
+    from leafsfs.tiled import (BAND_ROWS, LEAF_SIZE_M, RECONSTRUCT_BYTES_PER_PULSE, core_columns, margin_columns,
+                               margin_rows, reconstruct_tiled)
     from tlssim.tiled import open_tiled
 
     if mask is not None:
         raise SfsError("--mask is not supported on a tiled scan (leaves are found window by window)")
     tiled = open_tiled(args.scan)
     leaf_size = args.leaf_size_m if args.leaf_size_m is not None else LEAF_SIZE_M
-    core_cols = args.core_cols
-    # The margins are not known before the data are read: those of the first tile's columns stand for all.
-    margin = margin_columns(tiled.load_columns(0, min(tiled.shape[1], tiled.tile_cols)), leaf_size, 2048)
-    if core_cols is None:
-        core_cols = core_columns(tiled.shape[0], args.memory_budget * 1e9, margin)
+    rows = tiled.shape[0]
+    band_rows = args.band_rows or (rows if rows <= 2 * BAND_ROWS else BAND_ROWS)
+    # The margins are not known before the data are read: the first tile's, median over its bands, stand for all.
+    first = tiled.load_columns(0, min(tiled.shape[1], tiled.tile_cols))
+    bands = [first.crop(slice(r0, r0 + band_rows), slice(None)) for r0 in range(0, rows, band_rows)]
+    margin = int(np.median([margin_columns(band, leaf_size, 2048) for band in bands]))
+    margin_r = 0 if band_rows >= rows else int(np.median([margin_rows(band, leaf_size, 2048) for band in bands]))
+    height = min(rows, band_rows + 2 * margin_r)
+    core_cols = args.core_cols or core_columns(height, args.memory_budget * 1e9, margin)
     window = min(tiled.shape[1], core_cols + 2 * margin)
-    print(f"windows of about {window} columns ({core_cols} + 2 x {margin} margin): about "
-          f"{window * tiled.shape[0] * RECONSTRUCT_BYTES_PER_PULSE / 1e9:.1f} GB each")
+    print(f"windows of about {height} x {window} pulses ({band_rows} + 2 x {margin_r} rows, {core_cols} + 2 x "
+          f"{margin} columns): about {window * height * RECONSTRUCT_BYTES_PER_PULSE / 1e9:.1f} GB each")
     with tqdm(total=tiled.shape[0] * tiled.shape[1], unit="pulse", unit_scale=True, desc="reconstruct") as bar:
         result = reconstruct_tiled(tiled, args.outdir, args.variant, params, calibration=args.calibration,
-                                   core_cols=core_cols, leaf_size_m=leaf_size, progress=bar.update)
+                                   core_cols=core_cols, band_rows=band_rows, leaf_size_m=leaf_size,
+                                   progress=bar.update)
     print(f"{len(result.traits)} leaves in {len(result.scan.tiles)} tiles of {core_cols} columns; "
           f"{result.windows} windows run in {result.elapsed_s:.1f} s: {result.pulses_per_s:,.0f} pulses/s")
     print(f"  corrected  {result.scan.path}\n  traits     {Path(args.outdir) / 'traits.json'}")

@@ -1,24 +1,28 @@
 """PROP-SFS on a tiled scan (:mod:`tlssim.tiled`): window by window, with overlaps, into a tiled corrected scan.
 
-A scan larger than memory is reconstructed in windows of whole columns.
-The scan's columns are cut into *cores* of ``core_cols`` columns; window
-``k`` is core ``k`` widened on either side by a margin: the columns a leaf
-of ``leaf_size_m`` spans at the core's nearest pulses (:func:`margin_columns`). Every leaf
-region found in window ``k`` is kept from that window only when its
-centroid column lies in core ``k``, so a leaf cut by a core border is
-reconstructed once, from the window where it lies whole. A kept region
-that comes within :data:`GUARD_COLS` columns of a window border that is
-not the scan's border (the leaf is wider than the margin) makes the window
-run again with twice the margin, up to ``max_margin`` columns; a region
+A scan larger than memory is reconstructed in windows. The scan's columns
+are cut into *cores* of ``core_cols`` columns, and its rows into *bands* of
+``band_rows`` rows (default: one band of all rows); window ``(b, k)`` is the
+rectangle of band ``b`` and core ``k`` widened on every side by margins: the
+columns (:func:`margin_columns`) and rows (:func:`margin_rows`) a leaf of
+``leaf_size_m`` spans at the rectangle's nearest pulses. So the margins
+follow the distance row band by row band: the ground at the tripod, the
+nearest surface of a field scan, widens only the windows of the bottom band.
+Every leaf region found in a window is kept from that window only when its
+centroid lies in the window's core rectangle, so a leaf cut by a core or
+band border is reconstructed once, from the window where it lies whole. A
+kept region that comes within :data:`GUARD_COLS` pulses of a window border
+that is not the scan's border (the leaf is wider than the margin) makes the
+window run again with twice the margins, up to ``max_margin``; a region
 still cut then is kept and its traits say ``cut_by_border``.
 
 The corrected scan is written as a tiled scan (one tile per core): a
 pixel takes the values of the window that kept the region covering it
-(window ``k`` or a neighbour; a kept region reaches at most ``margin``
-columns past its core), and otherwise those of its own core's window,
-where the pixels of a region that window did not keep get back their
-measured range. So at most three windows' outputs are in memory at a time.
-Leaves are numbered in core order; every tile's metadata holds the
+(a kept region reaches at most a margin past its core rectangle), and
+otherwise those of the window of its own core rectangle, where the pixels of a
+region that window did not keep get back their measured range. So at most
+three cores' windows' outputs are in memory at a time.
+Leaves are numbered in core order, then band order; every tile's metadata holds the
 traits of its core's leaves, so an interrupted run resumes with the
 tiles that check (:func:`tlssim.tiled.start_tiled`) and recomputes only
 the windows the remaining cores need. ``traits.json`` gathers all leaves.
@@ -46,7 +50,7 @@ from leafsfs.outputs import json_ready
 from leafsfs.params import VARIANTS, SfsParams
 from leafsfs.preprocess import resolve_calibration
 from leafsfs.reconstruct import reconstruct
-from tlssim.scan import GRID_KEYS, TRUTH_KEYS, Scan, grid_to_xyz
+from tlssim.scan import Scan, grid_to_xyz
 from tlssim.tiled import INDEX, TiledScan, add_tile, open_tiled, start_tiled
 
 #: Columns a kept region must stay away from a window's inner border to count as whole: the leaf frame's
@@ -55,6 +59,9 @@ GUARD_COLS = MARGIN_PX + 5
 #: Largest leaf extent assumed by default, m: about twice the mean pear-leaf blade length measured in the
 #: lab (6.47 cm, scenes.leaf), for the petiole and larger leaves (assumption).
 LEAF_SIZE_M = 0.12
+#: Rows per band of the ``leafsfs reconstruct`` command on scans of more than twice as many rows (a full
+#: 160 deg scan at 0.018 deg has 8,889): the ground near the tripod then widens only the bottom band's windows.
+BAND_ROWS = 1024
 #: Memory of a reconstruction per pulse of its window, bytes: the ``leafsfs reconstruct`` process peaked at 664 MB
 #: on windows of 1.0 M pulses of the orchard row at 0.018 deg (``fused``), imports included.
 RECONSTRUCT_BYTES_PER_PULSE = 650
@@ -62,11 +69,17 @@ RECONSTRUCT_BYTES_PER_PULSE = 650
 
 @dataclasses.dataclass
 class _Window:
-    """What one window contributes: its outputs over its columns ``w0:w1`` and the leaves it kept."""
+    """What one window contributes: its outputs over rows ``h0:h1`` and columns ``w0:w1``, the leaves it kept.
 
+    ``core`` is the window's core rectangle ``(r0, r1, c0, c1)``; ``margins`` its row and column margins.
+    """
+
+    h0: int
+    h1: int
     w0: int
     w1: int
-    margin: int
+    core: tuple
+    margins: tuple
     range: np.ndarray
     outlier: np.ndarray
     candidates: np.ndarray
@@ -75,7 +88,6 @@ class _Window:
     background: np.ndarray
     spread: np.ndarray
     corrected: np.ndarray
-    core: Scan  # the input scan's core columns
     traits: list = dataclasses.field(default_factory=list)
     skipped: list = dataclasses.field(default_factory=list)
 
@@ -136,8 +148,8 @@ def core_columns(rows: int, budget_bytes: float, margin: int) -> int:
 
 
 def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params: SfsParams | None = None, *,
-                      calibration=None, core_cols: int = 512, leaf_size_m: float = LEAF_SIZE_M,
-                      max_margin: int = 2048, progress=None) -> TiledResult:
+                      calibration=None, core_cols: int = 512, band_rows: int | None = None,
+                      leaf_size_m: float = LEAF_SIZE_M, max_margin: int = 2048, progress=None) -> TiledResult:
     """Reconstruct the leaves of a tiled scan window by window into ``outdir`` (tiled scan plus ``traits.json``).
 
     Parameters
@@ -155,11 +167,13 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
         Intensity calibration (:func:`leafsfs.preprocess.resolve_calibration`).
     core_cols : int
         Columns per core (and per output tile), ``>= 1``.
+    band_rows : int, optional
+        Rows per band, ``>= 1`` (default: all rows, one band).
     leaf_size_m : float
-        Largest leaf extent, m: a window's margin is the columns it spans at the nearest pulses of
-        the core (:func:`margin_columns`).
+        Largest leaf extent, m: a window's margins are the columns and rows it spans at the nearest
+        pulses of the window's core rectangle (:func:`margin_columns`, :func:`margin_rows`).
     max_margin : int
-        Largest margin of a window, columns.
+        Largest margin of a window, columns or rows.
     progress : callable, optional
         Called with the number of pulses of every finished core.
 
@@ -174,9 +188,11 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
     """
     from tlssim.errors import ScanError
 
-    if core_cols < 1 or max_margin < GUARD_COLS or not leaf_size_m > 0:
-        raise SfsError(f"tiled reconstruction needs core_cols >= 1, max_margin >= {GUARD_COLS} and leaf_size_m > 0, "
-                       f"got {core_cols}, {max_margin}, {leaf_size_m}")
+    rows, cols = tiled.shape
+    band_rows = rows if band_rows is None else band_rows
+    if core_cols < 1 or band_rows < 1 or max_margin < GUARD_COLS or not leaf_size_m > 0:
+        raise SfsError(f"tiled reconstruction needs core_cols >= 1, band_rows >= 1, max_margin >= {GUARD_COLS} and "
+                       f"leaf_size_m > 0, got {core_cols}, {band_rows}, {max_margin}, {leaf_size_m}")
     if variant not in VARIANTS:
         raise SfsError(f"unknown variant {variant!r}; allowed: {', '.join(VARIANTS)}")
     if not tiled.complete:
@@ -184,10 +200,10 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
     start = time.perf_counter()
     params = params or SfsParams()
     calibration = resolve_calibration(calibration)
-    rows, cols = tiled.shape
     outdir = Path(outdir)
     identity = {"scan": tiled.index.get("fingerprint"), "tiles": [t.sha256 for t in tiled.tiles], "variant": variant,
-                "params": params.to_dict(), "calibration": repr(calibration), "margin": [leaf_size_m, max_margin]}
+                "params": params.to_dict(), "calibration": repr(calibration), "margin": [leaf_size_m, max_margin],
+                **({} if band_rows >= rows else {"band_rows": band_rows})}
     fingerprint = hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()
     header = {key: tiled.index[key] for key in ("shape", "scanner", "scanner_position", "scanner_rotation",
                                                 "object_names", "theta_columns", "psi_rows", "has_truth")}
@@ -199,38 +215,48 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
         raise SfsError(str(exc)) from None
     core_cols = int(index["tile_cols"])
     n_cores = -(-cols // core_cols)
+    bands = [(r0, min(rows, r0 + band_rows)) for r0 in range(0, rows, band_rows)]
     # Leaves are numbered in core order: the count before the first core to write comes from the written tiles.
     written = {t["col0"] // core_cols: t for t in index["tiles"]}
     offsets = {0: 0}
-    cache: dict[int, _Window] = {}
+    cache: dict[tuple[int, int], _Window] = {}
     windows_run = 0
 
-    def window(k: int) -> _Window:
+    def window(b: int, k: int) -> _Window:
         nonlocal windows_run
-        if k not in cache:
-            cache[k] = _reconstruct_window(tiled, k * core_cols, min(cols, (k + 1) * core_cols), leaf_size_m,
-                                           max_margin, variant, params, calibration)
+        if (b, k) not in cache:
+            cache[b, k] = _reconstruct_window(tiled, bands[b], (k * core_cols, min(cols, (k + 1) * core_cols)),
+                                              leaf_size_m, max_margin, variant, params, calibration)
             windows_run += 1
-        return cache[k]
+        return cache[b, k]
+
+    def core_traits(k: int) -> list:
+        return [t for b in range(len(bands)) for t in window(b, k).traits]
 
     def offset(k: int) -> int:
         j = max(offsets)
-        while j < k:  # the leaves of core j: from its written tile, else from its window
-            kept = _tile_leafsfs(outdir / "corrected", written[j])["leaves"] if j in written else window(j).traits
+        while j < k:  # the leaves of core j: from its written tile, else from its windows
+            kept = _tile_leafsfs(outdir / "corrected", written[j])["leaves"] if j in written else core_traits(j)
             offsets[j + 1] = offsets[j] + len(kept)
             j += 1
         return offsets[k]
 
     for c0, c1 in todo:
         k = c0 // core_cols
-        tile, leaves, skipped = _assemble_core(k, c0, c1, [(j, window(j), offset(j)) for j in (k - 1, k, k + 1)
-                                                           if 0 <= j < n_cores])
+        windows = []
+        for j in (k - 1, k, k + 1):
+            if 0 <= j < n_cores:
+                label = offset(j)
+                for b in range(len(bands)):
+                    windows.append((j, window(b, j), label))
+                    label += len(window(b, j).traits)
+        tile, leaves, skipped = _assemble_core(k, tiled.load_columns(c0, c1), c0, c1, windows)
         tile.meta = {**tiled.meta, "columns": [c0, c1],
                      "leafsfs": {"variant": variant, "leaves": json_ready(leaves), "skipped": skipped}}
         add_tile(outdir / "corrected", index, c0, tile)
         written[k] = next(t for t in index["tiles"] if t["col0"] == c0)
-        for j in [j for j in cache if j < k]:
-            del cache[j]
+        for key in [key for key in cache if key[1] < k]:
+            del cache[key]
         if progress is not None:
             progress(rows * (c1 - c0))
     corrected = open_tiled(outdir / "corrected")
@@ -239,8 +265,8 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
         info = _tile_leafsfs(outdir / "corrected", written[k])
         traits += info["leaves"]
         skipped += info["skipped"]
-    report = {"variant": variant, "source": str(tiled.path), "core_cols": core_cols, "leaves": traits,
-              "skipped": skipped, "params": params.to_dict()}
+    report = {"variant": variant, "source": str(tiled.path), "core_cols": core_cols, "band_rows": band_rows,
+              "leaves": traits, "skipped": skipped, "params": params.to_dict()}
     (outdir / "traits.json").write_text(json.dumps(json_ready(report), indent=1, allow_nan=False))
     return TiledResult(corrected, traits, skipped, rows * sum(c1 - c0 for c0, c1 in todo), windows_run,
                        time.perf_counter() - start)
@@ -261,7 +287,7 @@ def margin_columns(scan: Scan, leaf_size_m: float, max_margin: int) -> int:
     Parameters
     ----------
     scan : Scan
-        The core's columns.
+        The core's pulses (its columns, or the rectangle of a band and a core).
     leaf_size_m : float
         Largest leaf extent, m.
     max_margin : int
@@ -275,42 +301,82 @@ def margin_columns(scan: Scan, leaf_size_m: float, max_margin: int) -> int:
     if scan.shape[1] < 2 or not scan.valid.any():
         return GUARD_COLS
     step = float(np.nanmedian(np.abs(np.diff(scan.theta, axis=1))))
-    radius = float(np.percentile((scan.range * np.sin(scan.psi))[scan.valid], 1.0))
-    if not (step > 0 and radius > 0):
+    return _margin(scan.range * np.sin(scan.psi), scan.valid, step, leaf_size_m, max_margin)
+
+
+def margin_rows(scan: Scan, leaf_size_m: float, max_margin: int) -> int:
+    """Margin of a window around a band: the rows a leaf of ``leaf_size_m`` spans at the band's nearest pulses.
+
+    A row is ``r dpsi`` tall at range ``r``; the nearest pulses are the 1st percentile of ``r``.
+
+    Parameters
+    ----------
+    scan : Scan
+        The pulses of the window's core rectangle (a band's rows of a core's columns).
+    leaf_size_m : float
+        Largest leaf extent, m.
+    max_margin : int
+        Largest margin, rows.
+
+    Returns
+    -------
+    int
+        Rows, from :data:`GUARD_COLS` to ``max_margin``.
+    """
+    if scan.shape[0] < 2 or not scan.valid.any():
+        return GUARD_COLS
+    step = float(np.nanmedian(np.abs(np.diff(scan.psi, axis=0))))
+    return _margin(scan.range, scan.valid, step, leaf_size_m, max_margin)
+
+
+def _margin(extent: np.ndarray, valid: np.ndarray, step_rad: float, leaf_size_m: float, max_margin: int) -> int:
+    """Grid steps a leaf of ``leaf_size_m`` spans, a step being ``extent x step_rad`` (1st percentile), plus guard."""
+    radius = float(np.percentile(extent[valid], 1.0))
+    if not (step_rad > 0 and radius > 0):
         return max_margin
-    return int(np.clip(math.ceil(leaf_size_m / (radius * step)) + GUARD_COLS, GUARD_COLS, max_margin))
+    return int(np.clip(math.ceil(leaf_size_m / (radius * step_rad)) + GUARD_COLS, GUARD_COLS, max_margin))
 
 
-def _reconstruct_window(tiled: TiledScan, c0: int, c1: int, leaf_size_m: float, max_margin: int, variant: str,
-                        params: SfsParams, calibration) -> _Window:
-    """Reconstruct the window of core ``c0:c1``, widening it while a leaf it keeps touches an inner border."""
-    cols = tiled.shape[1]
-    margin = margin_columns(tiled.load_columns(c0, c1), leaf_size_m, max_margin)
+def _reconstruct_window(tiled: TiledScan, band: tuple, core: tuple, leaf_size_m: float, max_margin: int,
+                        variant: str, params: SfsParams, calibration) -> _Window:
+    """Reconstruct the window of a band's rows ``r0:r1`` and a core's columns ``c0:c1``.
+
+    The window widens (both margins doubled) while a leaf it keeps comes near an inner border.
+    """
+    (r0, r1), (c0, c1) = band, core
+    rows, cols = tiled.shape
+    inner = tiled.load_columns(c0, c1, slice(r0, r1))
+    margin_r = 0 if (r0, r1) == (0, rows) else margin_rows(inner, leaf_size_m, max_margin)
+    margin_c = margin_columns(inner, leaf_size_m, max_margin)
+    del inner
     while True:
-        w0, w1 = max(0, c0 - margin), min(cols, c1 + margin)
-        scan = tiled.load_columns(w0, w1)
+        h0, h1 = max(0, r0 - margin_r), min(rows, r1 + margin_r)
+        w0, w1 = max(0, c0 - margin_c), min(cols, c1 + margin_c)
+        scan = tiled.load_columns(w0, w1, slice(h0, h1))
         try:
             result = reconstruct(scan, None, variant, params, calibration=calibration)
         except SfsError:  # no leaf in this window (inputs were checked before the first window)
-            return _empty_window(scan, w0, w1, c0, c1, margin)
+            return _empty_window(scan, (h0, h1, w0, w1), (r0, r1, c0, c1), (margin_r, margin_c))
         labels = result.labels
         n = int(labels.max()) if labels.size else 0
-        counts = np.bincount(labels.ravel(), minlength=n + 1)
-        column = np.broadcast_to(np.arange(w0, w1, dtype=np.float64), labels.shape)
-        centroid = np.bincount(labels.ravel(), weights=column.ravel(), minlength=n + 1) / np.maximum(counts, 1)
-        mine = (centroid >= c0) & (centroid < c1) & (counts > 0)
+        counts = np.maximum(np.bincount(labels.ravel(), minlength=n + 1), 1)
+        centre = [np.bincount(labels.ravel(), weights=np.broadcast_to(position, labels.shape).ravel(),
+                              minlength=n + 1) / counts
+                  for position in (np.arange(h0, h1, dtype=np.float64)[:, None], np.arange(w0, w1, dtype=np.float64))]
+        mine = (centre[0] >= r0) & (centre[0] < r1) & (centre[1] >= c0) & (centre[1] < c1)
+        mine &= np.bincount(labels.ravel(), minlength=n + 1) > 0
         mine[0] = False
         kept = [leaf for leaf in result.leaves if mine[leaf.label]]
         slices = ndimage.find_objects(labels)
-        touching = any((w0 > 0 and slices[leaf.label - 1][1].start < GUARD_COLS)
-                       or (w1 < cols and slices[leaf.label - 1][1].stop > w1 - w0 - GUARD_COLS) for leaf in kept)
-        if not touching or margin >= max_margin or (w0 == 0 and w1 == cols):
+        touching = any(_near_inner_border(slices[leaf.label - 1], (h0, h1, w0, w1), (rows, cols)) for leaf in kept)
+        if not touching or max(margin_r, margin_c) >= max_margin or ((h0, h1, w0, w1) == (0, rows, 0, cols)):
             break
-        margin = min(2 * max(margin, 1), max_margin)
+        margin_c = min(2 * max(margin_c, 1), max_margin)
+        margin_r = 0 if (r0, r1) == (0, rows) else min(2 * max(margin_r, 1), max_margin)
     rank = np.zeros(n + 1, dtype=np.int32)
     rank[[leaf.label for leaf in kept]] = np.arange(1, len(kept) + 1, dtype=np.int32)
     # A window keeps its regions and the pulses corrected outside any region (background pulses) whose nearest
-    # region it keeps; the others get back their measured values here (another core's window gives them).
+    # region it keeps; the others get back their measured values here (another window gives them).
     loose = result.corrected & (labels == 0)
     owner = labels
     if loose.any() and (labels > 0).any():
@@ -318,73 +384,95 @@ def _reconstruct_window(tiled: TiledScan, c0: int, c1: int, leaf_size_m: float, 
         owner = labels[tuple(nearest)]
     claim = mine[labels] | (loose & mine[owner])
     dropped = ((labels > 0) | loose) & ~claim
-    traits = [{**leaf.traits, "margin_cols": margin, "centroid_col": float(centroid[leaf.label])} for leaf in kept]
+    traits = [{**leaf.traits, "margin_cols": margin_c, "margin_rows": margin_r,
+               "centroid_col": float(centre[1][leaf.label]), "centroid_row": float(centre[0][leaf.label])}
+              for leaf in kept]
     skipped = [reason for label, reason in result.skipped if mine[label]]
-    core = _copy_scan(scan.crop(slice(None), slice(c0 - w0, c1 - w0)))
-    return _Window(w0, w1, margin, np.where(dropped, scan.range, result.range), result.outlier & ~dropped,
-                   np.where(dropped, 0, result.candidates), rank[labels], claim, result.background & ~dropped,
-                   np.where(dropped, np.nan, result.spread), result.corrected & ~dropped, core, traits, skipped)
+    return _Window(h0, h1, w0, w1, (r0, r1, c0, c1), (margin_r, margin_c), np.where(dropped, scan.range, result.range),
+                   result.outlier & ~dropped, np.where(dropped, 0, result.candidates), rank[labels], claim,
+                   result.background & ~dropped, np.where(dropped, np.nan, result.spread), result.corrected & ~dropped,
+                   traits, skipped)
 
 
-def _empty_window(scan: Scan, w0: int, w1: int, c0: int, c1: int, margin: int) -> _Window:
+def _near_inner_border(where: tuple, extent: tuple, shape: tuple) -> bool:
+    """Whether a region (``find_objects`` slices) comes within the guard of a window border inside the scan."""
+    (h0, h1, w0, w1), (rows, cols) = extent, shape
+    rows_of, cols_of = where
+    return ((h0 > 0 and rows_of.start < GUARD_COLS) or (h1 < rows and rows_of.stop > h1 - h0 - GUARD_COLS)
+            or (w0 > 0 and cols_of.start < GUARD_COLS) or (w1 < cols and cols_of.stop > w1 - w0 - GUARD_COLS))
+
+
+def _empty_window(scan: Scan, extent: tuple, core: tuple, margins: tuple) -> _Window:
     """The contribution of a window without leaves: the measured scan, nothing corrected."""
     none = np.zeros(scan.shape, dtype=bool)
-    return _Window(w0, w1, margin, scan.range, none, np.zeros(scan.shape, np.int32), np.zeros(scan.shape, np.int32),
-                   none, none, np.full(scan.shape, np.nan), none, _copy_scan(scan.crop(slice(None), slice(c0 - w0, c1 - w0))))
-
-
-def _copy_scan(scan: Scan) -> Scan:
-    """A scan whose arrays are copies (a crop holds views that would keep the whole window alive)."""
-    arrays = {key: getattr(scan, key).copy() for key in GRID_KEYS + TRUTH_KEYS if getattr(scan, key) is not None}
-    return dataclasses.replace(scan, **arrays, layers={k: v.copy() for k, v in scan.layers.items()})
+    return _Window(*extent, core, margins, scan.range, none, np.zeros(scan.shape, np.int32),
+                   np.zeros(scan.shape, np.int32), none, none, np.full(scan.shape, np.nan), none)
 
 
 _OUTPUTS = ("range", "outlier", "candidates", "background", "spread")
 
 
-def _assemble_core(k: int, c0: int, c1: int, windows: list) -> tuple[Scan, list, list]:
-    """The corrected tile of core ``k`` (columns ``c0:c1``) from its window and the regions its neighbours keep.
+def _assemble_core(k: int, tile: Scan, c0: int, c1: int, windows: list) -> tuple[Scan, list, list]:
+    """The corrected tile of core ``k`` (columns ``c0:c1``) from its windows and the regions its neighbours keep.
 
     Parameters
     ----------
     k : int
         Core number.
+    tile : Scan
+        The input scan's columns ``c0:c1``, all rows.
     c0, c1 : int
         The core's columns.
     windows : list of (int, _Window, int)
-        Core number, window and leaf-label offset of core ``k`` and of its existing neighbours.
+        Core number, window and leaf-label offset of every band's window of core ``k`` and of its existing
+        neighbours.
 
     Returns
     -------
     tile : Scan
         The corrected scan of the core's columns.
     leaves : list of dict
-        Traits of the leaves kept by core ``k``'s window, with their labels.
+        Traits of the leaves kept by core ``k``'s windows, with their labels.
     skipped : list of dict
-        Regions of core ``k``'s window not reconstructed.
+        Regions of core ``k``'s windows not reconstructed.
     """
-    grids, leaf = None, None
-    for j, window, offset in sorted(windows, key=lambda item: item[0] != k):  # core k's own window first
+    grids = {name: None for name in _OUTPUTS}
+    leaf = np.zeros(tile.shape, np.int32)
+    leaves, skipped = [], []
+
+    def numbered(window, offset, src):
+        return np.where(window.leaf[src] > 0, window.leaf[src] + offset, 0).astype(np.int32)
+
+    for j, window, offset in windows:  # first each band's own window over its core rectangle
+        if j != k:
+            continue
+        r0, r1 = window.core[:2]
+        src = (slice(r0 - window.h0, r1 - window.h0), slice(c0 - window.w0, c1 - window.w0))
+        for name in _OUTPUTS:
+            value = getattr(window, name)[src]
+            if grids[name] is None:
+                grids[name] = np.empty(tile.shape, value.dtype)
+            grids[name][r0:r1] = value
+        leaf[r0:r1] = numbered(window, offset, src)
+        leaves += [{"leaf": offset + i + 1, "core": k, **t} for i, t in enumerate(window.traits)]
+        skipped += [{"core": k, "reason": reason} for reason in window.skipped]
+    for j, window, offset in windows:  # then the regions any window keeps outside its own core rectangle
         a, b = max(c0, window.w0), min(c1, window.w1)
         if a >= b:
             continue
-        src, dst = slice(a - window.w0, b - window.w0), slice(a - c0, b - c0)
+        src = (slice(None), slice(a - window.w0, b - window.w0))
+        claim = window.claim[src].copy()
         if j == k:
-            grids = {name: getattr(window, name)[:, src].copy() for name in _OUTPUTS}
-            leaf = np.where(window.leaf[:, src] > 0, window.leaf[:, src] + offset, 0).astype(np.int32)
-            own, own_offset = window, offset
-            continue
-        claim = window.claim[:, src]  # a neighbour's region replaces this window's view of its pixels
+            r0, r1 = window.core[:2]
+            claim[r0 - window.h0:r1 - window.h0] = False
+        dst = (slice(window.h0, window.h1), slice(a - c0, b - c0))
         for name in _OUTPUTS:
-            grids[name][:, dst][claim] = getattr(window, name)[:, src][claim]
-        leaf[:, dst][claim] = np.where(window.leaf[:, src] > 0, window.leaf[:, src] + offset, 0)[claim]
-    tile = own.core
+            grids[name][dst][claim] = getattr(window, name)[src][claim]
+        leaf[dst][claim] = numbered(window, offset, src)[claim]
     layers = {**tile.layers, "outlier": grids["outlier"], "candidates": grids["candidates"].astype(np.int32),
               "leaf": leaf, "background": grids["background"], "range_spread": grids["spread"].astype(np.float32)}
     scan = dataclasses.replace(tile, range=grids["range"], layers=layers,
                                xyz=grid_to_xyz(grids["range"], tile.theta, tile.psi, tile.pose))
-    leaves = [{"leaf": own_offset + i + 1, "core": k, **t} for i, t in enumerate(own.traits)]
-    skipped = [{"core": k, "reason": reason} for reason in own.skipped]
     return scan, leaves, skipped
 
 

@@ -10,7 +10,7 @@ import tlssim
 from benchmarks.experiments.calibration import simulated_calibration
 from leafsfs import SfsError, reconstruct
 from leafsfs.cli import main
-from leafsfs.tiled import GUARD_COLS, margin_columns, reconstruct_tiled
+from leafsfs.tiled import GUARD_COLS, margin_columns, margin_rows, reconstruct_tiled
 from tlssim.simulate import simulate_tiled
 from tlssim.tiled import open_tiled
 
@@ -60,6 +60,22 @@ def test_a_leaf_cut_by_tile_borders_is_reconstructed_once_as_on_the_whole_scan(t
         assert [entry["leaf"] for entry in report["leaves"]] == [leaf["leaf"]]
 
 
+def test_a_leaf_cut_by_band_and_core_borders_is_one_leaf(tiled_leaf, tmp_path):
+    tiled, calibration, whole = tiled_leaf
+    leaf_pixels = tiled.load().truth_id == tiled.object_names.index("leaf")
+    rows, cols = (np.nonzero(leaf_pixels.any(axis=axis))[0] for axis in (1, 0))
+    assert rows.min() < 85 <= rows.max() and cols.min() < 160 <= cols.max(), "the leaf must straddle both borders"
+    (expected,) = whole.traits()
+    result = reconstruct_tiled(tiled, tmp_path, "buffer", calibration=calibration, core_cols=160, band_rows=85,
+                               leaf_size_m=0.12)
+    (leaf,) = result.traits  # one leaf, not one per window
+    assert leaf["area_m2"] == pytest.approx(expected["area_m2"], rel=0.02)
+    assert leaf["n_points"] == pytest.approx(expected["n_points"], rel=0.02)
+    assert not leaf["cut_by_border"] and leaf["margin_rows"] > 0
+    labels = result.scan.load().layers["leaf"]
+    assert np.mean(labels[whole.labels > 0] == leaf["leaf"]) > 0.98
+
+
 def test_margin_grows_with_the_leaf_size_and_nearness(tiled_leaf):
     tiled, _, _ = tiled_leaf
     core = tiled.load_columns(100, 150)
@@ -68,6 +84,8 @@ def test_margin_grows_with_the_leaf_size_and_nearness(tiled_leaf):
     assert small - GUARD_COLS == pytest.approx(0.03 / (1.5 * np.radians(0.018)), rel=0.1)
     assert large - GUARD_COLS == pytest.approx(4 * (small - GUARD_COLS), rel=0.05)
     assert margin_columns(core, 0.12, 100) == 100
+    # a row is r dpsi tall: at 1.5 m and 0.018 deg, 0.03 m spans about 64 rows too
+    assert margin_rows(core, 0.03, 4096) - GUARD_COLS == pytest.approx(0.03 / (1.5 * np.radians(0.018)), rel=0.1)
 
 
 def test_resume_rewrites_only_the_missing_tiles(tiled_leaf, by_core):

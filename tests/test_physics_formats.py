@@ -167,3 +167,22 @@ def test_libe57_samples_give_one_line_errors(name, message, tmp_path, capsys):
     assert main(["import", str(path), "-o", str(tmp_path / "out.npz")]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "out.npz").exists()
+
+
+def test_e57_streamed_into_tiles_holds_the_arrays_of_the_whole_import(scan, tmp_path, capsys):
+    from tlssim.formats.e57 import read_tiled
+
+    path = export_scan(scan, tmp_path / "scan.e57")
+    whole = import_scan(path)
+    # chunks of 1,000 points cut the 121-row columns; the window crosses azimuth 180 deg (unwrapped across tiles)
+    tiled = read_tiled(path, tmp_path / "tiles", tile_cols=23, chunk_points=1000)
+    assert len(tiled.tiles) == 5 and not (tmp_path / ".tiles.import-grids").exists()
+    back = tiled.load()
+    for key in ("range", "intensity", "theta", "psi", "xyz"):
+        assert np.array_equal(getattr(back, key), getattr(whole, key), equal_nan=True), key
+    assert np.array_equal(back.pose.rotation, whole.pose.rotation)
+    before = {t.file: t.sha256 for t in tiled.tiles}
+    (tiled.path / tiled.tiles[2].file).unlink()  # an interrupted import resumes with the tiles that check
+    assert {t.file: t.sha256 for t in read_tiled(path, tmp_path / "tiles", chunk_points=1000).tiles} == before
+    assert main(["import", str(path), "-o", str(tmp_path / "cmd"), "--tile-cols", "40"]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["tiles"] == 3

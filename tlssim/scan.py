@@ -267,8 +267,13 @@ class Scan:
         return write_ply_points(path, columns)
 
 
+#: DEFLATE level of the NPZ members. Level 1 instead of zlib's default 6: a 9 M-pulse tile of the orchard row
+#: (752 MB of arrays) is written in 3.8 instead of 9.9 CPU-s, 105.6 instead of 101.8 MB; the arrays are the same.
+NPZ_COMPRESS_LEVEL = 1
+
+
 def write_npz(path, arrays: dict[str, np.ndarray]) -> Path:
-    """Write arrays as a compressed NPZ whose bytes depend only on the arrays.
+    """Write arrays as a compressed NPZ (:data:`NPZ_COMPRESS_LEVEL`) whose bytes depend only on the arrays.
 
     ``numpy.savez`` stamps the current time into the archive; here every
     member gets a fixed date so that the same data gives the same file. The
@@ -294,6 +299,7 @@ def write_npz(path, arrays: dict[str, np.ndarray]) -> Path:
         for name, value in arrays.items():
             info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
             info.compress_type = zipfile.ZIP_DEFLATED
+            info._compresslevel = NPZ_COMPRESS_LEVEL  # ZipFile.open takes the level from the member's info
             with archive.open(info, "w", force_zip64=True) as member:
                 np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
     tmp.replace(path)

@@ -255,6 +255,9 @@ def simulate_columns(job: ScanJob, c0: int, c1: int, seed: int = 0, chunk_subray
     Every column draws from its own random stream (:func:`column_draws`) and
     the detector's range filter runs along the zenith within a column, so
     the tile holds exactly the bytes of the same columns of the whole scan.
+    Each wavefront (a chunk of whole columns) goes through the detector as
+    soon as it is traced and is written into the output grids: no
+    intermediate grid of the whole tile is held.
 
     Parameters
     ----------
@@ -279,53 +282,43 @@ def simulate_columns(job: ScanJob, c0: int, c1: int, seed: int = 0, chunk_subray
     theta_axis = theta_axis[c0:c1]
     rows, cols = len(psi_axis), len(theta_axis)
     smear_rad = model.smear_fraction * math.radians(window.step_deg[1])
-    draws = column_draws(seed, c0, c1, rows, smear_rad > 0)
-
-    # Column-major (theta, psi) accumulators, transposed to (psi, theta) at the end.
-    distance = np.full((cols, rows), np.nan)
-    amplitude = np.zeros((cols, rows))
-    power = np.zeros((cols, rows))
-    truth = {key: np.full((cols, rows) + shape, fill, dtype) for key, shape, fill, dtype in _TRUTH_LAYOUT}
-
+    grids = {key: np.empty((rows, cols) + shape, dtype) for key, shape, dtype in _OUTPUT_LAYOUT}
     cols_per_chunk = max(1, chunk_subrays // (rows * job.beam.count))
     for a in range(0, cols, cols_per_chunk):
         b = min(cols, a + cols_per_chunk)
-        theta = np.repeat(theta_axis[a:b], rows)
-        psi = np.tile(psi_axis, b - a)
-        hits = job.traced.trace(model, job.beam, pose, theta, psi, draws["spin"][a:b].ravel(), smear_rad,
-                                None if draws["instants"] is None else draws["instants"][a:b].ravel())
+
+        def along_psi(values, shape=()):
+            """A wavefront's per-pulse values (column-major) as a (psi, theta) view."""
+            return np.swapaxes(values.reshape((b - a, rows) + shape), 0, 1)
+
+        draws = column_draws(seed, c0 + a, c0 + b, rows, smear_rad > 0)
+        hits = job.traced.trace(model, job.beam, pose, np.repeat(theta_axis[a:b], rows), np.tile(psi_axis, b - a),
+                                draws["spin"].ravel(), smear_rad,
+                                None if draws["instants"] is None else draws["instants"].ravel())
         dist, amp = _pulse_returns(hits, model)
-        distance[a:b] = dist.reshape(b - a, rows)
-        amplitude[a:b] = amp.reshape(b - a, rows)
-        power[a:b] = hits.total_power.reshape(b - a, rows)
+        returns = PulseReturns(distance_m=along_psi(dist), amplitude=along_psi(amp), power=along_psi(hits.total_power))
+        grids["range"][:, a:b], grids["intensity"][:, a:b] = detect_with_noise(
+            model, returns, along_psi(draws["amplitude_noise"]), along_psi(draws["range_noise"]))
         for key, value in pulse_truth(hits, job.traced.face_normals).items():
-            truth[key][a:b] = value.reshape((b - a, rows) + value.shape[1:])
-        del hits
+            grids[key][:, a:b] = along_psi(value, value.shape[1:])
+        grids["xyz"][:, a:b] = pose.position + grids["range"][:, a:b, None] * grid_directions(
+            theta_axis[a:b], psi_axis, pose.rotation)
+        del hits, returns, draws
         if progress is not None:
-            progress(len(theta))
+            progress((b - a) * rows)
 
-    def grid(a):
-        return np.ascontiguousarray(np.swapaxes(a, 0, 1))
-
-    returns = PulseReturns(distance_m=grid(distance), amplitude=grid(amplitude), power=grid(power))
-    del distance, amplitude, power
-    range_m, intensity = detect_with_noise(model, returns, grid(draws["amplitude_noise"]), grid(draws["range_noise"]))
-    del returns, draws
     theta_grid, psi_grid = np.meshgrid(theta_axis, psi_axis)
-    layers = {key: grid(truth.pop(key)) for key in _TRUTH_LAYERS}
+    layers = {key: grids.pop(key) for key in _TRUTH_LAYERS}
     return Scan(
-        range=range_m,
-        intensity=intensity,
         theta=theta_grid,
         psi=psi_grid,
-        xyz=pose.position + range_m[..., None] * grid_directions(theta_axis, psi_axis, pose.rotation),
         pose=pose,
         scanner=ScannerDescription(model, window),
         object_names=job.scene.object_names,
         meta={"scene": job.scene.name, "seed": int(seed), "backend": job.backend, "frame": "world",
               **({} if (c0, c1) == (0, job.cols) else {"columns": [int(c0), int(c1)]})},
         layers=layers,
-        **{key: grid(value) for key, value in truth.items()},
+        **grids,
     )
 
 
@@ -524,14 +517,18 @@ def trace_scene(scene: Scene, model: ScannerModel, pose: ScannerPose) -> TraceSc
     return TraceScene(vertices, faces, face_object, reflectance, pose.position, transmittance, table)
 
 
-_TRUTH_LAYOUT = (
-    ("truth_range", (), np.nan, np.float64),
-    ("truth_id", (), -1, np.int32),
-    ("mixed_fraction", (), np.nan, np.float32),
-    ("incidence", (), np.nan, np.float32),
-    ("truth_normal", (3,), np.nan, np.float32),
-    ("truth_second_id", (), -1, np.int32),
-    ("second_fraction", (), 0.0, np.float32),
+#: The grids of a simulated scan: key, trailing shape, dtype (the Scan's own fields, then the truth layers).
+_OUTPUT_LAYOUT = (
+    ("range", (), np.float64),
+    ("intensity", (), np.float32),
+    ("xyz", (3,), np.float64),
+    ("truth_range", (), np.float64),
+    ("truth_id", (), np.int32),
+    ("mixed_fraction", (), np.float32),
+    ("incidence", (), np.float32),
+    ("truth_normal", (3,), np.float32),
+    ("truth_second_id", (), np.int32),
+    ("second_fraction", (), np.float32),
 )
 #: Truth arrays stored as extra scan layers rather than as the Scan's own truth fields.
 _TRUTH_LAYERS = ("truth_second_id", "second_fraction")

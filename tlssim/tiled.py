@@ -118,18 +118,21 @@ class TiledScan:
         for tile in self.tiles:
             yield tile.col0, self.read_tile(tile)
 
-    def load_columns(self, col0: int, col1: int) -> Scan:
+    def load_columns(self, col0: int, col1: int, rows: slice = slice(None)) -> Scan:
         """Load the columns ``col0:col1`` of the scan (reads only the tiles that overlap them).
 
         Parameters
         ----------
         col0, col1 : int
             First and past-the-last column, ``0 <= col0 < col1 <= cols``.
+        rows : slice
+            Rows to keep (default all): each tile is cut as it is read, so
+            only the window's rows are held.
 
         Returns
         -------
         Scan
-            The window, all rows; ``meta["columns"]`` is ``[col0, col1]``.
+            The window; ``meta["columns"]`` is ``[col0, col1]``.
         """
         self._require_complete()
         if not 0 <= col0 < col1 <= self.shape[1]:
@@ -138,8 +141,7 @@ class TiledScan:
         for tile in self.tiles:
             if tile.col1 > col0 and tile.col0 < col1:
                 scan = self.read_tile(tile)
-                parts.append(scan.crop(slice(None), slice(max(col0, tile.col0) - tile.col0,
-                                                          min(col1, tile.col1) - tile.col0)))
+                parts.append(scan.crop(rows, slice(max(col0, tile.col0) - tile.col0, min(col1, tile.col1) - tile.col0)))
         window = concat_columns(parts)
         window.meta = {**self.meta, "columns": [int(col0), int(col1)]}
         return window

@@ -2,7 +2,8 @@
 
 Both are measured in the same process on the same sub-rays: the raw rate is
 ``ray_intersect_preliminary`` on pre-built sub-rays (distance and primitive
-evaluated, nothing else); the simulator rate is :func:`tlssim.simulate` end
+evaluated, nothing else), with the simulator's own flags
+(:meth:`tlssim.backend.TraceScene.first_hits`: coherent rays); the simulator rate is :func:`tlssim.simulate` end
 to end (ray generation, tracing, radiometry, phasor sums, truth, detector).
 ``efficiency = pulses/s x sub-rays / raw rays/s``. On a shared machine the
 wall-clock rates of the two measurements see different loads, so the report
@@ -80,8 +81,7 @@ def raw_first_hit_rate(scene: scenes.Scene, setup: ScanSetup) -> tuple[float, fl
         ray, _ = traced.subrays(model, beam, pose, theta, psi, spin[:len(theta)], smear_rad, instants[:len(theta)])
         dr.eval(ray)
         start, start_cpu = time.perf_counter(), time.process_time()
-        hit = traced.mi_scene.ray_intersect_preliminary(ray, False)
-        dr.eval(hit.t, hit.prim_index)
+        dr.eval(*traced.first_hits(ray))
         dr.sync_thread()
         elapsed += time.perf_counter() - start
         cpu += time.process_time() - start_cpu

@@ -15,7 +15,10 @@ def add_parser(sub) -> None:
                        description="Convert a structured scan file (.e57, .ptx, or .las/.laz written by tlssim) "
                                    "to an NPZ scan; E57 and PTX give scans without truth.")
     p.add_argument("input", help="scan file (.e57, .ptx, .las or .laz)")
-    p.add_argument("-o", "--output", required=True, help="output scan file (.npz)")
+    p.add_argument("-o", "--output", required=True,
+                   help="output scan file (.npz), or a directory: a structured E57 scan is then streamed into a "
+                        "tiled scan, tile by tile (resumable)")
+    p.add_argument("--tile-cols", type=int, help="columns per tile of a streamed import (default: tiles of about 2 GB)")
     p.set_defaults(func=run_import)
 
 
@@ -30,8 +33,15 @@ def run_export(args) -> int:
 
 
 def run_import(args) -> int:
-    from tlssim.formats import import_scan
+    from pathlib import Path
 
+    from tlssim.formats import import_scan, import_tiled
+
+    if Path(args.output).suffix.lower() != ".npz":
+        tiled = import_tiled(args.input, args.output, args.tile_cols)
+        print(json.dumps({"output": str(tiled.path), "shape": list(tiled.shape), "tiles": len(tiled.tiles),
+                          "truth": False}))
+        return 0
     scan = import_scan(args.input)
     path = scan.save(args.output)
     print(json.dumps({"output": str(path), "shape": list(scan.shape), "returns": int(scan.valid.sum()),

@@ -13,7 +13,8 @@
   (grid shape and axes, pose, scanner model, object names) as JSON in a
   ``tlslab`` VLR.
 
-:func:`import_scan` of an E57 or PTX file gives a :class:`~tlssim.scan.Scan`
+:func:`import_tiled` streams a structured E57 scan larger than memory into a
+tiled scan directory. :func:`import_scan` of an E57 or PTX file gives a :class:`~tlssim.scan.Scan`
 without truth, ready for reconstruction; a LAS/LAZ file written by
 :func:`export_scan` comes back with the truth of its returned points.
 Unreadable, truncated or malformed files raise :class:`~tlssim.errors.ScanError`
@@ -69,6 +70,32 @@ def export_scan(scan: Scan | TiledScan, path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     writer(scan, path)
     return path
+
+
+def import_tiled(path, outdir, tile_cols: int | None = None) -> TiledScan:
+    """Stream a structured E57 scan into a tiled scan directory (:func:`tlssim.formats.e57.read_tiled`).
+
+    Parameters
+    ----------
+    path : str or Path
+        Input ``.e57`` file.
+    outdir : str or Path
+        Output directory (an interrupted import into it resumes).
+    tile_cols : int, optional
+        Columns per tile (default: tiles of about 2 GB).
+
+    Returns
+    -------
+    TiledScan
+        The imported scan, without truth.
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".e57":
+        raise ScanError(f"{path}: only E57 scans are imported into tiles; import {path.suffix} files whole "
+                        "(-o FILE.npz)")
+    if not path.is_file():
+        raise ScanError(f"{path}: no such scan file")
+    return e57.read_tiled(path, outdir, tile_cols)
 
 
 def import_scan(path) -> Scan:

@@ -236,3 +236,205 @@ def _intensity_limit(header) -> float | None:
     if "intensityLimits" not in header.scan_fields:
         return None
     return float(header["intensityLimits"]["intensityMaximum"].value())
+
+
+def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: int = 2 * 1024**3,
+               chunk_points: int = CHUNK_POINTS) -> TiledScan:
+    """Stream the first scan of a structured E57 file into a tiled scan directory (:mod:`tlssim.tiled`).
+
+    The points are read in chunks of ``chunk_points`` through libE57's
+    compressed-vector reader: a first pass finds the grid from ``rowIndex``
+    and ``columnIndex``, a second scatters the points into on-disk grids
+    (NumPy memory maps beside ``outdir``, removed at the end) in whatever order
+    the file holds them; the tiles are then cut from those grids. So memory
+    holds one chunk and one tile, and the tiles hold the arrays of
+    :func:`read` on the same file (the azimuths are unwrapped along each row
+    across the tiles as on the whole grid). An interrupted import resumes
+    with the tiles that check.
+
+    Parameters
+    ----------
+    path : Path
+        Input ``.e57`` file, a structured scan whose every grid cell holds a point or a direction.
+    outdir : str or Path
+        Output directory of the tiled scan.
+    tile_cols : int, optional
+        Columns per tile (default: from ``budget_bytes``).
+    budget_bytes : int
+        Memory for one tile when ``tile_cols`` is not given, bytes (about 150 bytes per pulse).
+    chunk_points : int
+        Points read per call.
+
+    Returns
+    -------
+    TiledScan
+        The imported scan, opened lazily, without truth.
+
+    Raises
+    ------
+    ScanError
+        If the file is unreadable, not structured, or has grid cells without a direction (read it whole
+        with :func:`read`, which fills them from the grid's rows and columns).
+    """
+    import hashlib
+    import json
+    import shutil
+
+    import pye57
+
+    from tlssim.tiled import open_tiled
+
+    outdir = Path(outdir)
+    try:
+        e57 = pye57.E57(str(path))
+    except Exception as exc:  # libE57 raises its own exception types
+        raise ScanError(f"{path}: not a readable E57 file ({_first_line(exc)})") from None
+    scratch = outdir.parent / f".{outdir.name}.import-grids"
+    try:
+        if e57.scan_count < 1:
+            raise ScanError(f"{path}: the E57 file holds no scan")
+        header = e57.get_header(0)
+        if not {"rowIndex", "columnIndex"} <= set(header.point_fields):
+            raise ScanError(f"{path}: a streamed import needs a structured E57 scan (rowIndex and columnIndex); "
+                            "import it whole (-o FILE.npz)")
+        fields = [f for f in header.point_fields if f in pye57.e57.SUPPORTED_POINT_FIELDS]
+        low, high = np.full(2, np.iinfo(np.int64).max), np.full(2, -1)
+        for chunk in _chunks(e57, header, ["rowIndex", "columnIndex"], chunk_points):
+            index = np.stack([chunk["rowIndex"], chunk["columnIndex"]]).astype(np.int64)
+            low, high = np.minimum(low, index.min(axis=1)), np.maximum(high, index.max(axis=1))
+        if high[0] < 0:
+            raise ScanError(f"{path}: the E57 scan holds no points")
+        shape = (int(high[0] - low[0]) + 1, int(high[1] - low[1]) + 1)
+        rows, cols = shape
+        limit = _intensity_limit(header)
+        rotation, translation = header.rotation, header.translation
+        fingerprint = hashlib.sha256(json.dumps([str(Path(path).resolve()), Path(path).stat().st_size,
+                                                 Path(path).stat().st_mtime_ns]).encode()).hexdigest()
+        try:
+            pose = ScannerPose(translation, Rotation.from_quat(np.roll(rotation, -1)).as_matrix())
+        except (ScanError, ValueError) as exc:
+            raise ScanError(f"{path}: invalid scanner pose ({exc})") from None
+        resumed = open_tiled(outdir) if (outdir / "index.json").is_file() else None
+        if resumed is not None and resumed.complete and resumed.index.get("fingerprint") == fingerprint:
+            return resumed
+        tile_cols = tile_cols or (resumed.tile_cols if resumed else max(1, min(cols, budget_bytes // (150 * rows))))
+        try:
+            grids = _scatter_grids(path, e57, header, fields, shape, low, limit, scratch, chunk_points)
+        except BaseException:
+            shutil.rmtree(scratch, ignore_errors=True)
+            raise
+    except ScanError:
+        raise
+    except Exception as exc:
+        raise ScanError(f"{path}: malformed or truncated E57 scan ({_first_line(exc)})") from None
+    finally:
+        e57.close()
+    try:
+        return _write_tiles(outdir, grids, pose, tile_cols, fingerprint, {"source": str(path), "format": "e57"})
+    finally:
+        del grids
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _write_tiles(outdir: Path, grids: dict, pose: ScannerPose, tile_cols: int, fingerprint: str,
+                 meta: dict) -> TiledScan:
+    """Cut the on-disk grids of :func:`_scatter_grids` into the tiles of a tiled scan (those not yet written)."""
+    from tlssim.scan import ScannerDescription
+    from tlssim.tiled import add_tile, open_tiled, start_tiled
+
+    rows, cols = grids["psi"].shape
+    column_theta, carry = np.empty(cols), None
+    for c0 in range(0, cols, tile_cols):  # the columns' azimuths for the index, one tile at a time
+        theta, carry = _unwrap_columns(np.asarray(grids["theta"][:, c0:c0 + tile_cols]), carry)
+        column_theta[c0:c0 + tile_cols] = np.median(theta, axis=0)
+    first = {"shape": [rows, cols], "scanner": ScannerDescription().to_dict(),
+             "scanner_position": np.asarray(pose.position, float).tolist(),
+             "scanner_rotation": np.asarray(pose.rotation, float).tolist(), "object_names": None,
+             "theta_columns": column_theta.tolist(),
+             "psi_rows": [float(np.median(row)) for row in grids["psi"]],
+             "has_truth": False, "meta": meta}
+    index, todo = start_tiled(outdir, first, fingerprint, tile_cols)
+    carry = None
+    for c0 in range(0, cols, tile_cols):
+        c1 = min(cols, c0 + tile_cols)
+        theta, carry = _unwrap_columns(np.asarray(grids["theta"][:, c0:c1]), carry)
+        if (c0, c1) in todo:
+            window = (slice(None), slice(c0, c1))
+            tile = scan_from_local(np.asarray(grids["local"][window]), np.asarray(grids["valid"][window]),
+                                   np.asarray(grids["intensity"][window]), pose, theta,
+                                   np.asarray(grids["psi"][window]), dict(meta))
+            add_tile(outdir, index, c0, tile)
+    return open_tiled(outdir)
+
+
+def _chunks(e57, header, fields: list[str], chunk_points: int):
+    """Yield the points of the first scan ``chunk_points`` at a time, as dicts of the ``fields``' arrays."""
+    data, buffers = e57.make_buffers(fields, chunk_points)
+    reader = header.points.reader(buffers)
+    try:
+        while True:
+            count = reader.read()
+            if count == 0:
+                return
+            yield {key: value[:count] for key, value in data.items()}
+    finally:
+        reader.close()
+
+
+def _scatter_grids(path, e57, header, fields, shape, low, limit, scratch: Path, chunk_points: int) -> dict:
+    """Scatter the points into on-disk grids: scanner-frame points, validity, intensity (DN) and the angles."""
+    scratch.mkdir(parents=True, exist_ok=True)
+    grids = {}
+    for key, trailing, dtype, fill in (("local", (3,), np.float64, np.nan), ("valid", (), bool, False),
+                                       ("direction", (), bool, False), ("intensity", (), np.float64, np.nan)):
+        grids[key] = np.lib.format.open_memmap(scratch / f"{key}.npy", "w+", dtype, shape + trailing)
+        grids[key][...] = fill
+    scale = 1.0
+    for chunk in _chunks(e57, header, fields, chunk_points):
+        local, invalid = _coordinates(path, chunk)
+        row, col = chunk["rowIndex"].astype(np.int64) - low[0], chunk["columnIndex"].astype(np.int64) - low[1]
+        grids["local"][row, col] = local
+        grids["valid"][row, col] = invalid == 0
+        grids["direction"][row, col] = invalid < 2
+        if "intensity" in chunk:
+            scale = 2047.0 if limit is not None and limit <= 1.0 else 1.0
+            grids["intensity"][row, col] = chunk["intensity"] * scale
+    for r0 in range(0, shape[0], 256):  # band by band: the angles, and every cell must have a direction
+        band = slice(r0, r0 + 256)
+        if not grids["direction"][band].all():
+            raise ScanError(f"{path}: grid cells without a point or a direction; a streamed import cannot fill "
+                            "them from the whole grid: import it whole (-o FILE.npz)")
+    for key in ("theta", "psi"):
+        grids[key] = np.lib.format.open_memmap(scratch / f"{key}.npy", "w+", np.float64, shape)
+    for r0 in range(0, shape[0], 256):
+        band = slice(r0, r0 + 256)
+        local = np.asarray(grids["local"][band])
+        grids["theta"][band] = np.arctan2(local[..., 1], local[..., 0])
+        grids["psi"][band] = np.arccos(np.clip(local[..., 2] / np.linalg.norm(local, axis=-1), -1.0, 1.0))
+    return grids
+
+
+def _unwrap_columns(theta: np.ndarray, carry) -> tuple[np.ndarray, tuple]:
+    """``numpy.unwrap`` along each row of a tile of columns, continued from the previous tile's ``carry``.
+
+    The same arithmetic as ``numpy.unwrap`` on the whole rows: the corrections are summed in column
+    order, the sum carried from tile to tile. Returns the unwrapped tile and the carry (last raw azimuth,
+    summed correction) for the next.
+    """
+    period = 2.0 * np.pi
+    if carry is None:
+        previous, total = theta[:, :1], np.zeros((len(theta), 1))
+        steps = theta[:, 1:]
+    else:
+        (previous, total), steps = carry, theta
+    dd = np.diff(np.concatenate([previous, steps], axis=1), axis=1)
+    ddmod = np.mod(dd + period / 2, period) - period / 2
+    np.copyto(ddmod, period / 2, where=(ddmod == -period / 2) & (dd > 0))
+    correct = ddmod - dd
+    np.copyto(correct, 0, where=np.abs(dd) < period / 2)
+    summed = np.cumsum(np.concatenate([total, correct], axis=1), axis=1)[:, 1:]
+    unwrapped = steps + summed
+    if carry is None:
+        unwrapped = np.concatenate([theta[:, :1], unwrapped], axis=1)
+    last = summed[:, -1:] if summed.shape[1] else total
+    return unwrapped, (theta[:, -1:], last)
