@@ -394,7 +394,22 @@ def split_creases(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndar
 
 
 def shifted(image: np.ndarray, di: int, dj: int, fill) -> np.ndarray:
-    """``out[i, j] = image[i + di, j + dj]`` (``fill`` outside)."""
+    """An image shifted on the scan grid: ``out[i, j] = image[i + di, j + dj]``, ``fill`` outside.
+
+    Parameters
+    ----------
+    image : ndarray, (rows, cols, ...)
+        Any per-pulse image.
+    di, dj : int
+        Shift in rows and columns, pulses (either sign; a shift as large as the image gives all ``fill``).
+    fill : scalar
+        Value where ``image[i + di, j + dj]`` lies outside the image.
+
+    Returns
+    -------
+    ndarray
+        The shifted image, same shape and dtype.
+    """
     out = np.full_like(image, fill)
     rows, cols = image.shape[:2]
     if abs(di) >= rows or abs(dj) >= cols:
