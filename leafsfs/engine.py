@@ -352,9 +352,11 @@ def _run_part(part, smoothed, levels, height, valid, unreliable, grid: PixelGrid
     state.vertex = ws.mesh.add(state.points, state.points_px, state.height)
     state.variance[:] = params.sigma_range_m**2
     inside = _inside_curve(part, seed_curve, grid)
-    seed_pixels = inside & valid
-    ws.allowed &= ~inside.ravel()
-    _seed_mesh(ws.mesh, seed_curve, state.vertex, seed_pixels, height, grid)
+    # Every pixel of the seed domain keeps its measured height (thesis: h = Mh on the seed), also those that the
+    # opening of the curve extraction left outside the seed curve (1-2 px strips).
+    seed_pixels = (inside | (part & (levels <= seed_level))) & valid
+    ws.allowed &= ~(inside | seed_pixels).ravel()
+    _seed_mesh(ws.mesh, seed_curve, state.vertex, inside & valid, height, grid)
     pixels = [np.flatnonzero(seed_pixels)]
     values = [height[seed_pixels]]
     curves = [(k, seed_level, float("nan"), seed_curve.points_px)]

@@ -12,6 +12,13 @@ digest A22) are merged into the neighbouring part with which they share the
 longest border (default), or keep their own lowest domain as an extra seed
 (``orphans="seed"``). Isolated orphans (a separate piece of the object) always
 keep their own seed.
+
+A seed component that the 3 x 3 opening of the curve extraction
+(:func:`leafsfs.contour.open_region`, thesis App. III §2.1) cuts into several
+pieces (blocks joined only by 1-2 px strips) gives one marker per piece, so
+that every piece seeds a part of its own; otherwise only one piece would be a
+seed and the others would be reached through the walls around them. The strip
+pixels go to the pieces' parts through the watershed.
 """
 
 from __future__ import annotations
@@ -19,6 +26,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 from skimage.segmentation import watershed
+
+from leafsfs.contour import open_region
 
 _EIGHT = np.ones((3, 3), dtype=bool)
 
@@ -52,7 +61,7 @@ def split_parts(alpha: np.ndarray, levels: np.ndarray, min_seed_px: int = 4, orp
             if level == 1 and count:
                 sizes = ndimage.sum(region, markers, np.arange(1, count + 1))
                 small = np.isin(markers, 1 + np.nonzero(sizes < min_seed_px)[0])
-                markers, count = ndimage.label(np.where(small, 0, markers) > 0, structure=_EIGHT)
+                markers, count = _opened_pieces(np.where(small, 0, markers))
             if count <= 1:
                 children.append(region)
                 continue
@@ -63,6 +72,23 @@ def split_parts(alpha: np.ndarray, levels: np.ndarray, min_seed_px: int = 4, orp
     for k, region in enumerate(parts, start=1):
         labels[region] = k
     return _resolve_orphans(labels, levels, min_seed_px, orphans)
+
+
+def _opened_pieces(markers: np.ndarray) -> tuple[np.ndarray, int]:
+    """Relabel seed markers so that a component cut into several pieces by the 3 x 3 opening gives one per piece
+    (the strips between them unlabelled); a component that the opening keeps whole or removes stays as it is."""
+    out = np.zeros_like(markers)
+    count = 0
+    for k, box in enumerate(ndimage.find_objects(markers), start=1):
+        if box is None:
+            continue
+        component = markers[box] == k
+        pieces, n = ndimage.label(open_region(component), structure=_EIGHT)
+        if n < 2:
+            pieces, n = component.astype(int), 1
+        out[box][pieces > 0] = pieces[pieces > 0] + count
+        count += n
+    return out, count
 
 
 def _resolve_orphans(labels: np.ndarray, levels: np.ndarray, min_seed_px: int, orphans: str) -> np.ndarray:

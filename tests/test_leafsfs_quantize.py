@@ -65,3 +65,17 @@ def test_a_half_cylinder_on_a_floor_is_reconstructed_from_its_crest(radius):
     assert result.parts.max() == 3
     done = np.isfinite(error)
     assert np.mean(done) > 0.98 and np.mean(error[done]) < 0.02
+
+
+def test_seed_pieces_joined_by_a_thin_strip_become_parts_of_their_own():
+    # Two 5 x 5 seed blocks joined by a one-pixel strip: one 8-connected seed domain, but two pieces once the
+    # 3 x 3 opening of the curve extraction has removed the strip. Each piece seeds its own part.
+    levels = np.ones((9, 17), int)
+    levels[2:7, 1:6] = 0
+    levels[2:7, 11:16] = 0
+    levels[4, 6:11] = 0
+    alpha = np.where(levels == 0, 0.0, 0.5)
+    parts = split_parts(alpha, levels)
+    assert parts.max() == 2
+    assert parts[4, 3] != parts[4, 13]
+    assert set(np.unique(parts[4, 6:11])) <= {parts[4, 3], parts[4, 13]}
