@@ -169,7 +169,8 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
                  band_m: float = 0.01, min_width_m: float = 0.004, reach_m: float = 0.05,
                  intensity: np.ndarray | None = None, edge_radius_m: float = 0.0025, edge_factor: float = 2.5,
                  neck_ratio: float = 0.3, gain_dn: float | None = None, max_aspect: float = 4.0,
-                 min_fill: float = 0.5, occluder_gap_m: float = 0.01, crease_angle_deg: float = 40.0) -> Segmentation:
+                 min_fill: float = 0.5, occluder_gap_m: float = 0.01, crease_angle_deg: float = 40.0,
+                 min_piece_px: int = 3) -> Segmentation:
     """Surfaces, mixed pulses and leaf regions of a scan.
 
     Parameters
@@ -247,6 +248,13 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         cut there (:func:`leafsfs.canopy.split_creases`: two leaves touching
         at the same distance, a leaf lying on a branch), deg; only surfaces
         taken for leaves are cut, and their parts are judged again (0: not cut).
+    min_piece_px : int
+        Linked pieces smaller than a surface (``min_pixels``, ``min_area_m2``)
+        but of at least this many pulses are surfaces for the mixed pulses
+        only (:func:`leafsfs.edges.attribute_mixed`): the mixed pulses between
+        a piece of a mostly hidden leaf or a twig and what lies behind it are
+        paired with both, never leaves themselves (3: the fewest pulses that
+        fix a plane; 0: none).
     """
     valid = np.isfinite(range_m)
     if not valid.any():
@@ -298,8 +306,15 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
                                  3 * sigma)
         leaf &= np.bincount(surfaces.ravel(), minlength=len(leaf)) > 0  # the labels joined into another
     band = band_pixels(band_m, range_m, surfaces, step)
+    reach = band_pixels(reach_m, range_m, surfaces, step) if reach_m > 0 else 0
+    if min_piece_px > 0:
+        # Pieces too small to be surfaces (a leaf mostly hidden, a twig) still pair the mixed pulses around them.
+        piece = (component > 0) & ~large[component] & (sizes[component] >= min_piece_px) & (surfaces == 0)
+        _, index = np.unique(np.where(piece, component, 0), return_inverse=True)
+        surfaces = np.where(piece, index.reshape(surfaces.shape) + surfaces.max(), surfaces)
+        leaf = np.concatenate([leaf, np.zeros(int(surfaces.max()) + 1 - len(leaf), dtype=bool)])
     mixed = attribute_mixed(range_m, surfaces, band, intensity, tolerance_m=3 * sigma,
-                            reach_px=band_pixels(reach_m, range_m, surfaces, step) if reach_m > 0 else 0)
+                            reach_px=reach)
     leaf_surfaces = np.nonzero(leaf)[0]
     relabel = np.zeros(len(leaf), dtype=int)
     relabel[leaf_surfaces] = np.arange(1, len(leaf_surfaces) + 1)

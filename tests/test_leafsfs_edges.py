@@ -7,7 +7,7 @@ from scipy import ndimage
 from leafsfs.edges import attribute_mixed, geometric_share
 from leafsfs.frame import local_frame
 from leafsfs.grid import gaussian_planes
-from leafsfs.leaves import range_noise, split_thin_parts, surface_widths
+from leafsfs.leaves import range_noise, segment_scan, split_thin_parts, surface_widths
 from leafsfs.traits import leaf_traits
 from tlssim.pattern import beam_frame
 
@@ -239,3 +239,27 @@ def test_a_pulse_straddling_a_leaf_and_a_branch_4cm_behind_gets_both_shares():
     assert np.mean((mixed.owner[decided] == 1) == (share[decided] >= 0.5)) > 0.95
     owned_by_leaf = decided & (mixed.owner == 1)
     assert np.all(np.abs(mixed.owner_range() - leaf)[owned_by_leaf] < 0.002)
+
+
+def test_the_mixed_pulses_around_a_piece_too_small_for_a_surface_are_paired_with_it_and_what_lies_behind():
+    # a 14 x 14 piece 2.0 m away (a leaf mostly hidden: 0.77 cm^2, under segment_scan's 1 cm^2 surfaces) before a
+    # wall at 2.5 m, ringed by two pulses mixing them: 2/3 and 1/3 of the power from the piece
+    step = np.radians(0.018)
+    rows, cols = np.mgrid[0:60, 0:60]
+    ring = np.maximum(np.abs(rows - 29.5), np.abs(cols - 29.5)) - 6.5  # 0.5 on the piece's outermost pulses
+    share = np.select([ring <= 0.5, ring <= 1.5, ring <= 2.5], [1.0, 2 / 3, 1 / 3], 0.0)
+    range_m = share * 2.0 + (1 - share) * 2.5
+    theta, psi = cols * step, np.pi / 2 + rows * step
+    mixed = (share > 0) & (share < 1)
+    segmentation = segment_scan(range_m, theta, psi, noise_m=0.001)
+    found = segmentation.mixed
+    piece = found.surfaces[29, 29]
+    assert piece > 0 and not segmentation.leaves.any()  # the piece is no leaf
+    pair = found.pair[mixed]
+    other = np.where(pair[:, 0] == piece, pair[:, 1], pair[:, 0])
+    assert (pair == piece).any(axis=1).all() and (other > 0).all() \
+        and np.isin(other, np.unique(found.surfaces[range_m == 2.5])).all()
+    assert np.allclose(found.share_of(piece)[mixed], share[mixed], atol=1e-6)
+    # without it no pair explains those pulses
+    alone = segment_scan(range_m, theta, psi, noise_m=0.001, min_piece_px=0).mixed
+    assert (alone.pair[mixed] == 0).all() and alone.surfaces[29, 29] == 0
