@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from woody.cylfit import fit_circle, fit_direction, normal_axis
-from woody.geometry import orthonormal_frame, segment_distance
+from woody.cylfit import fit_circle, fit_direction, median, normal_axis
+from woody.geometry import axis_distance, orthonormal_frame, segment_axis
 
 
 class Branch:
@@ -50,6 +50,7 @@ class Branch:
         self.t0 = self.t1 = 0.0
         self.r_max = self.d_sum = self.r_median = self.envelope = 0.0
         self.exact_n = 0
+        self.segment = None  # segment_axis(p1, p2), kept until the axis or its ends move
         self.heap: list = []
         self.active = True
 
@@ -70,7 +71,9 @@ class Branch:
 
     def distance(self, xyz: np.ndarray) -> np.ndarray:
         """``max(0, d(P, P1P2) - r)`` for points (m, 3), with ``r`` the largest distance."""
-        dist, _ = segment_distance(xyz, self.p1(), self.p2())
+        if self.segment is None:
+            self.segment = segment_axis(self.p1(), self.p2())
+        dist, _ = axis_distance(xyz, *self.segment)
         return np.maximum(dist - self.r_max, 0.0)
 
     def orient(self, direction: np.ndarray) -> np.ndarray:
@@ -184,6 +187,7 @@ class Branch:
             self.refit()
             return
         self.direction = self.orient(self.tracked_direction(self.n, self.sum, self.outer, self.normal_outer))
+        self.segment = None
         if not self.fitted:
             self.axis_point = self.sum / self.n
         rel = xyz - self.axis_point
@@ -196,6 +200,7 @@ class Branch:
     def refit(self, direction: np.ndarray | None = None) -> None:
         """Exact cylinder of the current points (O(n)); ``direction`` imposes the axis direction."""
         pts = self.coords[self.points]
+        self.segment = None
         self.n = len(pts)
         self.sum = pts.sum(axis=0)
         self.outer = pts.T @ pts
@@ -227,8 +232,8 @@ class Branch:
         orth = np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - t * t, 0.0))
         self.t0, self.t1 = float(t.min()), float(t.max())
         self.r_max, self.d_sum = float(orth.max()), float(orth.sum())
-        self.r_median = float(np.median(orth))
-        self.envelope = self.r_median + 3.0 * 1.4826 * float(np.median(np.abs(orth - self.r_median)))
+        self.r_median = median(orth)
+        self.envelope = self.r_median + 3.0 * 1.4826 * median(np.abs(orth - self.r_median))
 
     def _fit_axis_point(self, pts: np.ndarray) -> None:
         """Move the axis onto the centre of the circle fitted to the points seen along the axis."""
