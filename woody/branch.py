@@ -44,8 +44,9 @@ class Branch:
         self.children: list[Branch] = []
         self.points = [index]
         self.base = xyz.copy()
-        self.n, self.sum, self.outer = 1, xyz.copy(), np.outer(xyz, xyz)
-        self.normal_outer = np.zeros((3, 3)) if self.normals is None else np.outer(self.normals[index], self.normals[index])
+        self.n, self.sum, self.outer = 1, xyz.copy(), xyz[:, None] * xyz
+        normal = None if self.normals is None else self.normals[index]
+        self.normal_outer = np.zeros((3, 3)) if normal is None else normal[:, None] * normal
         self.axis_point, self.direction, self.fitted = xyz.copy(), None, False
         self.t0 = self.t1 = 0.0
         self.r_max = self.d_sum = self.r_median = self.envelope = 0.0
@@ -180,9 +181,9 @@ class Branch:
         self.points.append(index)
         self.n += 1
         self.sum += xyz
-        self.outer += np.outer(xyz, xyz)
+        self.outer += xyz[:, None] * xyz
         if self.normals is not None:
-            self.normal_outer += np.outer(self.normals[index], self.normals[index])
+            self.normal_outer += self.normals[index][:, None] * self.normals[index]
         if self.n >= 1.1 * self.exact_n or self.n < 32:
             self.refit()
             return
@@ -276,8 +277,8 @@ class Branch:
         t_d = 0.0 if self.direction is None or span <= 0 else float((xyz - self.p1()) @ self.direction / span)
         normal_outer = self.normal_outer
         if self.normals is not None:
-            normal_outer = normal_outer + np.outer(self.normals[index], self.normals[index])
-        direction = self.tracked_direction(self.n + 1, self.sum + xyz, self.outer + np.outer(xyz, xyz), normal_outer)
+            normal_outer = normal_outer + self.normals[index][:, None] * self.normals[index]
+        direction = self.tracked_direction(self.n + 1, self.sum + xyz, self.outer + xyz[:, None] * xyz, normal_outer)
         if direction is None:
             return 0.0, t_d
         rel = xyz - (self.axis_point if self.fitted else (self.sum + xyz) / (self.n + 1))
