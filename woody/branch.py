@@ -108,17 +108,19 @@ class Branch:
         -------
         axis : ndarray, (3,) or None
             Unit axis direction, or None when neither test is decisive.
-        vectors : ndarray, (3, 3)
-            Eigenvectors of the points' covariance (columns, ascending eigenvalues).
+        vectors : ndarray, (3, 3) or None
+            Eigenvectors of the points' covariance (columns, ascending eigenvalues); None when the normals
+            decided the axis (the covariance is then not needed).
         """
+        normal_eig = np.linalg.eigh(normal_outer)
+        strong = normal_axis(normal_outer, max_flatness=0.1, eig=normal_eig)
+        if strong is not None:
+            return strong, None
         centroid = total / n
         values, vectors = np.linalg.eigh(outer / n - np.outer(centroid, centroid))
-        strong = normal_axis(normal_outer, max_flatness=0.1)
-        if strong is not None:
-            return strong, vectors
         if values[2] >= 4.0 * values[1]:
             return vectors[:, 2], vectors
-        return normal_axis(normal_outer), vectors
+        return normal_axis(normal_outer, eig=normal_eig), vectors
 
     def tracked_direction(self, n: int, total: np.ndarray, outer: np.ndarray, normal_outer: np.ndarray) -> np.ndarray | None:
         """Axis from running sums (None below 3 points): :meth:`shape_direction` in "normals" mode, else

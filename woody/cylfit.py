@@ -143,7 +143,8 @@ def median(values: np.ndarray) -> float:
     return float(part[half]) if n % 2 else float((part[half - 1] + part[half]) / 2.0)
 
 
-def normal_axis(normal_outer: np.ndarray, min_ratio: float = 0.02, max_flatness: float = 0.5) -> np.ndarray | None:
+def normal_axis(normal_outer: np.ndarray, min_ratio: float = 0.02, max_flatness: float = 0.5,
+                eig: tuple | None = None) -> np.ndarray | None:
     """The direction least aligned with a set of normals (summed ``n n^T``), or None when not decisive.
 
     Normals of a cylinder are perpendicular to its axis, so the axis is the
@@ -160,13 +161,15 @@ def normal_axis(normal_outer: np.ndarray, min_ratio: float = 0.02, max_flatness:
         Smallest ratio of the middle to the largest eigenvalue.
     max_flatness : float
         Largest ratio of the smallest to the middle eigenvalue.
+    eig : tuple, optional
+        ``np.linalg.eigh(normal_outer)`` when already computed.
 
     Returns
     -------
     ndarray, (3,) or None
         Unit axis direction (sign arbitrary), or None when not decisive.
     """
-    values, vectors = np.linalg.eigh(normal_outer)
+    values, vectors = np.linalg.eigh(normal_outer) if eig is None else eig
     if values[1] < min_ratio * values[2] or values[0] > max_flatness * values[1]:
         return None
     return vectors[:, 0]
