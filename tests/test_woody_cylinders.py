@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from woody import FollowParams, WoodyError, follow_cylinders, score
-from woody.cylfit import fit_circle, fit_direction
+from woody.cylfit import fit_circle, fit_direction, median
+from woody.geometry import axis_distance, segment_axis
 from woody.synthetic import add_noise, sample_cylinders, straight_cylinder
 
 Y = [{"id": 0, "parent": -1, "order": 1, "branch": 0, "start": [0, 0, 0], "end": [0, 0, 0.8],
@@ -77,6 +78,24 @@ def test_circle_fit_is_exact_on_a_short_arc():
     centre, radius = fit_circle(np.column_stack([0.3 + 0.2 * np.cos(angle), -0.1 + 0.2 * np.sin(angle)]))
     assert radius == pytest.approx(0.2, abs=1e-9) and np.allclose(centre, [0.3, -0.1], atol=1e-9)
     assert np.isnan(fit_circle(np.zeros((2, 2)))[1])
+
+
+def test_fast_helpers_give_numpys_bits():
+    """The growth loop's shortcuts (median, a reused segment) must not move a single bit of the results."""
+    rng = np.random.default_rng(5)
+    for n in [1, 2, 3, 4, 17, 64, 255]:
+        values = rng.normal(size=n) * 0.01
+        assert median(values) == np.median(values)
+        values[n // 2] = np.nan
+        assert np.isnan(median(values))
+    points, ends = rng.normal(size=(50, 3)), rng.normal(size=(2, 3))
+    for start, end in [ends, (ends[0], ends[0])]:
+        axis = end - start  # the arithmetic of segment_distance before the split
+        length2 = np.einsum("i,i->", axis, axis)
+        t = np.clip(np.einsum("...i,...i->...", points - start, axis) / (length2 if length2 > 0 else 1.0), 0.0, 1.0)
+        dist, t_got = axis_distance(points, *segment_axis(start, end))
+        assert np.array_equal(dist, np.linalg.norm(points - (start + t[:, None] * axis), axis=1))
+        assert np.array_equal(t_got, t)
 
 
 def test_free_seed_table_reads_order_thresholds():

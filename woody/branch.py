@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from woody.cylfit import fit_circle, fit_direction, normal_axis
-from woody.geometry import orthonormal_frame, segment_distance
+from woody.cylfit import fit_circle, fit_direction, median, normal_axis
+from woody.geometry import axis_distance, orthonormal_frame, segment_axis
 
 
 class Branch:
@@ -44,12 +44,14 @@ class Branch:
         self.children: list[Branch] = []
         self.points = [index]
         self.base = xyz.copy()
-        self.n, self.sum, self.outer = 1, xyz.copy(), np.outer(xyz, xyz)
-        self.normal_outer = np.zeros((3, 3)) if self.normals is None else np.outer(self.normals[index], self.normals[index])
+        self.n, self.sum, self.outer = 1, xyz.copy(), xyz[:, None] * xyz
+        normal = None if self.normals is None else self.normals[index]
+        self.normal_outer = np.zeros((3, 3)) if normal is None else normal[:, None] * normal
         self.axis_point, self.direction, self.fitted = xyz.copy(), None, False
         self.t0 = self.t1 = 0.0
         self.r_max = self.d_sum = self.r_median = self.envelope = 0.0
         self.exact_n = 0
+        self.segment = None  # segment_axis(p1, p2), kept until the axis or its ends move
         self.heap: list = []
         self.active = True
 
@@ -70,7 +72,9 @@ class Branch:
 
     def distance(self, xyz: np.ndarray) -> np.ndarray:
         """``max(0, d(P, P1P2) - r)`` for points (m, 3), with ``r`` the largest distance."""
-        dist, _ = segment_distance(xyz, self.p1(), self.p2())
+        if self.segment is None:
+            self.segment = segment_axis(self.p1(), self.p2())
+        dist, _ = axis_distance(xyz, *self.segment)
         return np.maximum(dist - self.r_max, 0.0)
 
     def orient(self, direction: np.ndarray) -> np.ndarray:
@@ -104,17 +108,19 @@ class Branch:
         -------
         axis : ndarray, (3,) or None
             Unit axis direction, or None when neither test is decisive.
-        vectors : ndarray, (3, 3)
-            Eigenvectors of the points' covariance (columns, ascending eigenvalues).
+        vectors : ndarray, (3, 3) or None
+            Eigenvectors of the points' covariance (columns, ascending eigenvalues); None when the normals
+            decided the axis (the covariance is then not needed).
         """
+        normal_eig = np.linalg.eigh(normal_outer)
+        strong = normal_axis(normal_outer, max_flatness=0.1, eig=normal_eig)
+        if strong is not None:
+            return strong, None
         centroid = total / n
         values, vectors = np.linalg.eigh(outer / n - np.outer(centroid, centroid))
-        strong = normal_axis(normal_outer, max_flatness=0.1)
-        if strong is not None:
-            return strong, vectors
         if values[2] >= 4.0 * values[1]:
             return vectors[:, 2], vectors
-        return normal_axis(normal_outer), vectors
+        return normal_axis(normal_outer, eig=normal_eig), vectors
 
     def tracked_direction(self, n: int, total: np.ndarray, outer: np.ndarray, normal_outer: np.ndarray) -> np.ndarray | None:
         """Axis from running sums (None below 3 points): :meth:`shape_direction` in "normals" mode, else
@@ -177,13 +183,14 @@ class Branch:
         self.points.append(index)
         self.n += 1
         self.sum += xyz
-        self.outer += np.outer(xyz, xyz)
+        self.outer += xyz[:, None] * xyz
         if self.normals is not None:
-            self.normal_outer += np.outer(self.normals[index], self.normals[index])
+            self.normal_outer += self.normals[index][:, None] * self.normals[index]
         if self.n >= 1.1 * self.exact_n or self.n < 32:
             self.refit()
             return
         self.direction = self.orient(self.tracked_direction(self.n, self.sum, self.outer, self.normal_outer))
+        self.segment = None
         if not self.fitted:
             self.axis_point = self.sum / self.n
         rel = xyz - self.axis_point
@@ -196,6 +203,7 @@ class Branch:
     def refit(self, direction: np.ndarray | None = None) -> None:
         """Exact cylinder of the current points (O(n)); ``direction`` imposes the axis direction."""
         pts = self.coords[self.points]
+        self.segment = None
         self.n = len(pts)
         self.sum = pts.sum(axis=0)
         self.outer = pts.T @ pts
@@ -227,8 +235,8 @@ class Branch:
         orth = np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - t * t, 0.0))
         self.t0, self.t1 = float(t.min()), float(t.max())
         self.r_max, self.d_sum = float(orth.max()), float(orth.sum())
-        self.r_median = float(np.median(orth))
-        self.envelope = self.r_median + 3.0 * 1.4826 * float(np.median(np.abs(orth - self.r_median)))
+        self.r_median = median(orth)
+        self.envelope = self.r_median + 3.0 * 1.4826 * median(np.abs(orth - self.r_median))
 
     def _fit_axis_point(self, pts: np.ndarray) -> None:
         """Move the axis onto the centre of the circle fitted to the points seen along the axis."""
@@ -271,8 +279,8 @@ class Branch:
         t_d = 0.0 if self.direction is None or span <= 0 else float((xyz - self.p1()) @ self.direction / span)
         normal_outer = self.normal_outer
         if self.normals is not None:
-            normal_outer = normal_outer + np.outer(self.normals[index], self.normals[index])
-        direction = self.tracked_direction(self.n + 1, self.sum + xyz, self.outer + np.outer(xyz, xyz), normal_outer)
+            normal_outer = normal_outer + self.normals[index][:, None] * self.normals[index]
+        direction = self.tracked_direction(self.n + 1, self.sum + xyz, self.outer + xyz[:, None] * xyz, normal_outer)
         if direction is None:
             return 0.0, t_d
         rel = xyz - (self.axis_point if self.fitted else (self.sum + xyz) / (self.n + 1))

@@ -105,19 +105,46 @@ def fit_circle(xy: np.ndarray, iterations: int = 8) -> tuple[np.ndarray, float]:
     (a, b, c), *_ = np.linalg.lstsq(design, np.einsum("ij,ij->i", xy, xy), rcond=None)
     centre = np.array([a, b]) / 2.0
     radius = np.sqrt(max(c + centre @ centre, 0.0))
+    x, y = xy[:, 0], xy[:, 1]
+    jac = np.empty((len(xy), 3))
     for _ in range(iterations):
-        rel = xy - centre
-        dist = np.maximum(np.linalg.norm(rel, axis=1), 1e-12)
+        # Element by element the same arithmetic as norm, column_stack and median (same result bits, less overhead).
+        dx, dy = x - centre[0], y - centre[1]
+        dist = np.maximum(np.sqrt(dx * dx + dy * dy), 1e-12)
         residual = dist - radius
-        scale = max(1.5 * np.median(np.abs(residual)), 1e-9)
+        scale = max(1.5 * median(np.abs(residual)), 1e-9)
         weight = np.sqrt(np.minimum(1.0, scale / np.maximum(np.abs(residual), 1e-12)))
-        jac = np.column_stack([-rel / dist[:, None], -np.ones(len(xy))])
-        step, *_ = np.linalg.lstsq(jac * weight[:, None], -residual * weight, rcond=None)
+        np.multiply(-dx / dist, weight, out=jac[:, 0])
+        np.multiply(-dy / dist, weight, out=jac[:, 1])
+        np.negative(weight, out=jac[:, 2])
+        step, *_ = np.linalg.lstsq(jac, -residual * weight, rcond=None)
         centre, radius = centre + step[:2], radius + step[2]
     return centre, float(radius) if np.isfinite(radius) and radius > 0 else float("nan")
 
 
-def normal_axis(normal_outer: np.ndarray, min_ratio: float = 0.02, max_flatness: float = 0.5) -> np.ndarray | None:
+def median(values: np.ndarray) -> float:
+    """Median of a 1-D array, as ``np.median`` computes it (same bits, NaN if any value is NaN) at a third of its
+    overhead on short arrays.
+
+    Parameters
+    ----------
+    values : ndarray, (n,)
+        Values, n >= 1.
+
+    Returns
+    -------
+    float
+    """
+    n = len(values)
+    half = n // 2
+    part = np.partition(values, [half - 1, half, n - 1] if n % 2 == 0 else [half, n - 1])
+    if np.isnan(part[-1]):
+        return float("nan")
+    return float(part[half]) if n % 2 else float((part[half - 1] + part[half]) / 2.0)
+
+
+def normal_axis(normal_outer: np.ndarray, min_ratio: float = 0.02, max_flatness: float = 0.5,
+                eig: tuple | None = None) -> np.ndarray | None:
     """The direction least aligned with a set of normals (summed ``n n^T``), or None when not decisive.
 
     Normals of a cylinder are perpendicular to its axis, so the axis is the
@@ -134,13 +161,15 @@ def normal_axis(normal_outer: np.ndarray, min_ratio: float = 0.02, max_flatness:
         Smallest ratio of the middle to the largest eigenvalue.
     max_flatness : float
         Largest ratio of the smallest to the middle eigenvalue.
+    eig : tuple, optional
+        ``np.linalg.eigh(normal_outer)`` when already computed.
 
     Returns
     -------
     ndarray, (3,) or None
         Unit axis direction (sign arbitrary), or None when not decisive.
     """
-    values, vectors = np.linalg.eigh(normal_outer)
+    values, vectors = np.linalg.eigh(normal_outer) if eig is None else eig
     if values[1] < min_ratio * values[2] or values[0] > max_flatness * values[1]:
         return None
     return vectors[:, 0]

@@ -87,7 +87,8 @@ def grow(cloud: tuple, graph: np.ndarray, params, precision: float,
     bar.close()
     for branch in branches:
         branch.heap = []
-        branch.refit()
+        if branch.exact_n != branch.n:  # a branch refitted at its last point is exact already
+            branch.refit()
     return branches, state.owner
 
 

@@ -11,9 +11,14 @@ from __future__ import annotations
 
 import copy
 
+import numpy as np
+
 from woody.branch import Branch
 from woody.cylfit import angle_deg
 from woody.geometry import segment_distance
+
+#: Margin of the screening of :func:`merge_contained`, m (far above rounding, far below any radius).
+SCREEN_M = 1e-6
 
 
 def dissolve_small(branches: list[Branch], params) -> list[Branch]:
@@ -136,17 +141,24 @@ def merge_contained(branches: list[Branch]) -> list[Branch]:
     list of Branch
         The branches that still hold points.
     """
-    for branch in branches:
+    # All older cylinders are screened at once (slightly generous, so that rounding cannot drop one); only those
+    # passing are tested one by one, oldest first, with the exact test.
+    ends = np.array([[b.p1(), b.p2()] for b in branches]).reshape(len(branches), 2, 3)
+    reach = np.array([b.r_max for b in branches])
+    usable = np.array([bool(b.points) and b.direction is not None for b in branches])
+    for i, branch in enumerate(branches):
         if not branch.points or branch.parent is None or branch.direction is None:
             continue
         middle = 0.5 * (branch.p1() + branch.p2())
-        for older in branches:
-            if older is branch:
-                break
+        gap, _ = segment_distance(middle[None], ends[:i, 0], ends[:i, 1])
+        for k in np.flatnonzero(usable[:i] & (gap <= reach[:i] + SCREEN_M)).tolist():
+            older = branches[k]
             if older.points and older.direction is not None and \
                     older.distance(middle[None])[0] == 0.0 and \
                     segment_distance(middle[None], older.p1(), older.p2())[0][0] < older.r_median:
                 _absorb(older, branch)
+                ends[k], reach[k], usable[i] = (older.p1(), older.p2()), older.r_max, False
+                usable[k] = bool(older.points) and older.direction is not None
                 break
     return _live(branches)
 
