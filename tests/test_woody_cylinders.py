@@ -8,17 +8,11 @@ from woody.cylfit import fit_circle, fit_direction, median
 from woody.geometry import axis_distance, segment_axis
 from woody.synthetic import add_noise, sample_cylinders, straight_cylinder
 
-Y = [{"id": 0, "parent": -1, "order": 1, "branch": 0, "start": [0, 0, 0], "end": [0, 0, 0.8],
-      "radius_m": 0.05, "radius_end_m": 0.05},
-     {"id": 1, "parent": 0, "order": 2, "branch": 1, "start": [0, 0, 0.8], "end": [0.4, 0, 1.3],
-      "radius_m": 0.03, "radius_end_m": 0.03},
-     {"id": 2, "parent": 0, "order": 2, "branch": 2, "start": [0, 0, 0.8], "end": [-0.35, 0.1, 1.35],
-      "radius_m": 0.03, "radius_end_m": 0.03}]
 
 
 @pytest.fixture(scope="module")
-def y_result():
-    cloud = sample_cylinders(Y, 1e4, seed=2)
+def y_result(y_tree):
+    cloud = sample_cylinders(y_tree, 1e4, seed=2)
     return cloud, follow_cylinders(cloud.points)
 
 
@@ -125,11 +119,11 @@ def test_invalid_clouds_are_refused():
 
 
 @pytest.fixture(scope="module")
-def y_gap_cloud():
+def y_gap_cloud(y_tree):
     """The Y seen from one side (+x), with a 10 cm stretch of one arm hidden (as behind a leaf)."""
-    cloud = sample_cylinders(Y, 1e4, seed=5, view=(1.0, 0.0, 0.0))
-    arm = np.asarray(Y[1]["end"], float) - np.asarray(Y[1]["start"], float)
-    t = (cloud.points - np.asarray(Y[1]["start"], float)) @ arm / (arm @ arm)
+    cloud = sample_cylinders(y_tree, 1e4, seed=5, view=(1.0, 0.0, 0.0))
+    arm = np.asarray(y_tree[1]["end"], float) - np.asarray(y_tree[1]["start"], float)
+    t = (cloud.points - np.asarray(y_tree[1]["start"], float)) @ arm / (arm @ arm)
     hidden = (cloud.labels == 1) & (t > 0.3) & (t < 0.3 + 0.1 / np.linalg.norm(arm))
     return cloud, ~hidden
 

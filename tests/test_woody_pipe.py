@@ -41,12 +41,11 @@ def test_without_a_resolved_ancestor_radii_are_kept():
     assert np.isclose(out[4], 0.02 * np.sqrt(0.1 / 0.35))
 
 
-def test_a_resolved_tree_keeps_its_radii():
+def test_a_resolved_tree_keeps_its_radii(y_tree):
     from woody import follow_cylinders
     from woody.synthetic import sample_cylinders
-    from test_woody_cylinders import Y
 
-    points = sample_cylinders(Y, 1e4, seed=2).points
+    points = sample_cylinders(y_tree, 1e4, seed=2).points
     plain, piped = follow_cylinders(points), follow_cylinders(points, pipe_model=True)
     radii = [[s[2] for s in b["sections"]] for b in plain.branches]
     assert [[s[2] for s in b["sections"]] for b in piped.branches if b["n_points"] >= 100] == \
