@@ -117,7 +117,12 @@ def segment_distance(points: np.ndarray, start: np.ndarray, end: np.ndarray) -> 
 
 
 def segment_axis(start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The constants of :func:`axis_distance` for segments ``start -> end`` (m, (3,) or (m, 3)).
+    """The constants of :func:`axis_distance` for segments ``start -> end``.
+
+    Parameters
+    ----------
+    start, end : ndarray, (3,) or (m, 3)
+        Segment ends, m.
 
     Returns
     -------
@@ -135,7 +140,22 @@ def segment_axis(start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.nda
 
 def axis_distance(points: np.ndarray, start: np.ndarray, axis: np.ndarray,
                   length2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`segment_distance` from the constants of :func:`segment_axis` (a segment reused for many queries)."""
+    """:func:`segment_distance` from the constants of :func:`segment_axis` (a segment reused for many queries).
+
+    Parameters
+    ----------
+    points : ndarray, (m, 3)
+        Query points, m.
+    start, axis, length2 : ndarray
+        The segment's start (m), ``end - start`` (m) and squared length (m^2), from :func:`segment_axis`.
+
+    Returns
+    -------
+    distance : ndarray, (m,)
+        Euclidean distance to the segment, m.
+    t : ndarray, (m,)
+        Position of the closest segment point, 0 at ``start``, 1 at ``end``.
+    """
     t = np.einsum("...i,...i->...", points - start, axis) / length2
     t = np.clip(t, 0.0, 1.0)
     gap = points - (start + t[..., None] * axis)
