@@ -413,7 +413,7 @@ class TraceScene:
         return SubrayHits(
             phasors=[(np.asarray(sums[i]), np.asarray(sums[i + 1])) for i in range(1, len(sums), 2)],
             total_power=np.asarray(sums[0]),
-            axis=np.stack([np.asarray(axis.x), np.asarray(axis.y), np.asarray(axis.z)], axis=1),
+            axis=np.stack([np.asarray(axis.x), np.asarray(axis.y), np.asarray(axis.z)]).T,
             central_t=np.asarray(central_t),
             object_low=np.asarray(low),
             object_high=np.asarray(high),
