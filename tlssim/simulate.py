@@ -284,21 +284,29 @@ def simulate_columns(job: ScanJob, c0: int, c1: int, seed: int = 0, chunk_subray
     smear_rad = model.smear_fraction * math.radians(window.step_deg[1])
     grids = {key: np.empty((rows, cols) + shape, dtype) for key, shape, dtype in _OUTPUT_LAYOUT}
     cols_per_chunk = max(1, chunk_subrays // (rows * job.beam.count))
-    for a in range(0, cols, cols_per_chunk):
-        b = min(cols, a + cols_per_chunk)
+    chunks = [(a, min(cols, a + cols_per_chunk)) for a in range(0, cols, cols_per_chunk)]
+
+    def start(a, b):
+        """Draw and launch the wavefront of columns ``a:b`` of the tile, traced row by row (psi outer, theta
+        inner) so that every result is already a block of the output grids; the draws are per column."""
+        draws = {key: None if value is None else np.ascontiguousarray(value.T)
+                 for key, value in column_draws(seed, c0 + a, c0 + b, rows, smear_rad > 0).items()}
+        return draws, job.traced.start_trace(
+            model, job.beam, pose, np.tile(theta_axis[a:b], rows), np.repeat(psi_axis, b - a),
+            draws["spin"].ravel(), smear_rad, None if draws["instants"] is None else draws["instants"].ravel())
+
+    pending = start(*chunks[0])
+    for index, (a, b) in enumerate(chunks):
         width = b - a
 
         def on_grid(values):
             """A wavefront's per-pulse values (row-major over the chunk) as its (psi, theta) block."""
             return values.reshape((rows, width) + values.shape[1:])
 
-        # The pulses are traced row by row (psi outer, theta inner) so that every result is already a block
-        # of the output grids; the draws are per column.
-        draws = {key: None if value is None else np.ascontiguousarray(value.T)
-                 for key, value in column_draws(seed, c0 + a, c0 + b, rows, smear_rad > 0).items()}
-        hits = job.traced.trace(model, job.beam, pose, np.tile(theta_axis[a:b], rows), np.repeat(psi_axis, width),
-                                draws["spin"].ravel(), smear_rad,
-                                None if draws["instants"] is None else draws["instants"].ravel())
+        draws, finish = pending
+        hits = finish()
+        if index + 1 < len(chunks):  # the next wavefront's kernels run while this one is post-processed
+            pending = start(*chunks[index + 1])
         dist, amp = _pulse_returns(hits, model)
         returns = PulseReturns(distance_m=on_grid(dist), amplitude=on_grid(amp), power=on_grid(hits.total_power))
         grids["range"][:, a:b], grids["intensity"][:, a:b] = detect_with_noise(
@@ -581,9 +589,9 @@ def pulse_truth(hits: SubrayHits, face_normals: np.ndarray) -> dict[str, np.ndar
     second = np.full_like(dominant, -1)
     second_share = np.zeros(len(dominant))
     first, first_prim = hits.first, hits.first_prim
-    mixed = np.nonzero((dominant >= 0) & (hits.object_low != dominant))[0]
+    mixed = hits.mixed
     if len(mixed):
-        obj, power, prim = hits.object_id[mixed], hits.power[mixed], hits.prim[mixed]
+        obj, power, prim = hits.mixed_object_id, hits.mixed_power, hits.mixed_prim
         returned = (obj >= 0) & (power > 0)
         rows = np.arange(len(mixed))
         # Power of the object of every sub-ray, summed over the pulse; the best wins.
