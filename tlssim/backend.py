@@ -476,8 +476,20 @@ class TraceScene:
 
         Parameters
         ----------
-        model, beam, pose, theta, psi, spin, smear_rad, time_shift
-            As in :meth:`start_trace`.
+        model : ScannerModel
+            Scanner model (as in :meth:`start_trace`).
+        beam : BeamSamples
+            Sub-ray layout (``S`` sub-rays).
+        pose : ScannerPose
+            Scanner orientation.
+        theta, psi : ndarray, shape (n,)
+            Azimuth and zenith angle of each pulse's beam in the scanner frame, rad.
+        spin : ndarray, shape (n,)
+            Rotation of the sub-ray layout about the beam axis, per pulse, rad.
+        smear_rad : float
+            Zenith angle swept by the beam during one integration time, rad.
+        time_shift : ndarray, shape (n,), optional
+            Per-pulse random offset in [0, 1) of the sub-rays' instants (required when ``smear_rad > 0``).
 
         Returns
         -------
