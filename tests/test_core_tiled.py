@@ -51,6 +51,30 @@ def test_tiles_hold_the_bytes_of_the_whole_scan(knife, tmp_path, tile_cols):
     assert not np.array_equal(other.load().range, whole.range, equal_nan=True)
 
 
+def test_wavefront_size_changes_no_byte(knife):
+    """Wavefronts of 3 columns, each traced while the previous one is post-processed, give the one-wavefront bytes."""
+    scene, setup, whole = knife
+    rows = setup.window.shape[0]
+    small = simulate(scene, setup, seed=SEED, progress=False, backend="llvm", chunk_subrays=3 * rows * 19)
+    assert _same(whole, small)
+
+
+def test_mixed_pulses_carry_their_subray_rows(knife):
+    """The rows handed with the reductions are those of the pulses that see two objects, read from the device."""
+    from tlssim.simulate import prepare_scan
+
+    scene, setup, _ = knife
+    job = prepare_scan(scene, setup, "llvm")
+    theta, psi = (np.ravel(a) for a in np.meshgrid(*setup.window.angles()))
+    hits = job.traced.trace(setup.model, job.beam, setup.pose, theta, psi, np.zeros(len(theta)))
+    returned = (hits.object_id >= 0) & (hits.power > 0)
+    seen = [set(row[ok]) for row, ok in zip(hits.object_id, returned)]
+    assert np.array_equal(hits.mixed, np.nonzero([len(objects) > 1 for objects in seen])[0])
+    assert len(hits.mixed) > 0
+    for name, full in (("object_id", hits.object_id), ("power", hits.power), ("prim", hits.prim)):
+        assert np.array_equal(getattr(hits, "mixed_" + name), full[hits.mixed])
+
+
 def test_resume_keeps_checked_tiles_and_rewrites_the_others(knife, tiled_dir, tmp_path):
     scene, setup, whole = knife
     import shutil

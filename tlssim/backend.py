@@ -95,8 +95,11 @@ def select_backend(name: str = "auto") -> str:
 class SubrayHits:
     """Traced sub-rays of ``n`` pulses with ``S`` sub-rays each, with per-pulse reductions.
 
-    Per-pulse arrays have shape ``(n,)``; per-sub-ray arrays ``(n, S)`` are
-    read-only views of device memory (sub-ray 0 is the central one).
+    Per-pulse arrays have shape ``(n,)``. The per-sub-ray arrays stay on the
+    device: the rows of the mixed pulses come with the reductions, and the
+    properties ``t``, ``object_id``, ``power`` and ``prim`` read all of them
+    (``(n, S)``, read-only views of device memory on the CPU, copies from a
+    GPU; sub-ray 0 is the central one).
 
     Attributes
     ----------
@@ -117,9 +120,11 @@ class SubrayHits:
         Index of the first sub-ray that returned power (``S`` when none).
     first_prim : ndarray, int64
         Triangle hit by that sub-ray (0 when none).
-    t, object_id, power, prim : ndarray, shape (n, S)
-        Per-sub-ray hit distance (m, ``inf`` on a miss), object id (-1 on a
-        miss), received power (first surface only) and triangle index.
+    mixed : ndarray, int64, shape (m,)
+        The pulses whose returning sub-rays met more than one object.
+    mixed_object_id, mixed_power, mixed_prim : ndarray, shape (m, S)
+        Their sub-rays' object id (-1 on a miss), received power (first
+        surface only) and triangle index.
     """
 
     phasors: list[tuple[np.ndarray, np.ndarray]]
@@ -130,11 +135,34 @@ class SubrayHits:
     object_high: np.ndarray
     first: np.ndarray
     first_prim: np.ndarray
-    t: np.ndarray
-    object_id: np.ndarray
-    power: np.ndarray
-    prim: np.ndarray
-    _device_arrays: tuple = ()
+    mixed: np.ndarray
+    mixed_object_id: np.ndarray
+    mixed_power: np.ndarray
+    mixed_prim: np.ndarray
+    _subrays: tuple = ()
+
+    @property
+    def t(self) -> np.ndarray:
+        """Per-sub-ray hit distance, m (``inf`` on a miss), shape ``(n, S)``."""
+        return self._host(0)
+
+    @property
+    def object_id(self) -> np.ndarray:
+        """Per-sub-ray object id (-1 on a miss), shape ``(n, S)``."""
+        return self._host(1)
+
+    @property
+    def power(self) -> np.ndarray:
+        """Per-sub-ray received power (first surface only), shape ``(n, S)``."""
+        return self._host(2)
+
+    @property
+    def prim(self) -> np.ndarray:
+        """Per-sub-ray triangle index, shape ``(n, S)``."""
+        return self._host(3)
+
+    def _host(self, i):
+        return np.asarray(self._subrays[i]).reshape(len(self.first), -1)
 
 
 def _small_angle_sincos(x):
@@ -348,12 +376,15 @@ class TraceScene:
         frame = _pulse_frames(theta, psi, spin, time_shift if smear_rad > 0 else None)
         return _flat_rays(model, beam, pose, frame, smear_rad)
 
-    def trace(self, model: ScannerModel, beam: BeamSamples, pose: ScannerPose,
-              theta: np.ndarray, psi: np.ndarray, spin: np.ndarray, smear_rad: float = 0.0,
-              time_shift: np.ndarray | None = None) -> SubrayHits:
-        """Trace the sub-rays of a set of pulses and sum their phasors.
+    def start_trace(self, model: ScannerModel, beam: BeamSamples, pose: ScannerPose,
+                    theta: np.ndarray, psi: np.ndarray, spin: np.ndarray, smear_rad: float = 0.0,
+                    time_shift: np.ndarray | None = None):
+        """Launch the tracing of the sub-rays of a set of pulses and the sums of their phasors.
 
-        Three kernels per wavefront: the pulses' sines and cosines; one lane
+        The kernels run in the background (Dr.Jit's queue on the CPU, the
+        GPU's stream): the caller can post-process the previous wavefront
+        meanwhile, and calls the returned function for the results. Three
+        kernels per wavefront: the pulses' sines and cosines; one lane
         per sub-ray for ray generation, first hit and surface radiometry (a
         second one traces behind transmitting surfaces when the model asks
         for it); one lane per pulse for the beam axis, the phasor sums and
@@ -385,8 +416,10 @@ class TraceScene:
 
         Returns
         -------
-        SubrayHits
-            Per-pulse phasor sums and reductions, and per-sub-ray hits, for the ``n`` pulses.
+        callable
+            Without arguments; waits for the kernels and returns the :class:`SubrayHits` of the ``n``
+            pulses (per-pulse phasor sums and reductions, and per-sub-ray hits). Call it before the
+            next :meth:`start_trace`: reading results waits for every kernel queued before.
         """
         import drjit as dr
         import mitsuba as mi
@@ -409,22 +442,61 @@ class TraceScene:
         dr.eval(axis, *reduced)
         first, low, high, first_prim, central_t, *sums = reduced
 
-        shape = (len(theta), beam.count)
-        return SubrayHits(
-            phasors=[(np.asarray(sums[i]), np.asarray(sums[i + 1])) for i in range(1, len(sums), 2)],
-            total_power=np.asarray(sums[0]),
-            axis=np.stack([np.asarray(axis.x), np.asarray(axis.y), np.asarray(axis.z)], axis=1),
-            central_t=np.asarray(central_t),
-            object_low=np.asarray(low),
-            object_high=np.asarray(high),
-            first=np.asarray(first),
-            first_prim=np.asarray(first_prim).astype(np.int64),
-            t=np.asarray(t).reshape(shape),
-            object_id=np.asarray(obj).reshape(shape),
-            power=np.asarray(power).reshape(shape),
-            prim=np.asarray(prim).reshape(shape),
-            _device_arrays=(t, obj, power, prim),
-        )
+        count = beam.count
+
+        def finish() -> SubrayHits:
+            low_, high_ = np.asarray(low), np.asarray(high)
+            mixed = np.nonzero((high_ >= 0) & (low_ != high_))[0]
+            rows = mi.UInt32((mixed[:, None] * count + np.arange(count)).ravel().astype(np.uint32))
+            mixed_rows = [np.asarray(dr.gather(type(value), value, rows)).reshape(len(mixed), count)
+                          for value in (obj, power, prim)] if len(mixed) else [
+                np.empty((0, count), dtype) for dtype in (np.int32, np.float32, np.uint32)]
+            return SubrayHits(
+                phasors=[(np.asarray(sums[i]), np.asarray(sums[i + 1])) for i in range(1, len(sums), 2)],
+                total_power=np.asarray(sums[0]),
+                axis=np.stack([np.asarray(axis.x), np.asarray(axis.y), np.asarray(axis.z)]).T,
+                central_t=np.asarray(central_t),
+                object_low=low_,
+                object_high=high_,
+                first=np.asarray(first),
+                first_prim=np.asarray(first_prim).astype(np.int64),
+                mixed=mixed,
+                mixed_object_id=mixed_rows[0],
+                mixed_power=mixed_rows[1],
+                mixed_prim=mixed_rows[2],
+                _subrays=(t, obj, power, prim),
+            )
+
+        return finish
+
+    def trace(self, model: ScannerModel, beam: BeamSamples, pose: ScannerPose,
+              theta: np.ndarray, psi: np.ndarray, spin: np.ndarray, smear_rad: float = 0.0,
+              time_shift: np.ndarray | None = None) -> SubrayHits:
+        """Trace the sub-rays of a set of pulses and sum their phasors (:meth:`start_trace`, waited for).
+
+        Parameters
+        ----------
+        model : ScannerModel
+            Scanner model (as in :meth:`start_trace`).
+        beam : BeamSamples
+            Sub-ray layout (``S`` sub-rays).
+        pose : ScannerPose
+            Scanner orientation.
+        theta, psi : ndarray, shape (n,)
+            Azimuth and zenith angle of each pulse's beam in the scanner frame, rad.
+        spin : ndarray, shape (n,)
+            Rotation of the sub-ray layout about the beam axis, per pulse, rad.
+        smear_rad : float
+            Zenith angle swept by the beam during one integration time, rad.
+        time_shift : ndarray, shape (n,), optional
+            Per-pulse random offset in [0, 1) of the sub-rays' instants (required when ``smear_rad > 0``).
+
+        Returns
+        -------
+        SubrayHits
+            Per-pulse phasor sums and reductions, and per-sub-ray hits, for the ``n`` pulses.
+        """
+        return self.start_trace(model, beam, pose, theta, psi, spin, smear_rad, time_shift)()
 
     def first_hits(self, ray, active=True):
         """Distance and triangle of the first hit of every ray, unevaluated.

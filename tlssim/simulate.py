@@ -284,28 +284,48 @@ def simulate_columns(job: ScanJob, c0: int, c1: int, seed: int = 0, chunk_subray
     smear_rad = model.smear_fraction * math.radians(window.step_deg[1])
     grids = {key: np.empty((rows, cols) + shape, dtype) for key, shape, dtype in _OUTPUT_LAYOUT}
     cols_per_chunk = max(1, chunk_subrays // (rows * job.beam.count))
-    for a in range(0, cols, cols_per_chunk):
-        b = min(cols, a + cols_per_chunk)
+    chunks = [(a, min(cols, a + cols_per_chunk)) for a in range(0, cols, cols_per_chunk)]
 
-        def along_psi(values, shape=()):
-            """A wavefront's per-pulse values (column-major) as a (psi, theta) view."""
-            return np.swapaxes(values.reshape((b - a, rows) + shape), 0, 1)
+    def start(a, b):
+        """Draw and launch the wavefront of columns ``a:b`` of the tile, traced row by row (psi outer, theta
+        inner) so that every result is already a block of the output grids; the draws are per column."""
+        draws = {key: None if value is None else np.ascontiguousarray(value.T)
+                 for key, value in column_draws(seed, c0 + a, c0 + b, rows, smear_rad > 0).items()}
+        return draws, job.traced.start_trace(
+            model, job.beam, pose, np.tile(theta_axis[a:b], rows), np.repeat(psi_axis, b - a),
+            draws["spin"].ravel(), smear_rad, None if draws["instants"] is None else draws["instants"].ravel())
 
-        draws = column_draws(seed, c0 + a, c0 + b, rows, smear_rad > 0)
-        hits = job.traced.trace(model, job.beam, pose, np.repeat(theta_axis[a:b], rows), np.tile(psi_axis, b - a),
-                                draws["spin"].ravel(), smear_rad,
-                                None if draws["instants"] is None else draws["instants"].ravel())
+    pending = start(*chunks[0])
+    for index, (a, b) in enumerate(chunks):
+        width = b - a
+
+        def on_grid(values):
+            """A wavefront's per-pulse values (row-major over the chunk) as its (psi, theta) block."""
+            return values.reshape((rows, width) + values.shape[1:])
+
+        draws, finish = pending
+        hits = finish()
+        if index + 1 < len(chunks):  # the next wavefront's kernels run while this one is post-processed
+            pending = start(*chunks[index + 1])
         dist, amp = _pulse_returns(hits, model)
-        returns = PulseReturns(distance_m=along_psi(dist), amplitude=along_psi(amp), power=along_psi(hits.total_power))
+        returns = PulseReturns(distance_m=on_grid(dist), amplitude=on_grid(amp), power=on_grid(hits.total_power))
         grids["range"][:, a:b], grids["intensity"][:, a:b] = detect_with_noise(
-            model, returns, along_psi(draws["amplitude_noise"]), along_psi(draws["range_noise"]))
+            model, returns, draws["amplitude_noise"], draws["range_noise"])
         for key, value in pulse_truth(hits, job.traced.face_normals).items():
-            grids[key][:, a:b] = along_psi(value, value.shape[1:])
-        grids["xyz"][:, a:b] = pose.position + grids["range"][:, a:b, None] * grid_directions(
-            theta_axis[a:b], psi_axis, pose.rotation)
+            if value.ndim == 1:
+                grids[key][:, a:b] = on_grid(value)
+            else:
+                for i in range(value.shape[1]):
+                    grids[key][:, a:b, i] = on_grid(value[:, i])
+        # One component at a time: numpy's loops over a trailing axis of 3 cost about 10x more.
+        xyz, ranges = grids["xyz"][:, a:b], grids["range"][:, a:b]
+        directions = grid_directions(theta_axis[a:b], psi_axis, pose.rotation)
+        for i in range(3):
+            np.multiply(ranges, directions[..., i], out=xyz[..., i])
+            xyz[..., i] += pose.position[i]
         del hits, returns, draws
         if progress is not None:
-            progress((b - a) * rows)
+            progress(width * rows)
 
     theta_grid, psi_grid = np.meshgrid(theta_axis, psi_axis)
     layers = {key: grids.pop(key) for key in _TRUTH_LAYERS}
@@ -569,9 +589,9 @@ def pulse_truth(hits: SubrayHits, face_normals: np.ndarray) -> dict[str, np.ndar
     second = np.full_like(dominant, -1)
     second_share = np.zeros(len(dominant))
     first, first_prim = hits.first, hits.first_prim
-    mixed = np.nonzero((dominant >= 0) & (hits.object_low != dominant))[0]
+    mixed = hits.mixed
     if len(mixed):
-        obj, power, prim = hits.object_id[mixed], hits.power[mixed], hits.prim[mixed]
+        obj, power, prim = hits.mixed_object_id, hits.mixed_power, hits.mixed_prim
         returned = (obj >= 0) & (power > 0)
         rows = np.arange(len(mixed))
         # Power of the object of every sub-ray, summed over the pulse; the best wins.
@@ -590,9 +610,15 @@ def pulse_truth(hits: SubrayHits, face_normals: np.ndarray) -> dict[str, np.ndar
         first_prim[mixed] = prim[rows, first[mixed]]
 
     has = dominant >= 0
-    normal = face_normals[first_prim]
-    facing = np.sum(normal * hits.axis, axis=1)
-    normal = np.where(facing[:, None] > 0, -normal, normal)
+    # One component at a time (numpy's loops over a trailing axis of 3 are slow); the same sums as
+    # np.sum(normal * axis, axis=1), bit for bit.
+    normal = [np.take(face_normals[:, i], first_prim) for i in range(3)]
+    facing = normal[0] * hits.axis[:, 0] + normal[1] * hits.axis[:, 1] + normal[2] * hits.axis[:, 2]
+    away = facing > 0
+    truth_normal = np.empty((3, len(has)))
+    for i in range(3):
+        np.negative(normal[i], out=normal[i], where=away)
+        truth_normal[i] = np.where(has, normal[i], np.nan)
     with np.errstate(invalid="ignore", divide="ignore"):
         mixed_fraction = np.clip(1.0 - share / hits.total_power, 0.0, 1.0)
     return {
@@ -600,7 +626,7 @@ def pulse_truth(hits: SubrayHits, face_normals: np.ndarray) -> dict[str, np.ndar
         "truth_id": np.where(has, dominant, -1).astype(np.int32),
         "mixed_fraction": np.where(has, mixed_fraction, np.nan),
         "incidence": np.where(has, np.arccos(np.clip(np.abs(facing), 0.0, 1.0)), np.nan),
-        "truth_normal": np.where(has[:, None], normal, np.nan),
+        "truth_normal": truth_normal.T,
         "truth_second_id": second.astype(np.int32),
         "second_fraction": np.divide(second_share, hits.total_power, out=np.zeros(len(second)),
                                      where=hits.total_power > 0),
