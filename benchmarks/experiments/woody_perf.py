@@ -103,9 +103,11 @@ def _row_line(row: dict) -> str:
     stats = row["stats"]
     if row["method"] == "step":
         note = (f"Hough {stats['occupied_cells']} cells = {stats['hough_bytes'] / 1e6:.1f} MB "
-                f"(dense would be {stats['dense_cells'] * 4 / 1e6:.0f} MB), {stats['tuboids']} tuboids")
+                f"(dense would be {stats['dense_cells'] * 4 / 1e6:.0f} MB), {stats['tuboids']} tuboids, "
+                f"{stats['points_used']:,} points used")
     else:
-        note = f"{stats['branches']} branches, volume error {100 * row['volume_error']:+.1f} %"
+        note = f"{stats['branches']} branches, {stats.get('points_fitted', stats['points']):,} points fitted"
+    note += f", volume error {100 * row['volume_error']:+.1f} %"
     return (f"{row['method']:<10} {row['points']:>9} {row['time_s']:>9.2f} {row['peak_mb']:>9.1f} "
             f"{row['us_per_nlogn']:>9.3f}  {note}")
 
