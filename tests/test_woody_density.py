@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from woody import WoodyError, step
-from woody.density import point_spacing, voxel_subsample
+from woody import WoodyError, follow_cylinders, score, step
+from woody.density import point_spacing, thin_to_spacing, voxel_subsample
 from woody.normals import orient_outward, pca_normals
 from woody.synthetic import add_noise, sample_cylinders, straight_cylinder
 
@@ -60,3 +60,47 @@ def test_step_orients_estimated_normals_outwards_when_asked_without_a_viewpoint(
     assert result.stats["oriented"]
     assert (np.einsum("ij,ij->i", result.normals, cloud.normals) > 0).mean() > 0.95
     assert len(result.tuboids) >= 1 and abs(np.median(result.tuboids[0].radii) - 0.15) < 0.01
+
+
+@pytest.fixture(scope="module")
+def y_at_three_densities(y_tree):
+    """The Y (a 5 cm stem forking into two 3 cm arms) at 0.75, 3 and 30 pts/cm², followed with a 2 cm thinnest
+    branch to resolve (thinned to 10.5 mm: the two dense clouds are, the sparse one is not)."""
+    out = {}
+    for per_cm2 in (0.75, 3.0, 30.0):
+        cloud = sample_cylinders(y_tree, per_cm2 * 1e4, seed=4)
+        out[per_cm2] = cloud, follow_cylinders(cloud.points, resolve_radius_m=0.02)
+    return out
+
+
+def test_cylinder_following_thins_dense_clouds_only(y_at_three_densities):
+    for per_cm2, (cloud, result) in y_at_three_densities.items():
+        fitted = result.stats.get("points_fitted", len(cloud.points))
+        assert (fitted < len(cloud.points)) == (per_cm2 > 1)
+        assert len(result.labels) == len(cloud.points) and (result.labels >= 0).mean() > 0.99
+        assert np.bincount(result.labels[result.labels >= 0]).tolist() == [b["n_points"] for b in result.branches]
+    fitted = [y_at_three_densities[d][1].stats["points_fitted"] for d in (3.0, 30.0)]
+    assert fitted[1] < len(y_at_three_densities[30.0][0].points) / 10 and fitted[1] == pytest.approx(fitted[0], rel=0.1)
+
+
+def test_cylinder_following_gives_the_same_tree_at_any_density(y_at_three_densities):
+    volumes, radii = [], []
+    for cloud, result in y_at_three_densities.values():
+        s = score(cloud.truth, result.cylinders())
+        assert s["branches_detected"] == 3 and abs(s["volume_error"]) < 0.15  # seeds 1-5: at most 11.7 %
+        volumes.append(result.volume)
+        radii.append(result.branches[0]["radius_m"])
+    assert max(volumes) / min(volumes) < 1.15  # seeds 1-5: 1.02-1.10
+    assert np.allclose(radii, 0.05, rtol=0.05)
+
+
+def test_thinning_keeps_the_share_of_stray_points_and_reaches_the_spacing():
+    rng = np.random.default_rng(6)
+    surface = sample_cylinders(straight_cylinder(0.15, 0.5), 3e5, seed=6).points  # 30 pts/cm2
+    strays = rng.uniform(-0.3, 0.3, (len(surface) // 5, 3)) + [0, 0, 0.25]
+    cloud = np.concatenate([surface, strays])
+    kept = thin_to_spacing(cloud, 0.01)
+    assert (kept >= len(surface)).mean() == pytest.approx(len(strays) / len(cloud), abs=0.02)
+    assert point_spacing(surface[kept[kept < len(surface)]]) == pytest.approx(0.01, rel=0.15)
+    assert np.array_equal(kept, thin_to_spacing(cloud, 0.01)) and len(thin_to_spacing(cloud, 1e-4)) == len(cloud)
+    assert (voxel_subsample(cloud, 0.01) >= len(surface)).mean() > 0.5  # voxels keep every stray, thin the surface

@@ -57,6 +57,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pipe-model", action="store_true",
                    help="cylinders: radii the points do not resolve (under one point spacing, or scattered) follow "
                         "the pipe model from their nearest resolved ancestor")
+    p.add_argument("--resolve-radius-m", type=float, default=None,
+                   help="cylinders: thinnest branch radius to resolve; denser clouds are thinned at random to a "
+                        "point spacing of pi r / 6 first, 0 keeps every point (default 0.01 m)")
     p.set_defaults(func=run_reconstruct)
 
     p = sub.add_parser("dbh", help="diameter at breast height of the stems of a point cloud",
@@ -98,6 +101,8 @@ def run_reconstruct(args) -> int:
 
         settings = {"precision_m": args.precision_m, "section_radii": args.sections,
                     "pipe_model": args.pipe_model, "progress": True}
+        if args.resolve_radius_m is not None:
+            settings["resolve_radius_m"] = args.resolve_radius_m
         result = follow_cylinders(cloud.points, **settings) if args.no_trunk else \
             follow_tree(cloud.points, ground_z=args.ground_z, **settings)
         nodes, edges = result.skeleton()

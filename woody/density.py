@@ -98,3 +98,42 @@ def voxel_subsample(points, voxel_m: float) -> np.ndarray:
     first = np.ones(len(order), bool)
     first[1:] = voxel[order][1:] != voxel[order][:-1]
     return np.sort(order[first])
+
+
+def thin_to_spacing(points, spacing_m: float, seed: int = 0) -> np.ndarray:
+    """Indices of a random subset whose point spacing is about ``spacing_m``: a fraction ``(s / spacing_m)^2`` of
+    the points, ``s`` their spacing (:func:`point_spacing`); all of them when ``s >= spacing_m``.
+
+    Unlike one point per voxel (:func:`voxel_subsample`), a random subset keeps the cloud's mix of surface points
+    and scatter (range noise, mixed pulses along the beam): voxels thin a surface but keep every isolated stray
+    point, so the denser the scan, the larger the strays' share of what is kept.
+
+    Parameters
+    ----------
+    points : array_like, (n, 3)
+        Coordinates, m.
+    spacing_m : float
+        Point spacing sought, m.
+    seed : int
+        Seed of the draw (same seed, same subset).
+
+    Returns
+    -------
+    ndarray of int
+        Sorted indices into ``points`` (at least 7).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> xy = np.random.default_rng(0).uniform(0, 1, (40000, 2))  # 4 points per cm², 5 mm apart
+    >>> plane = np.column_stack([xy, np.zeros(len(xy))])
+    >>> kept = thin_to_spacing(plane, 0.01)
+    >>> len(kept) in range(9000, 11000), round(point_spacing(plane[kept]), 3)
+    (True, 0.01)
+    """
+    points = check_points(points)
+    if not (np.isfinite(spacing_m) and spacing_m > 0):
+        raise WoodyError(f"spacing_m must be a positive length in metres, got {spacing_m}")
+    spacing = point_spacing(points, seed)
+    count = max(7, int(round(len(points) * min(1.0, (spacing / spacing_m) ** 2))))
+    return np.sort(np.random.default_rng(seed).choice(len(points), count, replace=False))
