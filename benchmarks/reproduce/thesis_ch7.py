@@ -30,6 +30,12 @@ from benchmarks.suite import parse_suite
 SOURCE = "thesis ch.7 §2 Tables 1-3 (values held back)"
 #: Shell-rule set of each benchmark variant (``buffer`` runs the default set, T3).
 VARIANTS = {"T1": "buffer-T1", "T2": "buffer-T2", "T3": "buffer", "T3*": "buffer-T3*"}
+#: Leaves of the full experiment: the thesis' 58 fully visible leaves (prop-sfs §5, tls-physics §5.1); ``--quick``
+#: runs one of each length.
+LEAVES, QUICK_LEAVES = 58, 4
+#: The thesis' leaf sample (tls-physics §5.1): mean flatbed area, cm², and point density range, pts/cm².
+SAMPLE_MEAN_AREA_CM2, SAMPLE_DENSITY = 35.0, (29.0, 272.0)
+SAMPLE_SOURCE = "thesis ch.7 §1 (58 leaves: 12-65 cm², mean 35 cm², 29-272 pts/cm²; tls-physics §5.1)"
 #: Blade lengths, m: pear leaves of 12, 24, 40 and 59 cm² (the thesis' 12-65 cm², area ~ length²).
 LENGTHS_M = (0.05, 0.07, 0.09, 0.11)
 #: Scanner step, deg: 0.036 gives 40-300 pts/cm² over 0.8-2 m, the thesis' stated 29-272 (an assumption: its
@@ -107,6 +113,7 @@ def shell_rows(results: list[dict]) -> list[Row]:
             rows.append(Row(f"{name}/group {group['group']}/rppp_1", "rppp_1 by leaf group", "fraction",
                             float(group["rppp_1"]), x=list(VARIANTS).index(name), series=f"group {group['group']}",
                             source=SOURCE, note=f"{group['n_leaves']} leaves, region {group['pixels']} px"))
+    rows += sample_rows(results) + seed_size_rows(table) + quality_rows(results)
     if all(VARIANTS[n] in table for n in ("T1", "T2", "T3")):
         t1, t2, t3 = (table[VARIANTS[n]] for n in ("T1", "T2", "T3"))
         err = {n: table[VARIANTS[n]]["area_rel_err_median"] for n in ("T1", "T2", "T3")}
@@ -121,6 +128,106 @@ def shell_rows(results: list[dict]) -> list[Row]:
                         note="median |area error| " + ", ".join(f"{n} {'-' if e is None else f'{e:.4f}'}"
                                                                  for n, e in err.items())))
     return rows
+
+
+def _leaves(results: list[dict], variant: str) -> list[dict]:
+    """Scored leaves of one variant (every visible leaf, found or not)."""
+    return [leaf for leaf in summary.visible_leaves(summary.target_scores([r for r in results if not r["error"]]))
+            if leaf["variant"] == variant]
+
+
+def sample_rows(results: list[dict]) -> list[Row]:
+    """The leaf sample against the thesis' (a check of the scene, not of the method).
+
+    Parameters
+    ----------
+    results : list of dict
+        :func:`benchmarks.runner.run_case` rows; the leaves of T3 (``buffer``) are read.
+
+    Returns
+    -------
+    list of Row
+        Mean true area and the lowest and highest point density of the leaves
+        against the thesis' 35 cm² and 29-272 pts/cm² (none without leaves).
+    """
+    leaves = _leaves(results, VARIANTS["T3"])
+    if not leaves:
+        return []
+    area = 1e4 * np.array([leaf["area_true_m2"] for leaf in leaves])
+    density = np.array([leaf["points_per_cm2"] for leaf in leaves], float)
+    why = "the same class of leaf sample (the scene, not the method; a project choice)"
+    note = f"{len(leaves)} leaves, areas {area.min():.0f}-{area.max():.0f} cm²"
+    return [Row("sample/mean area", "leaf sample: mean true area", "cm^2", float(area.mean()),
+                SAMPLE_MEAN_AREA_CM2, 0.2 * SAMPLE_MEAN_AREA_CM2, "20 %: " + why, SAMPLE_SOURCE, series="sample",
+                note=note),
+            Row("sample/lowest density", "leaf sample: point density, lowest", "pts/cm^2", float(density.min()),
+                SAMPLE_DENSITY[0], 0.5 * SAMPLE_DENSITY[0], "50 %: " + why, SAMPLE_SOURCE, series="sample",
+                note=f"step {STEP_DEG} deg"),
+            Row("sample/highest density", "leaf sample: point density, highest", "pts/cm^2", float(density.max()),
+                SAMPLE_DENSITY[1], 0.5 * SAMPLE_DENSITY[1], "50 %: " + why, SAMPLE_SOURCE, series="sample",
+                note=f"step {STEP_DEG} deg")]
+
+
+def seed_size_rows(table: dict) -> list[Row]:
+    """The ch.7 lesson that a larger seed (nu = 2) orients better than nu = 1: T3 against T3*.
+
+    Parameters
+    ----------
+    table : dict
+        :func:`benchmarks.summary.validation_table` rows by variant.
+
+    Returns
+    -------
+    list of Row
+        One claim row (none unless both sets ran): the elevation and the
+        azimuth precision of T3 no worse than those of T3*.
+    """
+    if not all(VARIANTS[n] in table for n in ("T3", "T3*")):
+        return []
+    t3, star = table[VARIANTS["T3"]], table[VARIANTS["T3*"]]
+    keys = ("elevation_precision_deg", "azimuth_precision_deg")
+    if any(t[k] is None for t in (t3, star) for k in keys):
+        return []
+    return [Row("T3 orients at least as well as T3*", "claim", "deg", float(t3["azimuth_precision_deg"]),
+                source="thesis ch.7 §2 (prop-sfs §3.5: a larger seed, nu = 2, gives a better orientation "
+                       "initialization and fewer false toggles)",
+                claim="the elevation and azimuth precision of T3 (nu = 2) are no worse than those of T3* (nu = 1)",
+                holds=bool(all(t3[k] <= star[k] for k in keys)), series="claim",
+                note="precision elevation / azimuth, deg: T3 " + " / ".join(f"{t3[k]:.2f}" for k in keys)
+                     + ", T3* " + " / ".join(f"{star[k]:.2f}" for k in keys))]
+
+
+def quality_rows(results: list[dict]) -> list[Row]:
+    """The thesis' use of rppp_1 as a quality factor, tested on T3's leaves.
+
+    Parameters
+    ----------
+    results : list of dict
+        :func:`benchmarks.runner.run_case` rows.
+
+    Returns
+    -------
+    list of Row
+        One claim row (none under four reconstructed leaves): the leaves with
+        rppp_1 under the median have a larger median |area error| than the others.
+    """
+    leaves = [leaf for leaf in _leaves(results, VARIANTS["T3"]) if summary.succeeded(leaf)
+              and leaf.get("rppp_1") is not None]
+    if len(leaves) < 4:
+        return []
+    rppp = np.array([leaf["rppp_1"] for leaf in leaves])
+    err = np.abs([leaf["area_rel_err"] for leaf in leaves])
+    low = rppp < np.median(rppp)
+    if low.all() or not low.any():
+        return []
+    low_err, high_err = float(np.median(err[low])), float(np.median(err[~low]))
+    return [Row("rppp_1 is a quality factor", "claim", "fraction", low_err,
+                source="thesis ch.7 §2 (rppp_1, the share of pixels with one reconstructed value, used as a quality "
+                       "factor; tls-physics §5.3)",
+                claim="T3's leaves with rppp_1 under the median have a larger median |area error| than the others",
+                holds=low_err > high_err, series="claim",
+                note=f"median |area error| {low_err:.4f} ({int(low.sum())} leaves, rppp_1 < {np.median(rppp):.3f}) "
+                     f"against {high_err:.4f} ({int((~low).sum())} leaves)")]
 
 
 @register("ch7-shell-sets", "Thesis ch.7 §2, Tables 1-3: shell-rule sets T1, T2, T3, T3* on single leaves",
@@ -160,12 +267,12 @@ def shell_sets(quick: bool, seed: int) -> list[Row]:
     Parameters
     ----------
     quick : bool
-        Four leaves (one of each length) instead of sixteen.
+        :data:`QUICK_LEAVES` leaves (one of each length) instead of the thesis' :data:`LEAVES`.
     seed : int
         Seed of the leaves, their poses and the scans.
     """
     specs = variant_specs(resolve(list(VARIANTS.values())))
     results = []
-    for case in leaf_cases(4 if quick else 16, seed):
+    for case in leaf_cases(QUICK_LEAVES if quick else LEAVES, seed):
         results += run_case(case, specs)
     return shell_rows(results)
