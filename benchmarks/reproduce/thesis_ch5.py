@@ -263,7 +263,8 @@ def _smoothing_rows(rule: str, side: int, passes, seed: int) -> list[Row]:
         rows.append(Row(f"{rule}/noise {noise}/>95 % within 5 %", "share within 5 % of the radius", "%", 100 * within,
                         source=f"{SOURCE} (noise)", holds=within > 0.95, series=rule,
                         claim=f"with {'2' if noise == 5.7 else '1'}-10 passes more than 95 % of the points have "
-                              "|error| < 5 % of the radius (ours: the worst of those pass counts)"))
+                              "|error| < 5 % of the radius (ours: the worst of those pass counts)",
+                        note=f"{side} px matrix, passes {', '.join(str(n) for n in few)}"))
     # runs now holds the +-5.7 deg study
     few = [runs[n]["abs_eps_mean"] for n in passes if 2 <= n <= 10]
     mid = [runs[n]["abs_eps_mean"] for n in passes if 20 <= n <= 70]
