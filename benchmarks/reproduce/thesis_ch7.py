@@ -235,7 +235,8 @@ def quality_rows(results: list[dict]) -> list[Row]:
                       "scanner, 0-60 deg incidence, midrib spin 0-120 deg, before a wall, at a step of 0.036 deg "
                       "(32-310 pts/cm², the thesis' stated density 29-272); PROP-SFS buffer with 20 smoothing "
                       "passes and the shell rule of each set; area, midrib elevation and azimuth against the truth "
-                      "(the thesis' hand measurements), area BIAS (eq 2.1), share reconstructed and rppp_1 per leaf group (A-D by region size).",
+                      "(the thesis' hand measurements), area BIAS (eq 2.1), share reconstructed and rppp_1 per "
+                      "leaf group (A-D by region size).",
           findings="The thesis' Tables 1-3 are held back from the spec (prop-sfs §5, tls-physics §5.3): the "
                    "validation table is reported for a comparison by hand, and the rows that are judged test the "
                    "sample and the statements the spec does give. Measured (58 leaves, seed 0, full form): the "
