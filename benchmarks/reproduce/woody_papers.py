@@ -72,7 +72,16 @@ def ds1a(quick: bool, seed: int) -> list[Row]:
 @register("step-ds1b", "STEP DS1 (b), Fig. 4: radius error against the visible sector (occlusion)",
           description="Cylinder r = 0.5 m seen over a sector of 10-360 deg, 3 pts/cm^2.",
           findings="Below 40 deg of arc a circle is poorly constrained (the project's goal starts at 40 deg); the "
-                   "narrow arcs are reported, not judged.", heavy=True)
+                   "narrow arcs are reported, not judged. Measured (full form, 36 sectors, seed 0: 114/132 within, "
+                   "9.9 min wall / 235 CPU-s, after the experiment's fix: PCA normals are oriented towards a ring "
+                   "of four scanners where one cannot see every point; before it the 350 deg sector alone ran for "
+                   "minutes without ending). Every re-fitted row is within (under 0.01 cm from 50 deg; PCA 0.11 "
+                   "cm at 40 deg). The 18 rows outside are all Hough-space circles between 40 and 160 deg: 0.8-2.2 "
+                   "cm with oracle normals, 4-9 cm with PCA normals at 40-80 deg. The Hough circle is the centre of "
+                   "a 2 cm x 1 cm (radius) cell, and its diameter error falls as the arc closes (oracle: about 1 cm "
+                   "up to 170 deg, 0.69 cm at 190, 0.06 cm at 350, 0 at 360): a quantisation that a full circle "
+                   "averages out and that the paper's circle re-fit exists to remove (a property of the Hough-only "
+                   "variant, no defect; not analysed further).", heavy=True)
 def ds1b(quick: bool, seed: int) -> list[Row]:
     """Rows of DS1 (b) (diameter MAE per visible arc and variant; judged from 40 deg).
 
