@@ -99,15 +99,15 @@ def ds1b(quick: bool, seed: int) -> list[Row]:
           description="Cylinder r = 0.5 m, 3 pts/cm^2, uniform coordinate noise 0-5 cm (0-10 % of the radius).",
           findings="The paper's figure is held back; the rows test the project's goal (diameter MAE below 1 cm), "
                    "which no source sets for 0-10 % noise. Measured (full form, seed 0: 21/44 rows within, 11.8 min "
-                   "wall (13.2 with a 1.4 min pause) / 280 CPU-s on the shared 2 cores): with oracle normals the "
-                   "goal holds up to 3 cm of noise (MAE 0.04-0.56 cm) and fails from 3.5 cm (2.2-5.4 cm, 1 "
-                   "tuboid); with PCA normals (k = 16) the Hough-space circles fail from 1 cm (1.5-8.4 cm) and "
-                   "the re-fitted circles from 2.5 cm. Cause, measured on the same cloud: the PCA normals' median angle error is 0.1 / 9.9 / "
-                   "23 / 38 / 45 / 51 deg at 0 / 0.5 / 1 / 2 / 3 / 5 cm of noise (90th percentile 57 deg at 1 cm), "
-                   "since the noise reaches the 16-neighbour scale (about 1.3 cm at 3 pts/cm^2): the normals' "
-                   "convergence on the axis, on which STEP votes, is lost, as the paper's own limitation says "
-                   "(woody.md A.14 (1): noise lowers the quality of the normals). So the PCA rows are outside for "
-                   "the method's stated limitation (no defect); the oracle rows from 3.5 cm (noise s.d. 2 cm per "
+                   "wall (13.2 with a 1.4 min pause) / 280 CPU-s on the shared 2 cores): with oracle normals the goal "
+                   "holds up to 3 cm of noise (MAE 0.04-0.56 cm) and fails from 3.5 cm (2.2-5.4 cm, 1 tuboid); with "
+                   "PCA normals (k = 16) the Hough-space circles fail from 1 cm (1.5-8.4 cm) and the re-fitted "
+                   "circles from 2.5 cm. Cause, measured on the same cloud: the PCA normals' median angle error is "
+                   "0.1 / 9.9 / 23 / 38 / 45 / 51 deg at 0 / 0.5 / 1 / 2 / 3 / 5 cm of noise (90th percentile 57 deg "
+                   "at 1 cm), since the noise reaches the 16-neighbour scale (about 1.3 cm at 3 pts/cm^2): the "
+                   "normals' convergence on the axis, on which STEP votes, is lost, as the paper's own limitation "
+                   "says (woody.md A.14 (1): noise lowers the quality of the normals). So the PCA rows are outside "
+                   "for the method's stated limitation (no defect); the oracle rows from 3.5 cm (noise s.d. 2 cm per "
                    "axis, the Hough cell's size) are outside for a reason not analysed further.", heavy=True)
 def ds1c(quick: bool, seed: int) -> list[Row]:
     """Rows of DS1 (c) (diameter MAE per noise level and variant).
