@@ -302,11 +302,13 @@ def test_mendez_table9_slope_against_the_law():
     n = np.array([1000.0, 2000.0, 4000.0, 8000.0])
     runs = [{"points": int(k), "branches": 20, "cpu_s": 1e-4 * k * np.log(k), "stats": {}} for k in n]
     rows = woody_papers.table9_rows(runs)
-    (exponent,) = [r for r in rows if r.published is not None]
+    (exponent,) = [r for r in rows if r.holds is not None]
     assert len(rows) == len(n) + 1 and exponent.verdict == WITHIN  # time growing as N log N follows the law
-    assert exponent.published == pytest.approx(woody_papers.loglog_slope(n, n * np.log(n)))
-    runs = [{**r, "cpu_s": 1e-8 * r["points"] ** 2} for r in runs]
-    assert [r.verdict for r in woody_papers.table9_rows(runs) if r.published is not None] == [OUTSIDE]
+    assert f"{woody_papers.loglog_slope(n, n * np.log(n)):.3f}" in exponent.note
+    verdicts = {power: [r.verdict for r in woody_papers.table9_rows([{**r, "cpu_s": 1e-8 * r["points"] ** power}
+                                                                      for r in runs]) if r.holds is not None]
+                for power in (0.5, 2.0)}
+    assert verdicts == {0.5: [WITHIN], 2.0: [OUTSIDE]}  # slower growth than the law is no failure, faster is
 
 
 def _follow(branches, order, share):
