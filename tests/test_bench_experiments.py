@@ -68,3 +68,15 @@ def test_every_experiment_and_perf_command_is_registered(capsys):
         assert callable(parser.parse_args(argv).func)
     assert main(["perf", "sfs", "--sizes", "5"]) == 2  # refused before anything runs
     assert "--sizes must be >= 10" in capsys.readouterr().err
+
+
+def test_occlusion_viewpoints_face_every_visible_point():
+    from benchmarks.experiments.woody_experiments import occlusion_viewpoints
+    from woody.synthetic import sample_cylinders, straight_cylinder
+
+    for arc, scanners in ((90.0, 1), (170.0, 1), (180.0, 4), (350.0, 4), (360.0, 4)):
+        cloud = sample_cylinders(straight_cylinder(), 2e3, seed=1, arc_deg=arc)
+        views = occlusion_viewpoints(cloud.points, cloud.normals)
+        facing = np.einsum("ni,ni->n", views - cloud.points, cloud.normals)
+        assert np.all(facing > 0), arc  # PCA normals oriented towards them point outwards
+        assert len(np.unique(views, axis=0)) <= scanners, arc

@@ -9,7 +9,7 @@ without the circle re-fit ("hs" = Hough-space circles only).
 - ``density`` (STEP DS1 a): cylinder r = 0.5 m, L = 2 m, 10 densities from
   14 down to 1.4 pts/cm^2 (spec D-S12), Hough cells 2 cm / 1 cm, radii 0.4-0.6 m;
 - ``occlusion`` (DS1 b): visible sector 10-360 deg in 10 deg steps, 3 pts/cm^2,
-  one scanner facing the sector;
+  one scanner facing the sector (a ring of four where it cannot see every point);
 - ``noise`` (DS1 c): uniform coordinate noise 0-5 cm, 3 pts/cm^2;
 - ``tube`` (DS2): winding tapering tube, one or two views, decimation and
   noise, cells 3 cm / 1 cm, with and without a cap of 10 tuboids;
@@ -134,6 +134,32 @@ def exp_density(quick: bool, seed: int) -> list[dict]:
     return rows
 
 
+def occlusion_viewpoints(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """Scanners that orient the PCA normals of a cylinder seen over a sector centred on +x.
+
+    One scanner facing the sector (on +x at :data:`SCANNER_DISTANCE_M`)
+    when it sees every point, as for sectors up to about 170 deg; a wider
+    sector needs scanners around it (the ring of four of
+    :func:`ring_viewpoints`), or the normals of the far side are oriented
+    inwards and STEP's snakes wander (the 350 deg sector took minutes per
+    run instead of a second).
+
+    Parameters
+    ----------
+    points, normals : ndarray
+        Points (m) and their true unit normals, shape ``(n, 3)``.
+
+    Returns
+    -------
+    ndarray
+        Scanner position per point, m, shape ``(n, 3)``.
+    """
+    scanner = np.array([SCANNER_DISTANCE_M, 0.0, 1.0])
+    if np.all(np.einsum("ni,ni->n", scanner - points, normals) > 0):
+        return np.broadcast_to(scanner, points.shape)
+    return ring_viewpoints(points, normals, [0, 90, 180, 270])
+
+
 def exp_occlusion(quick: bool, seed: int) -> list[dict]:
     """STEP on a straight cylinder with a visible sector of 10 to 360 deg (DS1 b); one row per arc and variant.
 
@@ -154,7 +180,7 @@ def exp_occlusion(quick: bool, seed: int) -> list[dict]:
     rows = []
     for arc in arcs:
         cloud = sample_cylinders(truth["cylinders"], 3e4, seed=seed, arc_deg=float(arc))
-        views = np.broadcast_to([SCANNER_DISTANCE_M, 0.0, 1.0], cloud.points.shape)
+        views = occlusion_viewpoints(cloud.points, cloud.normals)
         for row in _step_runs(cloud, cloud.points, views, truth, **_cylinder_kwargs()):
             rows.append({"arc_deg": int(arc), **row})
     return rows
