@@ -337,9 +337,12 @@ def _regions(part: np.ndarray, levels: np.ndarray, anchor: tuple[int, int]):
 
 def _run_part(part, smoothed, levels, height, valid, unreliable, grid: PixelGrid, params: SfsParams, ws: Workspace,
               k: int, thresholds: np.ndarray):
-    lowest = levels[part].min()
-    candidates = np.argwhere(part & (levels == lowest))
-    anchor = tuple(candidates[np.argmin(smoothed[part & (levels == lowest)])])
+    # The seed is anchored at the lowest-alpha pixel of the largest piece of the lowest domain: a stray pixel of that
+    # domain apart from its body (a noisy rim pulse) would seed from a patch with too few measured heights.
+    pieces, _ = ndimage.label(part & (levels == levels[part].min()))
+    body = pieces == np.argmax(np.bincount(pieces.ravel())[1:]) + 1
+    candidates = np.argwhere(body)
+    anchor = tuple(candidates[np.argmin(smoothed[body])])
     chain = list(_regions(part, levels, anchor))
     seed_level, seed_region = chain[0]
     seed_curve = extract_curve(seed_region, grid, params.tangents)
