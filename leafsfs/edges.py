@@ -40,8 +40,11 @@ from scipy import ndimage
 
 from leafsfs.grid import PixelGrid, local_planes
 
-#: Candidate surfaces kept per mixed pulse (the nearest ones).
-MAX_CANDIDATES = 4
+#: Candidate surfaces kept per mixed pulse (the nearest ones). In a canopy the nearest few are often pieces of
+#: twigs and hidden leaves all in front of (or all behind) the pulse, none of whose pairs brackets its range, while
+#: the surface behind the edge comes next: 8 candidates pair more mixed pulses than 4 (800 x 800 crops of the leafy
+#: tree and of pear seed 7 at 0.018 deg: ROP reduction 3 sigma +0.013 / +0.004, 1 cm +0.018 / +0.010).
+MAX_CANDIDATES = 8
 
 
 @dataclass

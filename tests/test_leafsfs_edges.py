@@ -263,3 +263,21 @@ def test_the_mixed_pulses_around_a_piece_too_small_for_a_surface_are_paired_with
     # without it no pair explains those pulses
     alone = segment_scan(range_m, theta, psi, noise_m=0.001, min_piece_px=0).mixed
     assert (alone.pair[mixed] == 0).all() and alone.surfaces[29, 29] == 0
+
+
+def test_twigs_nearer_in_the_image_than_the_wall_do_not_keep_a_leaf_edge_from_pairing_with_it():
+    # A leaf 1.5 m away covering the left of the window before a wall 2.5 m away (edge profile 8 px wide), with
+    # three twig pieces 1.2 m away over the leaf near its edge. Near the twigs, the leaf's mixed pulses have the
+    # leaf and the three twigs nearer in the image than the wall: no two of those four bracket their range, the
+    # leaf and the wall do.
+    rows, cols = np.mgrid[0:60, 0:80]
+    share = np.clip(0.5 + (39.5 - cols) / 8.0, 0.0, 1.0)
+    range_m = share * 1.5 + (1 - share) * 2.5
+    surfaces = np.where(share == 1.0, 1, np.where(share == 0.0, 2, 0))
+    for k, (r, c) in enumerate([(24, 32), (29, 31), (34, 32)], start=3):
+        range_m[r:r + 2, c:c + 2] = 1.2
+        surfaces[r:r + 2, c:c + 2] = k
+    mixed = attribute_mixed(range_m, surfaces, 12, tolerance_m=0.003)
+    straddling = (surfaces == 0) & (share > 0.01) & (share < 0.99)
+    assert np.array_equal(np.sort(mixed.pair[straddling], axis=1), np.tile([1, 2], (straddling.sum(), 1)))
+    assert np.allclose(mixed.share_of(1)[straddling], share[straddling], atol=1e-6)
