@@ -199,10 +199,16 @@ def attribute_mixed(range_m: np.ndarray, surfaces: np.ndarray, band_px: int, int
         keys = runs.astype(np.int64) * (surfaces.max() + 1)
         _store(out, _attribute(images, unresolved, reach_px=int(reach_px), band_px=band, radius_px=radius_px,
                                tolerance_m=tolerance_m,
-                               allowed=lambda pixel, k: np.isin(keys.ravel()[pixel] + k, touching)))
+                               allowed=lambda pixel, k: _member(keys.ravel()[pixel] + k, touching)))
         out.thin = unresolved & (out.pair[..., 0] > 0)  # the pulses that only the second pass paired
         _unpair(out, out.thin & ~attached(out))
     return out
+
+
+def _member(values: np.ndarray, sorted_set: np.ndarray) -> np.ndarray:
+    """``np.isin(values, sorted_set)`` for a sorted array without duplicates (a binary search, no sort per call)."""
+    at = np.minimum(np.searchsorted(sorted_set, values), max(len(sorted_set) - 1, 0))
+    return sorted_set[at] == values if len(sorted_set) else np.zeros(len(values), bool)
 
 
 def attached(mixed: MixedPulses) -> np.ndarray:
