@@ -176,8 +176,11 @@ def case_rows(case: dict, variants: list[dict]):
             if variant.prepare is not None and targets:
                 variant.prepare(scan)
             if variant.scope == "scan" and targets:
+                cpu = time.process_time()
                 output, runtime, peak = measured(variant, scan, scoring.target_labels(scan.shape, leaves))
+                cpu = time.process_time() - cpu
                 scores, counts = scoring.score_scan(leaves, output, scene, scan)
+                counts["cpu_s"] = cpu
                 pulses = scan.shape[0] * scan.shape[1]
             else:
                 scores, runtime, peaks, pulses = [], 0.0, [], 0
@@ -199,8 +202,13 @@ def case_rows(case: dict, variants: list[dict]):
 #: A case whose scan would hold more than this in memory (:data:`~tlssim.simulate.BYTES_PER_PULSE` per pulse) is
 #: simulated into tiles on disk and scored window by window (:func:`_tiled_rows`), bytes.
 TILED_SCAN_BYTES = 2 * 1024**3
-#: Memory of one scoring window of a tiled case (the scan's columns, the truth, the variant's outputs), bytes.
-TILED_WINDOW_BYTES = 2e9
+#: Memory of one scoring window of a tiled case (the scan's columns, the truth, the variant's outputs), bytes, at
+#: :data:`leafsfs.tiled.RECONSTRUCT_BYTES_PER_PULSE` per pulse (imports and scan included). The reconstruction itself
+#: peaked at 815 MB above its start on the orchard row's 3.66 M-pulse windows at 0.018 deg (223 bytes per pulse),
+#: so a window of this budget (at most 9.2 M pulses) stays near 2-3 GB, within issue 16's 8 GB. Smaller windows
+#: repeat their margins' pulses: the orchard row's 3334 x 3334 window at 0.018 deg (margins of about 440 columns)
+#: is 8 windows of 29.4 M pulses in all at 2e9, 2 windows of 14.0 M at 6e9.
+TILED_WINDOW_BYTES = 6e9
 
 
 def tiles_root() -> Path:
@@ -225,9 +233,10 @@ def _tiled_rows(case: Case, scene, setup, build_s: float, variants: list[dict]):
     of their regions only those whose centroid lies in the core count
     (a leaf matched to a region centred across the border counts as not
     found: a small undercount near the borders). Counts are summed over the
-    windows; ``runtime_s`` sums the variant's time over the windows and
-    ``peak_mem_mb`` is the largest window's. Wood variants are not scored
-    on tiled cases.
+    windows (``cpu_s``: the variant's CPU time, ``window_pulses``: the
+    pulses it was given); ``runtime_s`` sums the variant's time over the
+    windows and ``peak_mem_mb`` is the largest window's. Wood variants are
+    not scored on tiled cases.
     """
     import numpy as np
 
@@ -273,9 +282,12 @@ def _tiled_rows(case: Case, scene, setup, build_s: float, variants: list[dict]):
                 if variant.prepare is not None:
                     variant.prepare(scan)
                 if variant.scope == "scan":
+                    cpu = time.process_time()
                     output, runtime, peak = measured(variant, scan, scoring.target_labels(scan.shape, window_leaves))
+                    cpu = time.process_time() - cpu
                     output = _core_regions(output, w0, c0, c1)
                     scores, counts = scoring.score_scan(leaves, output, scene, scan)
+                    counts.update(cpu_s=cpu, window_pulses=scan.shape[0] * scan.shape[1])
                     state["peaks"].append(peak)
                     state["pulses"] = rows * cols  # every pulse is in one core
                 else:

@@ -125,6 +125,7 @@ def plane_fits(range_m: np.ndarray, radius_px: float, side: tuple[int, int] | No
     offsets = _disc_offsets(radius_px, side)
     r = int(np.abs(offsets).max())
     design = np.stack([np.ones(len(offsets)), offsets[:, 0], offsets[:, 1]], axis=1).astype(float)
+    outer = (design[:, :, None] * design[:, None, :]).reshape(len(design), 9)  # weights are 0/1: same sums
     padded = np.pad(range_m, r, constant_values=np.nan)
     centres = np.argwhere(np.isfinite(range_m) if where is None else np.isfinite(range_m) & where)
     out = np.full((4, *range_m.shape), np.nan)
@@ -136,9 +137,9 @@ def plane_fits(range_m: np.ndarray, radius_px: float, side: tuple[int, int] | No
         w = w.astype(float)
         n = w.sum(axis=1)
         ok = n >= 5
-        normal = np.einsum("nk,ka,kb->nab", w[ok], design, design) + 1e-9 * np.eye(3)
+        normal = np.einsum("nk,kc->nc", w[ok], outer).reshape(-1, 3, 3) + 1e-9 * np.eye(3)
         inverse = np.linalg.inv(normal)
-        beta = np.einsum("nab,nb->na", inverse, np.einsum("nk,ka,nk->na", w[ok], design, h[ok]))
+        beta = np.einsum("nab,nb->na", inverse, np.einsum("nk,ka->na", w[ok] * h[ok], design))
         rss = np.sum(w[ok] * (h[ok] - beta @ design.T) ** 2, axis=1)
         rows, cols = c[ok, 0], c[ok, 1]
         out[0, rows, cols] = np.sqrt(rss / np.maximum(n[ok] - 3, 1))
@@ -692,7 +693,6 @@ def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndar
 
     boxes = ndimage.find_objects(surfaces)
     reach = int(math.ceil(gap_px))
-    disc = np.hypot(*np.mgrid[-reach:reach + 1, -reach:reach + 1]) <= gap_px
     planes = {}
     for k in np.nonzero(candidates[:len(boxes) + 1])[0]:
         if k > 0 and boxes[k - 1] is not None:
@@ -704,12 +704,12 @@ def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndar
                     for s, n in zip(boxes[k - 1], surfaces.shape))
         sub = surfaces[box]
         inside = sub == k
-        grown = ndimage.binary_dilation(inside, disc)
+        grown = _dilated(inside, gap_px)
         for m in np.unique(sub[grown & ~inside]):
             if m <= k or m not in planes or root(m) == root(k):
                 continue
             other = sub == m
-            gap = grown & ndimage.binary_dilation(other, disc) & ~inside & ~other
+            gap = grown & _dilated(other, gap_px) & ~inside & ~other
             rows, cols = np.nonzero(gap)
             rows, cols = rows + box[0].start, cols + box[1].start
             rows_m, cols_m, plane_m = planes[m]
@@ -722,6 +722,14 @@ def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndar
                 parent[root(m)] = root(k)
     roots = np.array([root(k) for k in range(len(parent))])
     return roots[surfaces]
+
+
+def _dilated(region: np.ndarray, radius_px: float) -> np.ndarray:
+    """``region`` dilated by the disc of pixel offsets within ``radius_px`` (a distance transform: the same pixels
+    as a binary dilation by that disc, at a cost that does not grow with the disc)."""
+    if not region.any():
+        return region.copy()
+    return ndimage.distance_transform_edt(~region) <= radius_px
 
 
 def rim_shares(region: np.ndarray, intensity: np.ndarray, gain_dn: float, rim_px: float) -> np.ndarray:

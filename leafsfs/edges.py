@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from leafsfs.grid import PixelGrid, local_planes
+from leafsfs.grid import PixelGrid, local_planes_of
 
 #: Candidate surfaces kept per mixed pulse (the nearest ones). In a canopy the nearest few are often pieces of
 #: twigs and hidden leaves all in front of (or all behind) the pulse, none of whose pairs brackets its range, while
@@ -202,10 +202,16 @@ def attribute_mixed(range_m: np.ndarray, surfaces: np.ndarray, band_px: int, int
         keys = runs.astype(np.int64) * (surfaces.max() + 1)
         _store(out, _attribute(images, unresolved, reach_px=int(reach_px), band_px=band, radius_px=radius_px,
                                tolerance_m=tolerance_m,
-                               allowed=lambda pixel, k: np.isin(keys.ravel()[pixel] + k, touching)))
+                               allowed=lambda pixel, k: _member(keys.ravel()[pixel] + k, touching)))
         out.thin = unresolved & (out.pair[..., 0] > 0)  # the pulses that only the second pass paired
         _unpair(out, out.thin & ~attached(out))
     return out
+
+
+def _member(values: np.ndarray, sorted_set: np.ndarray) -> np.ndarray:
+    """``np.isin(values, sorted_set)`` for a sorted array without duplicates (a binary search, no sort per call)."""
+    at = np.minimum(np.searchsorted(sorted_set, values), max(len(sorted_set) - 1, 0))
+    return sorted_set[at] == values if len(sorted_set) else np.zeros(len(values), bool)
 
 
 def attached(mixed: MixedPulses) -> np.ndarray:
@@ -379,12 +385,13 @@ def _attribute(images: _Images, targets: np.ndarray, *, reach_px: int, band_px: 
     extrapolated = np.full((len(pixel), 2), np.nan)  # range, intensity
     by_label = np.argsort(label, kind="stable")
     bounds = np.flatnonzero(np.r_[True, np.diff(label[by_label]) != 0, True])
+    present = [(column, image) for column, image in enumerate((range_m, images.intensity)) if image is not None]
     for start, stop in zip(bounds[:-1], bounds[1:]):
         sel = by_label[start:stop]
-        for column, image in enumerate((range_m, images.intensity)):
-            if image is not None:
-                value = _extrapolate(image, cores, int(label[sel[0]]), source[sel], pixel[sel], radius_px)
-                extrapolated[sel, column] = np.where(gap[sel] <= band_px, value, image.ravel()[source[sel]])
+        values = _extrapolate([image for _, image in present], cores, int(label[sel[0]]), source[sel], pixel[sel],
+                              radius_px)
+        for (column, image), value in zip(present, values):
+            extrapolated[sel, column] = np.where(gap[sel] <= band_px, value, image.ravel()[source[sel]])
     keep = np.isfinite(extrapolated[:, 0])
     order = np.lexsort((gap[keep], pixel[keep]))
     pixel, label, gap, extrapolated = (a[keep][order] for a in (pixel, label, gap, extrapolated))
@@ -437,22 +444,25 @@ def _empty(surfaces: np.ndarray) -> MixedPulses:
                        np.zeros(shape, bool))
 
 
-def _extrapolate(image: np.ndarray, cores: np.ndarray, label: int, source: np.ndarray, target: np.ndarray,
-                 radius_px: float) -> np.ndarray:
-    """Values at ``target`` pixels from the local planes of the core pulses of surface ``label`` around their
-    ``source`` pixels (flat indices); only the window around the sources is read."""
-    cols = image.shape[1]
+def _extrapolate(images: list, cores: np.ndarray, label: int, source: np.ndarray, target: np.ndarray,
+                 radius_px: float) -> list:
+    """Values of each image at ``target`` pixels from the local planes of the core pulses of surface ``label``
+    around their ``source`` pixels (flat indices); only the window around the sources is read."""
+    cols = cores.shape[1]
     unique, inverse = np.unique(source, return_inverse=True)
     centres = np.stack(np.divmod(unique, cols), axis=1)
     r = int(np.ceil(radius_px))
     low = np.maximum(centres.min(axis=0) - r, 0)
-    high = np.minimum(centres.max(axis=0) + r + 1, image.shape)
+    high = np.minimum(centres.max(axis=0) + r + 1, cores.shape)
     window = (slice(low[0], high[0]), slice(low[1], high[1]))
-    planes = local_planes(image[window], cores[window] == label, PixelGrid(), centres - low, radius_px)
     offset = np.stack(np.divmod(target, cols), axis=1) - centres[inverse]
-    value = planes.height[inverse] + np.sum(planes.gradient[inverse] * offset, axis=1)
-    # Too few pixels for a plane (a sliver): the nearest pixel's value.
-    return np.where(np.isfinite(value), value, image.ravel()[source])
+    values = []
+    for image, planes in zip(images, local_planes_of([image[window] for image in images], cores[window] == label,
+                                                     PixelGrid(), centres - low, radius_px)):
+        value = planes.height[inverse] + np.sum(planes.gradient[inverse] * offset, axis=1)
+        # Too few pixels for a plane (a sliver): the nearest pixel's value.
+        values.append(np.where(np.isfinite(value), value, image.ravel()[source]))
+    return values
 
 
 def band_pixels(band_m: float, range_m: np.ndarray, surfaces: np.ndarray, step_rad: float) -> int:

@@ -151,37 +151,69 @@ def local_planes(image: np.ndarray, valid: np.ndarray, grid: PixelGrid, centres:
     LocalPlanes
         One plane per centre (heights in the image's unit, gradients per continuous unit).
     """
+    return local_planes_of([image], valid, grid, centres, radius_px, order)[0]
+
+
+def local_planes_of(images: list, valid: np.ndarray, grid: PixelGrid, centres: np.ndarray,
+                    radius_px: float, order: int = 1) -> list:
+    """:func:`local_planes` of several images on the same valid pixels and centres (the normal equations once).
+
+    Parameters
+    ----------
+    images : list of ndarray, 2-D
+        Images of the same shape (e.g. range, m, and intensity, DN).
+    valid : ndarray of bool, 2-D
+        Pixels that may be used.
+    grid : PixelGrid
+        Pixel-to-continuous map (gradients are per continuous unit).
+    centres : ndarray of int, (n, 2)
+        Centre pixels (row, col).
+    radius_px : float
+        Neighbourhood radius, pixels.
+    order : {1, 2}
+        Degree of the fitted polynomial surface.
+
+    Returns
+    -------
+    list of LocalPlanes
+        Per image, one plane per centre, the same as :func:`local_planes` of that image.
+    """
     r = int(np.floor(radius_px))
     di, dj = np.mgrid[-r:r + 1, -r:r + 1]
     keep = di**2 + dj**2 <= radius_px**2 + 1e-9
     offsets = np.stack([di[keep], dj[keep]], axis=1)
-    rows, cols = image.shape
+    rows, cols = valid.shape
     i = centres[:, None, 0] + offsets[None, :, 0]
     j = centres[:, None, 1] + offsets[None, :, 1]
     inside = (i >= 0) & (i < rows) & (j >= 0) & (j < cols)
     ic, jc = np.clip(i, 0, rows - 1), np.clip(j, 0, cols - 1)
     w = (inside & valid[ic, jc]).astype(float)
-    h = np.where(w > 0, image[ic, jc], 0.0)
     dx = offsets @ grid.matrix.T  # continuous offsets, (k, 2)
     columns = [np.ones(len(offsets)), dx[:, 0], dx[:, 1]]
     if order == 2:
         columns += [dx[:, 0] ** 2, dx[:, 0] * dx[:, 1], dx[:, 1] ** 2]
     design = np.stack(columns, axis=1)  # (k, 3 or 6)
-    normal = np.einsum("nk,ka,kb->nab", w, design, design)
-    rhs = np.einsum("nk,ka,nk->na", w, design, h)
-    count = w.sum(axis=1)
     terms = design.shape[1]
+    # The weights are 0 or 1, so the products of two operands are those of three; the sums run over k in order.
+    outer = (design[:, :, None] * design[:, None, :]).reshape(len(design), terms * terms)
+    normal = np.einsum("nk,kc->nc", w, outer).reshape(len(w), terms, terms)
+    count = w.sum(axis=1)
     ok = (count >= terms + 1) & (np.abs(np.linalg.det(normal)) > 1e-300)
     normal[~ok] = np.eye(terms)
-    coef = np.linalg.solve(normal, rhs[..., None])[..., 0]
-    resid = h - coef @ design.T
-    dof = np.maximum(count - terms, 1)
-    rms = np.sqrt(np.sum(w * resid**2, axis=1) / dof)
     inverse = np.linalg.inv(normal)
-    covariance = rms[:, None, None] ** 2 * inverse[:, 1:3, 1:3]
     nan = np.where(ok, 1.0, np.nan)
-    return LocalPlanes(coef[:, 0] * nan, coef[:, 1:3] * nan[:, None], covariance * nan[:, None, None], rms * nan,
-                       count)
+    planes = []
+    for image in images:
+        h = np.where(w > 0, image[ic, jc], 0.0)
+        rhs = np.einsum("nk,ka->na", w * h, design)
+        coef = np.linalg.solve(normal, rhs[..., None])[..., 0]
+        resid = h - coef @ design.T
+        dof = np.maximum(count - terms, 1)
+        rms = np.sqrt(np.sum(w * resid**2, axis=1) / dof)
+        covariance = rms[:, None, None] ** 2 * inverse[:, 1:3, 1:3]
+        planes.append(LocalPlanes(coef[:, 0] * nan, coef[:, 1:3] * nan[:, None], covariance * nan[:, None, None],
+                                  rms * nan, count))
+    return planes
 
 
 def gaussian_planes(height: np.ndarray, known: np.ndarray, sigma_px: float

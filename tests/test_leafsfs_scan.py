@@ -13,7 +13,7 @@ from benchmarks.experiments.calibration import simulated_calibration
 from leafsfs import SfsError, SfsParams, reconstruct
 from leafsfs.cli import main
 from leafsfs.frame import local_frame
-from leafsfs.grid import local_planes
+from leafsfs.grid import PixelGrid, local_planes, local_planes_of
 from leafsfs.leaves import segment_leaves
 from leafsfs.preprocess import scan_alpha
 from leafsfs.reconstruct import plausible
@@ -53,6 +53,26 @@ def test_local_frame_makes_the_eikonal_relation_exact():
     slope = np.linalg.norm(local_planes(heights, np.isfinite(heights), frame.grid, centres, 2).gradient, axis=1)
     assert np.allclose(slope, np.tan(incidence[frame.box][centres[:, 0], centres[:, 1]]), rtol=0.004)
     assert np.allclose(frame.range(heights), range_m[frame.box])
+
+
+def test_planes_of_several_images_are_those_of_each():
+    # A tilted plane plus noise (NaN where invalid) and a second image on the same pixels: one call for both gives
+    # each image's own planes, exactly; the gradient of the noiseless plane is exact.
+    rng = np.random.default_rng(3)
+    rows, cols = np.mgrid[0:30, 0:40].astype(float)
+    grid = PixelGrid(np.array([[5e-4, 1e-4], [0.0, 4e-4]]), np.array([0.2, -0.1]))
+    plane = 1.5 + 0.3 * (rows * 5e-4 + cols * 1e-4) - 0.7 * (cols * 4e-4)  # in the continuous coordinates
+    valid = rng.random(plane.shape) > 0.3
+    noisy = np.where(valid, plane + rng.normal(0, 1e-3, plane.shape), np.nan)
+    centres = np.argwhere(np.ones(plane.shape, bool))[::7]
+    both = local_planes_of([plane, noisy], valid, grid, centres, 3.5, order=2)
+    for image, planes in zip((plane, noisy), both):
+        alone = local_planes(image, valid, grid, centres, 3.5, order=2)
+        for name in ("height", "gradient", "covariance", "rms", "count"):
+            assert np.array_equal(getattr(planes, name), getattr(alone, name), equal_nan=True)
+    fitted = np.isfinite(both[0].height)
+    assert fitted.mean() > 0.9
+    assert np.allclose(both[0].gradient[fitted], [0.3, -0.7], atol=1e-9)
 
 
 def test_runaway_heights_are_not_plausible():
