@@ -335,8 +335,8 @@ def rppp_groups(rows: list[dict]) -> list[dict]:
 
 
 #: Keys of a row of :func:`case_table`.
-CASE_KEYS = ("case", "variant", "n_pulses", "runtime_s", "pulses_per_s", "peak_mem_mb", "n_leaves", "n_found",
-             "n_missed", "n_false", "n_merged")
+CASE_KEYS = ("case", "variant", "n_pulses", "runtime_s", "cpu_s", "pulses_per_s", "peak_mem_mb", "n_leaves",
+             "n_found", "n_missed", "n_false", "n_merged")
 
 
 def pulses_per_s(row: dict) -> float | None:
@@ -346,7 +346,8 @@ def pulses_per_s(row: dict) -> float | None:
 
 
 def case_table(rows: list[dict]) -> list[dict]:
-    """Per case, the variants that reconstruct the whole scan: pulses, runtime, throughput, peak memory,
+    """Per case, the variants that reconstruct the whole scan: pulses, runtime (wall and, where recorded, the
+    process's CPU seconds, which other jobs on the machine inflate less), throughput, peak memory,
     found / missed / false leaves and the leaves whose region is shared with another leaf (merged)."""
     return [{"case": r["case_name"], "variant": r["variant"], "runtime_s": r["runtime_s"],
              "pulses_per_s": pulses_per_s(r), "peak_mem_mb": r["peak_mem_mb"],
@@ -400,6 +401,7 @@ def leaf_printout(rows: list[dict]) -> str:
     cases = case_table(rows)
     if cases:
         parts.append("whole-scan reconstruction per case")
-        parts.append(text_table(cases, CASE_KEYS, {"runtime_s": "{:.2f}", "pulses_per_s": "{:,.0f}",
+        parts.append(text_table(cases, CASE_KEYS, {"runtime_s": "{:.2f}", "cpu_s": "{:.2f}",
+                                                   "pulses_per_s": "{:,.0f}",
                                                    "peak_mem_mb": "{:,.0f}"}))
     return "\n".join(parts)

@@ -62,7 +62,7 @@ def test_validation_table_over_all_scored_leaves():
     b = [leaf(40, 38, elevation=(50, 50), azimuth=(45, 45), pixels=7000, rppp_1=0.5)]
     counts = {"n_regions": 5, "n_false": 2, "n_visible": 3, "n_found_visible": 2, "n_found": 3, "n_missed": 1,
               "n_pulses": 1000}
-    rows = [row("tree", "fused", a, counts), row("leaf", "fused", b, {**counts, "n_false": 0})]
+    rows = [row("tree", "fused", a, {**counts, "cpu_s": 1.5}), row("leaf", "fused", b, {**counts, "n_false": 0})]
     (table,) = summary.validation_table(rows)
     # Visible leaves: 10, 20, 30 (missed), 40 cm²; reconstructed: 10, 20, 40 -> 8, 18, 38: y = x - 2 exactly.
     assert table["n_leaves"] == 4 and table["n_success"] == 3 and table["success"] == pytest.approx(0.75)
@@ -82,6 +82,7 @@ def test_validation_table_over_all_scored_leaves():
     # Per case: pulses, throughput and peak memory; found / missed / false in the summary row.
     cases = summary.case_table(rows)
     assert cases[0]["pulses_per_s"] == 500.0 and cases[0]["peak_mem_mb"] == 100.0 and cases[1]["n_false"] == 0
+    assert cases[0]["cpu_s"] == 1.5 and cases[1]["cpu_s"] is None  # runs before cpu_s was recorded have none
     (row_summary,) = summary.summarize(rows, "s")
     assert (row_summary["n_found"], row_summary["n_missed"], row_summary["n_false"]) == (6, 2, 2)
     assert row_summary["found_visible"] == pytest.approx(4 / 6) and row_summary["pulses_per_s"] == 500.0
