@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import uuid
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -155,25 +156,13 @@ def read(path: Path, intensity_max_dn: float = 2047.0) -> Scan:
     Scan
         The scan (range in m, angles in rad, intensity in DN), without truth.
     """
-    import pye57
-
-    try:
-        e57 = pye57.E57(str(path))
-    except Exception as exc:  # libE57 raises its own exception types
-        raise ScanError(f"{path}: not a readable E57 file ({_first_line(exc)})") from None
-    try:
+    with opened(path) as e57:
         if e57.scan_count < 1:
             raise ScanError(f"{path}: the E57 file holds no scan")
         header = e57.get_header(0)
         data = e57.read_scan_raw(0, ignore_unsupported_fields=True)
         rotation, translation = header.rotation, header.translation
         limit = _intensity_limit(header)
-    except ScanError:
-        raise
-    except Exception as exc:
-        raise ScanError(f"{path}: malformed or truncated E57 scan ({_first_line(exc)})") from None
-    finally:
-        e57.close()
     local, invalid = _coordinates(path, data)
     intensity_dn = data.get("intensity")
     if not len(local):
@@ -231,6 +220,33 @@ def _first_line(exc: Exception) -> str:
     return lines[0] if lines else type(exc).__name__
 
 
+@contextmanager
+def opened(path: Path, what: str = "scan"):
+    """An E57 file open for reading, closed on exit; libE57's own exceptions become one-line ScanErrors.
+
+    Parameters
+    ----------
+    path : Path
+        The ``.e57`` file.
+    what : str
+        What the caller reads, for the message of a read that fails ("malformed or truncated E57 {what}").
+    """
+    import pye57
+
+    try:
+        e57 = pye57.E57(str(path))
+    except Exception as exc:  # libE57 raises its own exception types
+        raise ScanError(f"{path}: not a readable E57 file ({_first_line(exc)})") from None
+    try:
+        yield e57
+    except ScanError:
+        raise
+    except Exception as exc:
+        raise ScanError(f"{path}: malformed or truncated E57 {what} ({_first_line(exc)})") from None
+    finally:
+        e57.close()
+
+
 def _intensity_limit(header) -> float | None:
     """Upper intensity limit of a scan header, if it states one."""
     if "intensityLimits" not in header.scan_fields:
@@ -285,12 +301,8 @@ def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: i
     from tlssim.tiled import open_tiled
 
     outdir = Path(outdir)
-    try:
-        e57 = pye57.E57(str(path))
-    except Exception as exc:  # libE57 raises its own exception types
-        raise ScanError(f"{path}: not a readable E57 file ({_first_line(exc)})") from None
     scratch = outdir.parent / f".{outdir.name}.import-grids"
-    try:
+    with opened(path) as e57:
         if e57.scan_count < 1:
             raise ScanError(f"{path}: the E57 file holds no scan")
         header = e57.get_header(0)
@@ -323,12 +335,6 @@ def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: i
         except BaseException:
             shutil.rmtree(scratch, ignore_errors=True)
             raise
-    except ScanError:
-        raise
-    except Exception as exc:
-        raise ScanError(f"{path}: malformed or truncated E57 scan ({_first_line(exc)})") from None
-    finally:
-        e57.close()
     try:
         return _write_tiles(outdir, grids, pose, tile_cols, fingerprint, {"source": str(path), "format": "e57"})
     finally:

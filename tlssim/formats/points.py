@@ -159,17 +159,12 @@ def _read_las(path: Path) -> PointCloud:
 
 
 def _read_e57(path: Path) -> PointCloud:
-    import pye57
     from scipy.spatial.transform import Rotation
 
-    from tlssim.formats.e57 import _coordinates, _first_line
+    from tlssim.formats.e57 import _coordinates, opened
 
-    try:
-        e57 = pye57.E57(str(path))
-    except Exception as exc:  # libE57 raises its own exception types
-        raise ScanError(f"{path}: not a readable E57 file ({_first_line(exc)})") from None
     points, viewpoints = [], []
-    try:
+    with opened(path, "file") as e57:
         for index in range(e57.scan_count):
             header = e57.get_header(index)
             data = e57.read_scan_raw(index, ignore_unsupported_fields=True)
@@ -179,12 +174,6 @@ def _read_e57(path: Path) -> PointCloud:
             translation = np.asarray(header.translation, float)
             points.append(local @ rotation.T + translation)
             viewpoints.append(np.broadcast_to(translation, local.shape))
-    except ScanError:
-        raise
-    except Exception as exc:
-        raise ScanError(f"{path}: malformed or truncated E57 file ({_first_line(exc)})") from None
-    finally:
-        e57.close()
     if not points:
         raise ScanError(f"{path}: the E57 file holds no scan")
     return PointCloud(np.concatenate(points), np.concatenate(viewpoints))
