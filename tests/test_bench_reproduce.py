@@ -361,3 +361,20 @@ def test_step_ds4_claims_and_the_cap_that_does_not_bind():
     assert [r.verdict for r in rows if r.claim] == [WITHIN, WITHIN]
     small = {k: {**r, "tuboids": 4} for k, r in runs.items()}
     assert [r.verdict for r in woody_papers.ds4_rows(small) if r.claim] == [WITHIN, REPORTED]
+
+
+def test_mendez_table6_ranking_claim_and_design_sweep(monkeypatch):
+    from benchmarks.reproduce import woody_papers
+
+    def directions(quick, seed, noise_m=0.001, arc_deg=360.0, estimators=("covariance", "iterative", "normals")):
+        means = {"covariance": 1.0, "iterative": 0.3 + 300 * noise_m, "normals": 0.9}
+        return [{"estimator": e, "angle_mean_deg": means[e], "angle_sd_deg": 0.1, "ms_per_call": 1.0}
+                for e in estimators]
+
+    monkeypatch.setattr(woody_papers.woody, "exp_directions", directions)
+    rows = woody_papers.table6(True, 0)
+    judged = [r for r in rows if r.holds is not None]
+    assert [(r.key, r.verdict) for r in judged] == [("least squares more accurate than iterative", OUTSIDE)]
+    sweep = {r.key.split("/")[0]: r.ours for r in rows if r.quantity.startswith("mean angle error, covariance")}
+    assert len(sweep) == len(woody_papers.TABLE6_DESIGNS)
+    assert sweep["noise 0 mm, arc 360 deg"] == pytest.approx(0.7) and sweep["noise 5 mm, arc 180 deg"] < 0

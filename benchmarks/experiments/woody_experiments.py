@@ -333,8 +333,12 @@ PAPER_MODE = {"direction": "covariance", "axis": "centroid", "inclusion": "max",
               "mode": "faithful", "section_radii": 0.0, "min_branch_points": 1}
 
 
-def exp_directions(quick: bool, seed: int) -> list[dict]:
+def exp_directions(quick: bool, seed: int, noise_m: float = 0.001, arc_deg: float = 360.0,
+                   estimators=("covariance", "iterative", "normals")) -> list[dict]:
     """Axis direction of random cylinder clouds by covariance, iterative search and normals (Méndez M0).
+
+    Each cloud: 200 points on a cylinder of radius 5 cm and length 50 cm (our
+    choices: the paper states none of them).
 
     Parameters
     ----------
@@ -342,6 +346,12 @@ def exp_directions(quick: bool, seed: int) -> list[dict]:
         Use 20 clouds instead of 100 (a smoke test).
     seed : int
         Seed of the directions and clouds.
+    noise_m : float
+        S.d. of the Gaussian noise added to each coordinate, m.
+    arc_deg : float
+        Visible sector about the axis, deg (360: the whole circumference).
+    estimators : sequence of str
+        Which of ``covariance``, ``iterative`` and ``normals`` to run.
 
     Returns
     -------
@@ -350,16 +360,16 @@ def exp_directions(quick: bool, seed: int) -> list[dict]:
     """
     rng = np.random.default_rng(seed)
     count = 20 if quick else 100
-    errors = {"covariance": [], "iterative": [], "normals": []}
+    errors = {key: [] for key in estimators}
     times = {key: 0.0 for key in errors}
     for _ in range(count):
         d = rng.normal(size=3)
         d /= np.linalg.norm(d)
         start, end = -0.25 * d, 0.25 * d
         cyl = [{"start": start.tolist(), "end": end.tolist(), "radius_m": 0.05, "radius_end_m": 0.05}]
-        area = 2 * np.pi * 0.05 * 0.5
-        cloud = sample_cylinders(cyl, 200 / area, seed=int(rng.integers(2 ** 31)))
-        points = add_noise(cloud.points, 0.001, seed=int(rng.integers(2 ** 31)), kind="gaussian")
+        area = 2 * np.pi * 0.05 * 0.5 * arc_deg / 360.0
+        cloud = sample_cylinders(cyl, 200 / area, seed=int(rng.integers(2 ** 31)), arc_deg=arc_deg)
+        points = add_noise(cloud.points, noise_m, seed=int(rng.integers(2 ** 31)), kind="gaussian")
         for method in errors:
             clock = time.perf_counter()
             if method == "normals":

@@ -205,27 +205,62 @@ def ds3(quick: bool, seed: int) -> list[Row]:
     return out
 
 
+#: Cloud designs of the ranking sweep of Table 6: (noise s.d. m, visible arc deg); the paper states neither.
+TABLE6_DESIGNS = ((0.0, 360.0), (0.001, 360.0), (0.005, 360.0), (0.0, 180.0), (0.001, 180.0), (0.005, 180.0))
+
+
 @register("mendez-table6", "Méndez et al. Table 6: axis direction by covariance against iterative search",
           description="100 random cylinder clouds (r = 5 cm, L = 50 cm, 200 points, 1 mm noise: our choices, the "
-                      "paper does not state them); angle between the true and the estimated axis, and time per call.",
-          findings="Table 6's values are held back from the spec: ours only, for a comparison by hand.")
+                      "paper does not state them); angle between the true and the estimated axis, and time per call. "
+                      "The ranking is judged on that design and reported over a sweep of noise (0, 1, 5 mm) and "
+                      "visible arc (360, 180 deg).",
+          findings="Table 6's values are held back from the spec: ours are reported for a comparison by hand, and only"
+                   " the paper's ranking (least squares, our covariance estimator, more accurate than the iterative "
+                   "search) is judged. On our default design it is reversed (issue 11): outside, a modelling "
+                   "assumption (the cloud design, which the paper does not give), not a defect. Measured (100 clouds "
+                   "per design; seed 0, seed 1 in brackets): the covariance axis errs by the sampling of the points, "
+                   "about r / (L sqrt(N)) rad, and is blind to noise (1.35-1.36 deg on the full circle, 0.96-0.98 "
+                   "one-sided, for 0-5 mm of noise); the iterative search minimises the largest orthogonal distance, "
+                   "which one noisy point or a one-sided arc sets, so it is near exact on a clean full circle (0.08 "
+                   "deg) and degrades with noise and occlusion (1.24 deg at 5 mm, 1.80 deg at 5 mm one-sided). "
+                   "Covariance minus iterative: +1.28 (+1.26) / +1.05 (+0.99) / +0.12 (+0.09) deg at 0 / 1 / 5 mm on "
+                   "the full circle, +0.25 (+0.27) / +0.17 (+0.16) / -0.82 (-0.62) deg one-sided. The paper's ranking "
+                   "holds on one-sided clouds with 5 mm of noise (a mobile scan's conditions: Table 8's trees were "
+                   "scanned by a monolateral MTLS) and, in a scratch sweep of 30 clouds, on 2000-point clouds "
+                   "one-sided from 1 mm or on the full circle at 5 mm. The judged row keeps the round-8 design (1 mm, "
+                   "full circle) so that it stays comparable across rounds.")
 def table6(quick: bool, seed: int) -> list[Row]:
-    """Rows of Table 6 (mean and s.d. of the angle error, time per call, per estimator).
+    """Rows of Table 6 (mean and s.d. of the angle error, time per call, per estimator; the ranking).
 
     Parameters
     ----------
     quick : bool
-        20 clouds.
+        20 clouds per design.
     seed : int
         Seed of the directions and clouds.
     """
-    out = []
+    out, mean = [], {}
     for r in woody.exp_directions(quick, seed):
+        mean[r["estimator"]] = r["angle_mean_deg"]
         for key, quantity, unit in (("angle_mean_deg", "mean angle error", "deg"),
                                     ("angle_sd_deg", "s.d. of angle error", "deg"),
                                     ("ms_per_call", "time per call", "ms")):
             out.append(Row(f"{r['estimator']}/{quantity}", quantity, unit, r[key], series=r["estimator"],
                            source="Méndez Table 6 (values held back)"))
+    out.append(Row("least squares more accurate than iterative", "claim", "deg",
+                   mean["covariance"] - mean["iterative"], source="Méndez Table 6 (ranking)",
+                   claim="the least-squares (covariance) axis has a smaller mean angle error than the iterative "
+                         "search (ours: covariance minus iterative < 0, on the default design)",
+                   holds=bool(mean["covariance"] < mean["iterative"]),
+                   note="r = 5 cm, L = 50 cm, 200 points, 1 mm noise, full circle (our design)"))
+    for noise_m, arc_deg in TABLE6_DESIGNS:
+        rows = {r["estimator"]: r["angle_mean_deg"]
+                for r in woody.exp_directions(quick, seed, noise_m, arc_deg, ("covariance", "iterative"))}
+        out.append(Row(f"noise {1e3 * noise_m:g} mm, arc {arc_deg:g} deg/covariance minus iterative",
+                       "mean angle error, covariance minus iterative", "deg",
+                       rows["covariance"] - rows["iterative"], x=1e3 * noise_m, series=f"arc {arc_deg:g} deg",
+                       source="ours (ranking against the cloud design)",
+                       note=f"covariance {rows['covariance']:.2f} deg, iterative {rows['iterative']:.2f} deg"))
     return out
 
 
