@@ -246,6 +246,25 @@ def test_ch7_shell_set_rows_and_claim(monkeypatch):
     assert claims == {"T3 orients at least as well as T3*": OUTSIDE, "T3 at least as good as T1 and T2": OUTSIDE}
 
 
+def test_ch7_t3_claim_is_a_paired_sign_test(monkeypatch):
+    assert thesis_ch7.paired_sign_test(np.ones(10), np.zeros(10))[:2] == (10, 0)
+    assert thesis_ch7.paired_sign_test(np.ones(10), np.zeros(10))[2] == pytest.approx(0.5 ** 10)
+    table = {v: _validation_row(v, 1.0, e) for v, e in (("buffer-T1", 0.010), ("buffer-T2", 0.010), ("buffer", 0.011))}
+
+    def leaves(worse_on):  # T3 above T1 and T2 on the first worse_on of 10 leaves, below on the others
+        def of(results, variant):
+            shift = 0.002 if variant == "buffer" else 0.0
+            return [{"case": f"leaf{i}", "area_m2": 1e-3, "area_rel_err": 0.01 + (shift if i < worse_on else -shift)}
+                    for i in range(10)]
+        return of
+
+    monkeypatch.setattr(thesis_ch7, "_leaves", leaves(6))  # a higher median by chance: a tie (p 0.38)
+    assert thesis_ch7.t3_claim_row([], table).verdict == WITHIN
+    monkeypatch.setattr(thesis_ch7, "_leaves", leaves(10))  # worse on every leaf (p 0.001)
+    row = thesis_ch7.t3_claim_row([], table)
+    assert row.verdict == OUTSIDE and "10 / 0 leaves against T1" in row.note
+
+
 def _leaf(variant, area_cm2, density, rppp_1, err, visibility=1.0):
     return {"variant": variant, "area_true_m2": area_cm2 * 1e-4, "visibility": visibility, "points_per_cm2": density,
             "rppp_1": rppp_1, "area_rel_err": err, "area_m2": area_cm2 * 1e-4 * (1 + err)}
