@@ -12,7 +12,7 @@ from benchmarks.errors import BenchError
 from benchmarks.reproduce import core, sensors2011, thesis_ch5, thesis_ch7
 from benchmarks.reproduce.cli import load_experiments, run_experiments
 from benchmarks.reproduce.core import OUTSIDE, REPORTED, WITHIN, Outcome, Row, count_within, verdict
-from benchmarks.reproduce.output import read_csv, store_outcomes, summary_line, write_csv
+from benchmarks.reproduce.output import read_csv, store_outcomes, summary_line, summary_table, write_csv
 from benchmarks.store import Store
 from tlssim.simulate import setup_from_section, simulate
 
@@ -40,6 +40,15 @@ def test_count_within_ignores_reported_rows():
             Row("d", "q", "", 0.0, claim="falls", holds=True)]
     assert count_within(rows) == (2, 3)
     assert summary_line(rows) == "2/3 rows within tolerance"
+
+
+def test_summary_table_counts_each_experiment_and_names_the_left_out():
+    ok = Outcome(core.Experiment("one", "t", lambda q, s: []), [Row("a", "q", "DN", 1.0, 1.5, 1.0),
+                                                                 Row("b", "q", "DN", 5.0, 1.5, 1.0)], 2.04)
+    failed = Outcome(core.Experiment("two", "t", lambda q, s: []), [], 0.5, "ValueError: x")
+    lines = summary_table([ok, failed], ["step-ds1a"]).splitlines()
+    assert lines[1].split() == ["one", "1/2", "1", "2.0"] and lines[2].split()[:2] == ["two", "failed"]
+    assert lines[-1].endswith("step-ds1a")
 
 
 def test_csv_round_trip(tmp_path):
@@ -165,6 +174,7 @@ def test_cli_list_and_quick_run(tmp_path, capsys):
     assert main(["reproduce", "ch5-vase", "--quick", "-o", str(tmp_path), "--db", str(tmp_path / "r.sqlite")]) == 0
     out = capsys.readouterr().out.strip().splitlines()
     assert out[-1].endswith("rows within tolerance") and "smaller percentile, lower error" in "\n".join(out)
+    assert out[-2].split()[0] == "ch5-vase" and out[-3].split() == ["experiment", "within", "outside", "seconds"]
     assert (tmp_path / "ch5-vase.csv").is_file() and (tmp_path / "ch5-vase.png").stat().st_size > 1000
     assert "ch5-vase" in (tmp_path / "reproduction.html").read_text()
     assert main(["reproduce", "nothing-like-this", "--no-store", "-o", str(tmp_path)]) == 2
@@ -192,6 +202,16 @@ def test_woody_rows_from_the_experiment_rows(monkeypatch):
     monkeypatch.setattr(woody_papers.woody, "exp_occlusion", lambda quick, seed: step)
     # arcs under 40 deg are reported, not judged
     assert [r.verdict for r in woody_papers.ds1b(True, 0)] == [REPORTED, WITHIN, OUTSIDE]
+
+    def noise(quick, seed, kind="uniform", variants=None):
+        return [{"normals": "oracle", "circles": "hs", "noise_cm": level, "noise_kind": kind, "diameter_mae_cm": mae,
+                 "tuboids": 1, "completeness": 1.0} for level, mae in ((0.0, 0.1), (3.5, 2.0))]
+
+    monkeypatch.setattr(woody_papers.woody, "exp_noise", noise)
+    # uniform noise judged against the goal; the spec's Gaussian reading reported under its own series
+    rows = woody_papers.ds1c(True, 0)
+    assert [r.verdict for r in rows] == [WITHIN, OUTSIDE, REPORTED, REPORTED]
+    assert rows[3].key == "oracle normals, Hough, Gaussian/noise_cm 3.5" and len({r.series for r in rows}) == 2
 
 
 def test_fit_law_recovers_known_exponents():

@@ -19,7 +19,8 @@ from pathlib import Path
 
 from benchmarks.errors import BenchError
 from benchmarks.reproduce.core import EXPERIMENTS, Outcome, Row, count_within, select
-from benchmarks.reproduce.output import format_rows, store_outcomes, summary_line, write_csv, write_png
+from benchmarks.reproduce.output import (format_rows, store_outcomes, summary_line, summary_table, write_csv,
+                                         write_png)
 from benchmarks.store import Store
 
 #: Modules that register experiments, in the order of the page.
@@ -161,6 +162,9 @@ def run(args) -> int:
         with Store(args.db) as store:
             run_id = store_outcomes(store, outcomes, args.quick, args.seed)
         print(f"stored as run {run_id} in {args.db}")
-    print(f"CSV and PNG per experiment and {page} written")
+    print(f"CSV and PNG per experiment and {page} written\n")
+    ran = {o.experiment.name for o in outcomes}
+    left_out = [e.name for e in select(args.names, False) if e.name not in ran] if args.quick else []
+    print(summary_table(outcomes, left_out))
     print(summary_line([r for o in outcomes for r in o.rows]))
     return 1 if any(o.error for o in outcomes) else 0

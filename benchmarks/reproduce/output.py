@@ -214,6 +214,34 @@ def store_outcomes(store: Store, outcomes: list[Outcome], quick: bool, seed: int
     return run_id
 
 
+def summary_table(outcomes: list[Outcome], left_out: list[str] = ()) -> str:
+    """Per-experiment count of rows within tolerance and run time, for the end of the command's output.
+
+    Parameters
+    ----------
+    outcomes : list of Outcome
+        The experiments run, in order.
+    left_out : list of str
+        Heavy experiments ``--quick`` did not run (listed, so that the total is read against them).
+
+    Returns
+    -------
+    str
+        Aligned lines: experiment, within / compared, rows outside, seconds (``failed`` for an error).
+    """
+    lines = [("experiment", "within", "outside", "seconds")]
+    for o in outcomes:
+        within, compared = count_within(o.rows)
+        lines.append((o.experiment.name, "failed" if o.error else f"{within}/{compared}", str(compared - within),
+                      f"{o.seconds:.1f}"))
+    widths = [max(len(line[i]) for line in lines) for i in range(4)]
+    text = ["  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(line, widths)))
+            for line in lines]
+    if left_out:
+        text.append(f"left out by --quick (heavy; name one to run it): {', '.join(left_out)}")
+    return "\n".join(text)
+
+
 def summary_line(rows: list[Row]) -> str:
     """The command's last line: ``N/M rows within tolerance``."""
     within, compared = count_within(rows)
