@@ -12,7 +12,8 @@ from benchmarks.errors import BenchError
 from benchmarks.reproduce import core, sensors2011, thesis_ch5, thesis_ch7
 from benchmarks.reproduce.cli import load_experiments, run_experiments
 from benchmarks.reproduce.core import OUTSIDE, REPORTED, WITHIN, Outcome, Row, count_within, verdict
-from benchmarks.reproduce.output import read_csv, store_outcomes, summary_line, summary_table, write_csv
+from benchmarks.reproduce.output import (plot_rows, read_csv, store_outcomes, summary_line, summary_table,
+                                         write_csv)
 from benchmarks.store import Store
 from tlssim.simulate import setup_from_section, simulate
 
@@ -49,6 +50,16 @@ def test_summary_table_counts_each_experiment_and_names_the_left_out():
     lines = summary_table([ok, failed], ["step-ds1a"]).splitlines()
     assert lines[1].split() == ["one", "1/2", "1", "2.0"] and lines[2].split()[:2] == ["two", "failed"]
     assert lines[-1].endswith("step-ds1a")
+
+
+def test_plot_keeps_judged_rows_that_share_a_quantity_with_reported_ones():
+    experiment = core.Experiment("e", "t", lambda q, s: [])
+    judged = [Row(f"u/{x}", "diameter MAE", "cm", x, claim="below 1 cm", holds=x < 1, x=x, series="uniform")
+              for x in (0.5, 2.0)]
+    reported = [Row(f"g/{x}", "diameter MAE", "cm", x / 2, x=x, series="gaussian") for x in (0.5, 2.0)]
+    other_claim = [Row("c", "claim", "deg", 3.0, claim="falls", holds=False)]
+    figure = plot_rows(experiment, judged + reported + other_claim)
+    assert len(figure.axes) == 1 and len(figure.axes[0].get_legend().get_texts()) == 2
 
 
 def test_csv_round_trip(tmp_path):

@@ -108,7 +108,8 @@ def plot_rows(experiment: Experiment, rows: list[Row]) -> Figure:
     Ours is drawn as a line per series; the published values as open
     markers with the tolerance as error bars; rows outside are crossed in
     red. Rows without an abscissa are placed by their order; claim rows are
-    left to the table unless there is nothing else.
+    left to the table unless they share a quantity with other rows or there
+    is nothing else.
 
     Parameters
     ----------
@@ -121,8 +122,9 @@ def plot_rows(experiment: Experiment, rows: list[Row]) -> Figure:
     -------
     matplotlib.figure.Figure
     """
-    plotted = [r for r in rows if r.claim == ""]  # claims mix units: they stay in the table
-    rows = plotted or rows
+    # claims mix units: they stay in the table, unless they share a quantity (so a unit) with rows plotted
+    quantities = {r.quantity for r in rows if r.claim == ""}
+    rows = [r for r in rows if r.quantity in quantities] or rows
     quantities = list(dict.fromkeys(r.quantity for r in rows))
     columns = min(3, max(1, len(quantities)))
     lines = math.ceil(len(quantities) / columns) if quantities else 1
