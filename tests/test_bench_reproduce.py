@@ -237,7 +237,11 @@ def test_insitu_claims_on_known_distributions(monkeypatch):
     rng = np.random.default_rng(0)
     skewed = rng.exponential(4.0, 4000) - 1.0  # skewness 2, median about +1.8 deg
     monkeypatch.setattr(sensors2011, "leaf_delta_alpha", lambda d, seed: skewed + (0.0 if d < 2 else 5.0))
+    monkeypatch.setattr(sensors2011, "bent_leaf_delta_alpha", lambda bend, seed: skewed + bend / 30)
     rows = sensors2011.insitu(quick=True, seed=0)
+    bent = [r for r in rows if r.key.startswith("bend ")]
+    assert len(bent) == 2 * len(sensors2011.BENDS_DEG) and {r.verdict for r in bent} == {REPORTED}
+    assert sensors2011.skewness(skewed) == pytest.approx(2.0, abs=0.3)
     verdicts = {r.key: r.verdict for r in rows if r.holds is not None}
     assert verdicts == {"1.5 m/skewed and shifted": WITHIN, "3 m/skewed and shifted": WITHIN,
                         "5 m/skewed and shifted": WITHIN, "no clear difference between distances": OUTSIDE}
