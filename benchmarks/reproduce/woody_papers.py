@@ -197,7 +197,7 @@ def ds2(quick: bool, seed: int) -> list[Row]:
                    "Hough circles (1.64 / 1.67 cm). Two reasons, both of the set-up: the Hough-space circles are "
                    "quantised by the 1 cm radius cell (2 cm of diameter), which dominates their error at every "
                    "height (a stem seen from one side is a half-circle arc, where circles one radius cell larger "
-                   "and one cell farther from the arc get the same votes: step-ds1b's findings); and our cloud is the stem's cylinders sampled from one side, with none of the "
+                   "and one cell farther from the arc get nearly the same votes: step-ds1b's findings); and our cloud is the stem's cylinders sampled from one side, with none of the "
                    "occlusions or mixed points the paper blames for the upper stem (a modelling difference of the "
                    "scene, not a defect).", heavy=True)
 def ds3(quick: bool, seed: int) -> list[Row]:
