@@ -189,17 +189,17 @@ def ds2(quick: bool, seed: int) -> list[Row]:
           description="A 15 m conifer stem with 15 cm branch stubs sampled from one side; taper error in 10 cm bins "
                       "and the DBH.",
           findings="The paper's taper error (with its 0.4 cm bark bias) is a figure kept out of the spec; the row "
-                   "tests its statement that accuracy falls in the upper stem. Measured (full form, 15 m stem, "
-                   "seed 0: 3/4 rows within, 3.3 min wall / 72 CPU-s): DBH error 1.1 / 1.3 cm with Hough-space "
-                   "circles (oracle / PCA normals) and under 0.001 cm re-fitted. The upper-stem claim holds by "
-                   "little where it holds (mean |diameter error| upper against lower half: re-fitted 0.18 / 0.14 "
-                   "and 0.12 / 0.12 cm; Hough with oracle normals 1.81 / 1.64 cm) and fails with PCA normals and "
-                   "Hough circles (1.64 / 1.67 cm). Two reasons, both of the set-up: the Hough-space circles are "
-                   "quantised by the 1 cm radius cell (2 cm of diameter), which dominates their error at every "
-                   "height (a stem seen from one side is a half-circle arc, where circles one radius cell larger "
-                   "and one cell farther from the arc get nearly the same votes: step-ds1b's findings); and our cloud is the stem's cylinders sampled from one side, with none of the "
-                   "occlusions or mixed points the paper blames for the upper stem (a modelling difference of the "
-                   "scene, not a defect).", heavy=True)
+                   "tests its statement that accuracy falls in the upper stem. Measured (full form, 15 m stem, seed 0:"
+                   " 3/4 rows within, 3.3 min wall / 72 CPU-s): DBH error 1.1 / 1.3 cm with Hough-space circles "
+                   "(oracle / PCA normals) and under 0.001 cm re-fitted. The upper-stem claim holds by little where it"
+                   " holds (mean |diameter error| upper against lower half: re-fitted 0.18 / 0.14 and 0.12 / 0.12 cm; "
+                   "Hough with oracle normals 1.81 / 1.64 cm) and fails with PCA normals and Hough circles (1.64 / "
+                   "1.67 cm). Two reasons, both of the set-up: the Hough-space circles are quantised by the 1 cm "
+                   "radius cell (2 cm of diameter), which dominates their error at every height (a stem seen from one "
+                   "side is a half-circle arc, where circles one radius cell larger and one cell farther from the arc "
+                   "get nearly the same votes: step-ds1b's findings); and our cloud is the stem's cylinders sampled "
+                   "from one side, with none of the occlusions or mixed points the paper blames for the upper stem (a "
+                   "modelling difference of the scene, not a defect).", heavy=True)
 def ds3(quick: bool, seed: int) -> list[Row]:
     """Rows of DS3 (DBH error, taper-ok height, the upper-stem claim).
 
