@@ -27,6 +27,14 @@ traits of its core's leaves, so an interrupted run resumes with the
 tiles that check (:func:`tlssim.tiled.start_tiled`) and recomputes only
 the windows the remaining cores need. ``traits.json`` gathers all leaves.
 
+The windows are independent: with ``workers > 1`` they run in that many
+worker processes, a few ahead of the core being written, and the cores are
+still assembled one at a time in column order from the same windows, so
+the output has the same bytes for any number of workers. The windows
+depend on ``core_cols`` and ``band_rows``, not on the input scan's tile
+size (:meth:`tlssim.tiled.TiledScan.load_columns` gives the same pulses for
+any tiling), so the output has the same bytes for any input tiling too.
+
 Not handled: a 360 deg scan's first and last columns are neighbours in
 the scene, but the windows do not wrap around (a leaf cut by the scan's
 own seam gives two regions, as on an untiled scan).
@@ -34,11 +42,14 @@ own seam gives two regions, as on an untiled scan).
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import hashlib
 import json
 import math
+import multiprocessing
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +73,9 @@ LEAF_SIZE_M = 0.12
 #: Rows per band of the ``leafsfs reconstruct`` command on scans of more than twice as many rows (a full
 #: 160 deg scan at 0.018 deg has 8,889): the ground near the tripod then widens only the bottom band's windows.
 BAND_ROWS = 1024
+#: Columns from the scan's start whose margins size the windows of the ``leafsfs reconstruct`` command (a fixed
+#: count rather than the first tile, so that the windows do not depend on how the scan was tiled).
+SIZING_COLS = 1024
 #: Memory of a reconstruction per pulse of its window, bytes: the ``leafsfs reconstruct`` process peaked at 664 MB
 #: on windows of 1.0 M pulses of the orchard row at 0.018 deg (``fused``), imports included.
 RECONSTRUCT_BYTES_PER_PULSE = 650
@@ -149,7 +163,8 @@ def core_columns(rows: int, budget_bytes: float, margin: int) -> int:
 
 def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params: SfsParams | None = None, *,
                       calibration=None, core_cols: int = 512, band_rows: int | None = None,
-                      leaf_size_m: float = LEAF_SIZE_M, max_margin: int = 2048, progress=None) -> TiledResult:
+                      leaf_size_m: float = LEAF_SIZE_M, max_margin: int = 2048, workers: int = 1,
+                      progress=None) -> TiledResult:
     """Reconstruct the leaves of a tiled scan window by window into ``outdir`` (tiled scan plus ``traits.json``).
 
     Parameters
@@ -174,6 +189,10 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
         pulses of the window's core rectangle (:func:`margin_columns`, :func:`margin_rows`).
     max_margin : int
         Largest margin of a window, columns or rows.
+    workers : int
+        Processes that reconstruct windows, ``>= 1`` (1: all in this process). Each holds one window
+        (about :data:`RECONSTRUCT_BYTES_PER_PULSE` per pulse); this process holds up to ``2 x workers``
+        finished windows' outputs (about 30 bytes per pulse) besides the three cores' it assembles from.
     progress : callable, optional
         Called with the number of pulses of every finished core.
 
@@ -190,9 +209,10 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
 
     rows, cols = tiled.shape
     band_rows = rows if band_rows is None else band_rows
-    if core_cols < 1 or band_rows < 1 or max_margin < GUARD_COLS or not leaf_size_m > 0:
-        raise SfsError(f"tiled reconstruction needs core_cols >= 1, band_rows >= 1, max_margin >= {GUARD_COLS} and "
-                       f"leaf_size_m > 0, got {core_cols}, {band_rows}, {max_margin}, {leaf_size_m}")
+    if core_cols < 1 or band_rows < 1 or max_margin < GUARD_COLS or not leaf_size_m > 0 or workers < 1:
+        raise SfsError(f"tiled reconstruction needs core_cols >= 1, band_rows >= 1, max_margin >= {GUARD_COLS}, "
+                       f"leaf_size_m > 0 and workers >= 1, got {core_cols}, {band_rows}, {max_margin}, "
+                       f"{leaf_size_m}, {workers}")
     if variant not in VARIANTS:
         raise SfsError(f"unknown variant {variant!r}; allowed: {', '.join(VARIANTS)}")
     if not tiled.complete:
@@ -220,14 +240,17 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
     written = {t["col0"] // core_cols: t for t in index["tiles"]}
     offsets = {0: 0}
     cache: dict[tuple[int, int], _Window] = {}
-    windows_run = 0
+    # The loop below asks for windows in this order (every band of a core and its neighbours, core by core).
+    needed = list(dict.fromkeys((b, j) for c0, _ in todo for j in (c0 // core_cols + d for d in (-1, 0, 1))
+                                if 0 <= j < n_cores for b in range(len(bands))))
+    tasks = [((b, j), (bands[b], (j * core_cols, min(cols, (j + 1) * core_cols)), leaf_size_m, max_margin,
+                       variant, params, calibration)) for b, j in needed]
+    results = _in_order(tiled, tasks, workers)
 
     def window(b: int, k: int) -> _Window:
-        nonlocal windows_run
-        if (b, k) not in cache:
-            cache[b, k] = _reconstruct_window(tiled, bands[b], (k * core_cols, min(cols, (k + 1) * core_cols)),
-                                              leaf_size_m, max_margin, variant, params, calibration)
-            windows_run += 1
+        while (b, k) not in cache:
+            key, value = next(results)
+            cache[key] = value
         return cache[b, k]
 
     def core_traits(k: int) -> list:
@@ -268,8 +291,46 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
     report = {"variant": variant, "source": str(tiled.path), "core_cols": core_cols, "band_rows": band_rows,
               "leaves": traits, "skipped": skipped, "params": params.to_dict()}
     (outdir / "traits.json").write_text(json.dumps(json_ready(report), indent=1, allow_nan=False))
-    return TiledResult(corrected, traits, skipped, rows * sum(c1 - c0 for c0, c1 in todo), windows_run,
+    results.close()
+    return TiledResult(corrected, traits, skipped, rows * sum(c1 - c0 for c0, c1 in todo), len(needed),
                        time.perf_counter() - start)
+
+
+def _in_order(tiled: TiledScan, tasks: list, workers: int):
+    """Yield ``(key, window)`` for ``(key, arguments of _reconstruct_window after the scan)`` tasks, in order.
+
+    With ``workers > 1`` the windows run in that many spawned processes, up to ``2 x workers`` of them
+    running or waiting ahead of the one asked for; with one, here, when asked for.
+    """
+    if workers == 1:
+        for key, args in tasks:
+            yield key, _reconstruct_window(tiled, *args)
+        return
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        ahead: collections.deque = collections.deque()
+        try:
+            for key, args in tasks:
+                ahead.append((key, pool.submit(_window_task, str(tiled.path), *args)))
+                if len(ahead) >= 2 * workers:
+                    key, future = ahead.popleft()
+                    yield key, future.result()
+            while ahead:
+                key, future = ahead.popleft()
+                yield key, future.result()
+        finally:
+            for _, future in ahead:
+                future.cancel()
+
+
+_OPENED: dict[str, TiledScan] = {}
+
+
+def _window_task(path: str, band: tuple, core: tuple, leaf_size_m: float, max_margin: int, variant: str,
+                 params: SfsParams, calibration) -> _Window:
+    """:func:`_reconstruct_window` on the tiled scan at ``path``, in a worker process (opened once per process)."""
+    if path not in _OPENED:
+        _OPENED[path] = open_tiled(path)
+    return _reconstruct_window(_OPENED[path], band, core, leaf_size_m, max_margin, variant, params, calibration)
 
 
 def _tile_leafsfs(path: Path, entry: dict) -> dict:

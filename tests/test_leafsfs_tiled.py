@@ -12,7 +12,7 @@ from leafsfs import SfsError, reconstruct
 from leafsfs.cli import main
 from leafsfs.tiled import GUARD_COLS, margin_columns, margin_rows, reconstruct_tiled
 from tlssim.simulate import simulate_tiled
-from tlssim.tiled import open_tiled
+from tlssim.tiled import add_tile, open_tiled, start_tiled
 
 # The 9 cm pear leaf 1.5 m from the scanner spans columns 25-213 of the 309 of its scan (0.018 deg).
 LEAF_SIZE_M = 0.06  # smaller than the leaf: the margin that follows from it must grow (and does)
@@ -112,3 +112,31 @@ def test_reconstruct_command_on_a_tiled_scan(tiled_leaf, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "1 leaves in 3 tiles of 150 columns" in out and "pulses/s" in out
     assert open_tiled(tmp_path / "out" / "corrected").complete
+
+
+def test_same_output_for_any_worker_count_and_input_tiling(tiled_leaf, by_core, tmp_path):
+    tiled, calibration, _ = tiled_leaf
+    retiled = _retiled(tiled, tmp_path / "scan", 130)
+    assert retiled.tile_cols != tiled.tile_cols and retiled.load().range.tobytes() == tiled.load().range.tobytes()
+    runs = [by_core[77], reconstruct_tiled(retiled, tmp_path / "out", "buffer", calibration=calibration, core_cols=77,
+                                           leaf_size_m=LEAF_SIZE_M, workers=2)]
+    assert runs[1].windows == 5
+    (a, b) = (run.scan.load() for run in runs)
+    for key in ("range", "intensity", "xyz", "truth_id"):
+        assert getattr(a, key).tobytes() == getattr(b, key).tobytes(), key
+    assert a.layers.keys() == b.layers.keys()
+    for key in a.layers:
+        assert a.layers[key].tobytes() == b.layers[key].tobytes(), key
+    assert runs[0].traits == runs[1].traits and len(runs[0].traits) == 1
+    with pytest.raises(SfsError, match="workers >= 1"):
+        reconstruct_tiled(tiled, tmp_path / "none", "buffer", calibration=calibration, workers=0)
+
+
+def _retiled(tiled, path, tile_cols):
+    """The same scan written again in tiles of ``tile_cols`` columns."""
+    header = {key: tiled.index[key] for key in ("shape", "scanner", "scanner_position", "scanner_rotation",
+                                                "object_names", "meta", "theta_columns", "psi_rows", "has_truth")}
+    index, todo = start_tiled(path, header, tiled.index["fingerprint"], tile_cols)
+    for c0, c1 in todo:
+        add_tile(path, index, c0, tiled.load_columns(c0, c1))
+    return open_tiled(path)
