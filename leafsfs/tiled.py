@@ -35,9 +35,12 @@ depend on ``core_cols`` and ``band_rows``, not on the input scan's tile
 size (:meth:`tlssim.tiled.TiledScan.load_columns` gives the same pulses for
 any tiling), so the output has the same bytes for any input tiling too.
 
-Not handled: a 360 deg scan's first and last columns are neighbours in
-the scene, but the windows do not wrap around (a leaf cut by the scan's
-own seam gives two regions, as on an untiled scan).
+A 360 deg scan (:func:`is_full_circle`) is closed at its seam: its first
+and last columns are neighbours in the scene, so the windows of the first
+and last cores wrap around (their azimuths continued by 2 pi past the
+seam), the first and last cores are neighbours, and a leaf cut by the seam
+is one leaf, kept by the window that holds its centroid. The first core is
+then written last, as it takes regions from the last core's windows.
 """
 
 from __future__ import annotations
@@ -45,6 +48,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import hashlib
+import itertools
 import json
 import math
 import multiprocessing
@@ -62,7 +66,7 @@ from leafsfs.params import VARIANTS, SfsParams
 from leafsfs.preprocess import resolve_calibration
 from leafsfs.reconstruct import reconstruct
 from tlssim.scan import Scan, grid_to_xyz
-from tlssim.tiled import INDEX, TiledScan, add_tile, open_tiled, start_tiled
+from tlssim.tiled import INDEX, TiledScan, add_tile, concat_columns, open_tiled, start_tiled
 
 #: Columns a kept region must stay away from a window's inner border to count as whole: the leaf frame's
 #: margin plus the segmentation's neighbourhood (about a footprint, at least 5 x 5 pulses; assumption: 5).
@@ -221,9 +225,10 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
     params = params or SfsParams()
     calibration = resolve_calibration(calibration)
     outdir = Path(outdir)
+    wrap = is_full_circle(tiled.theta_columns)
     identity = {"scan": tiled.index.get("fingerprint"), "tiles": [t.sha256 for t in tiled.tiles], "variant": variant,
                 "params": params.to_dict(), "calibration": repr(calibration), "margin": [leaf_size_m, max_margin],
-                **({} if band_rows >= rows else {"band_rows": band_rows})}
+                **({} if band_rows >= rows else {"band_rows": band_rows}), **({"wrap": True} if wrap else {})}
     fingerprint = hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()
     header = {key: tiled.index[key] for key in ("shape", "scanner", "scanner_position", "scanner_rotation",
                                                 "object_names", "theta_columns", "psi_rows", "has_truth")}
@@ -240,11 +245,20 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
     written = {t["col0"] // core_cols: t for t in index["tiles"]}
     offsets = {0: 0}
     cache: dict[tuple[int, int], _Window] = {}
+
+    def neighbours(k: int) -> list:
+        if wrap:
+            return list(dict.fromkeys((k + d) % n_cores for d in (-1, 0, 1)))
+        return [j for j in (k - 1, k, k + 1) if 0 <= j < n_cores]
+
+    if wrap:  # the first core takes regions from the last core's windows: it is written last
+        todo = sorted(todo, key=lambda columns: (columns[0] == 0, columns[0]))
     # The loop below asks for windows in this order (every band of a core and its neighbours, core by core).
-    needed = list(dict.fromkeys((b, j) for c0, _ in todo for j in (c0 // core_cols + d for d in (-1, 0, 1))
-                                if 0 <= j < n_cores for b in range(len(bands))))
+    uses = [[(b, j) for j in neighbours(c0 // core_cols) for b in range(len(bands))] for c0, _ in todo]
+    needed = list(dict.fromkeys(key for keys in uses for key in keys))
+    last_use = {key: i for i, keys in enumerate(uses) for key in keys}
     tasks = [((b, j), (bands[b], (j * core_cols, min(cols, (j + 1) * core_cols)), leaf_size_m, max_margin,
-                       variant, params, calibration)) for b, j in needed]
+                       variant, params, calibration, wrap)) for b, j in needed]
     results = _in_order(tiled, tasks, workers)
 
     def window(b: int, k: int) -> _Window:
@@ -264,21 +278,20 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
             j += 1
         return offsets[k]
 
-    for c0, c1 in todo:
+    for i, (c0, c1) in enumerate(todo):
         k = c0 // core_cols
         windows = []
-        for j in (k - 1, k, k + 1):
-            if 0 <= j < n_cores:
-                label = offset(j)
-                for b in range(len(bands)):
-                    windows.append((j, window(b, j), label))
-                    label += len(window(b, j).traits)
-        tile, leaves, skipped = _assemble_core(k, tiled.load_columns(c0, c1), c0, c1, windows)
+        for j in neighbours(k):
+            label = offset(j)
+            for b in range(len(bands)):
+                windows.append((j, window(b, j), label))
+                label += len(window(b, j).traits)
+        tile, leaves, skipped = _assemble_core(k, tiled.load_columns(c0, c1), c0, c1, cols, windows)
         tile.meta = {**tiled.meta, "columns": [c0, c1],
                      "leafsfs": {"variant": variant, "leaves": json_ready(leaves), "skipped": skipped}}
         add_tile(outdir / "corrected", index, c0, tile)
         written[k] = next(t for t in index["tiles"] if t["col0"] == c0)
-        for key in [key for key in cache if key[1] < k]:
+        for key in [key for key in cache if last_use.get(key, -1) <= i]:
             del cache[key]
         if progress is not None:
             progress(rows * (c1 - c0))
@@ -325,12 +338,51 @@ def _in_order(tiled: TiledScan, tasks: list, workers: int):
 _OPENED: dict[str, TiledScan] = {}
 
 
-def _window_task(path: str, band: tuple, core: tuple, leaf_size_m: float, max_margin: int, variant: str,
-                 params: SfsParams, calibration) -> _Window:
+def _window_task(path: str, *args) -> _Window:
     """:func:`_reconstruct_window` on the tiled scan at ``path``, in a worker process (opened once per process)."""
     if path not in _OPENED:
         _OPENED[path] = open_tiled(path)
-    return _reconstruct_window(_OPENED[path], band, core, leaf_size_m, max_margin, variant, params, calibration)
+    return _reconstruct_window(_OPENED[path], *args)
+
+
+def is_full_circle(theta_columns: np.ndarray) -> bool:
+    """Whether a scan's columns go once around (360 deg): its last column is a step before its first.
+
+    Parameters
+    ----------
+    theta_columns : ndarray
+        Azimuth of every column, rad, increasing at a regular step.
+
+    Returns
+    -------
+    bool
+        True when the columns times the median step make 2 pi within half a step.
+    """
+    theta = np.asarray(theta_columns, dtype=np.float64)
+    if theta.size < 3:
+        return False
+    step = float(np.median(np.diff(theta)))
+    return step > 0 and abs(theta.size * step - 2 * math.pi) < step / 2
+
+
+def _load_window(tiled: TiledScan, w0: int, w1: int, rows: slice) -> Scan:
+    """Columns ``w0:w1`` of a scan, continued past its seam when ``w0 < 0`` or ``w1 > cols`` (360 deg scans).
+
+    Columns before the first or after the last come from the other end of the scan, their azimuths shifted
+    by 2 pi so that they continue the window's (the points are the same).
+    """
+    cols = tiled.shape[1]
+    parts = []
+    if w0 < 0:
+        part = tiled.load_columns(cols + w0, cols, rows)
+        parts.append(dataclasses.replace(part, theta=part.theta - 2 * math.pi))
+    parts.append(tiled.load_columns(max(0, w0), min(cols, w1), rows))
+    if w1 > cols:
+        part = tiled.load_columns(0, w1 - cols, rows)
+        parts.append(dataclasses.replace(part, theta=part.theta + 2 * math.pi))
+    window = concat_columns(parts)
+    window.meta = {**tiled.meta, "columns": [int(w0), int(w1)]}
+    return window
 
 
 def _tile_leafsfs(path: Path, entry: dict) -> dict:
@@ -399,10 +451,12 @@ def _margin(extent: np.ndarray, valid: np.ndarray, step_rad: float, leaf_size_m:
 
 
 def _reconstruct_window(tiled: TiledScan, band: tuple, core: tuple, leaf_size_m: float, max_margin: int,
-                        variant: str, params: SfsParams, calibration) -> _Window:
+                        variant: str, params: SfsParams, calibration, wrap: bool = False) -> _Window:
     """Reconstruct the window of a band's rows ``r0:r1`` and a core's columns ``c0:c1``.
 
-    The window widens (both margins doubled) while a leaf it keeps comes near an inner border.
+    The window widens (both margins doubled) while a leaf it keeps comes near an inner border. With
+    ``wrap`` (a 360 deg scan) its columns continue past the scan's seam (:func:`_load_window`), up to
+    the whole scan.
     """
     (r0, r1), (c0, c1) = band, core
     rows, cols = tiled.shape
@@ -412,8 +466,10 @@ def _reconstruct_window(tiled: TiledScan, band: tuple, core: tuple, leaf_size_m:
     del inner
     while True:
         h0, h1 = max(0, r0 - margin_r), min(rows, r1 + margin_r)
-        w0, w1 = max(0, c0 - margin_c), min(cols, c1 + margin_c)
-        scan = tiled.load_columns(w0, w1, slice(h0, h1))
+        w0, w1 = c0 - margin_c, c1 + margin_c
+        if not wrap or w1 - w0 >= cols:
+            w0, w1 = max(0, w0), min(cols, w1)
+        scan = _load_window(tiled, w0, w1, slice(h0, h1))
         try:
             result = reconstruct(scan, None, variant, params, calibration=calibration)
         except SfsError:  # no leaf in this window (inputs were checked before the first window)
@@ -429,7 +485,9 @@ def _reconstruct_window(tiled: TiledScan, band: tuple, core: tuple, leaf_size_m:
         mine[0] = False
         kept = [leaf for leaf in result.leaves if mine[leaf.label]]
         slices = ndimage.find_objects(labels)
-        touching = any(_near_inner_border(slices[leaf.label - 1], (h0, h1, w0, w1), (rows, cols)) for leaf in kept)
+        seam = wrap and w1 - w0 < cols  # both column borders are inside the scene
+        touching = any(_near_inner_border(slices[leaf.label - 1], (h0, h1, w0, w1), (rows, cols), seam)
+                       for leaf in kept)
         if not touching or max(margin_r, margin_c) >= max_margin or ((h0, h1, w0, w1) == (0, rows, 0, cols)):
             break
         margin_c = min(2 * max(margin_c, 1), max_margin)
@@ -446,7 +504,7 @@ def _reconstruct_window(tiled: TiledScan, band: tuple, core: tuple, leaf_size_m:
     claim = mine[labels] | (loose & mine[owner])
     dropped = ((labels > 0) | loose) & ~claim
     traits = [{**leaf.traits, "margin_cols": margin_c, "margin_rows": margin_r,
-               "centroid_col": float(centre[1][leaf.label]), "centroid_row": float(centre[0][leaf.label])}
+               "centroid_col": float(centre[1][leaf.label] % cols), "centroid_row": float(centre[0][leaf.label])}
               for leaf in kept]
     skipped = [reason for label, reason in result.skipped if mine[label]]
     return _Window(h0, h1, w0, w1, (r0, r1, c0, c1), (margin_r, margin_c), np.where(dropped, scan.range, result.range),
@@ -455,12 +513,16 @@ def _reconstruct_window(tiled: TiledScan, band: tuple, core: tuple, leaf_size_m:
                    traits, skipped)
 
 
-def _near_inner_border(where: tuple, extent: tuple, shape: tuple) -> bool:
-    """Whether a region (``find_objects`` slices) comes within the guard of a window border inside the scan."""
+def _near_inner_border(where: tuple, extent: tuple, shape: tuple, seam: bool = False) -> bool:
+    """Whether a region (``find_objects`` slices) comes within the guard of a window border inside the scan.
+
+    With ``seam`` both column borders are inside (a window continued past a 360 deg scan's seam).
+    """
     (h0, h1, w0, w1), (rows, cols) = extent, shape
     rows_of, cols_of = where
     return ((h0 > 0 and rows_of.start < GUARD_COLS) or (h1 < rows and rows_of.stop > h1 - h0 - GUARD_COLS)
-            or (w0 > 0 and cols_of.start < GUARD_COLS) or (w1 < cols and cols_of.stop > w1 - w0 - GUARD_COLS))
+            or ((seam or w0 > 0) and cols_of.start < GUARD_COLS)
+            or ((seam or w1 < cols) and cols_of.stop > w1 - w0 - GUARD_COLS))
 
 
 def _empty_window(scan: Scan, extent: tuple, core: tuple, margins: tuple) -> _Window:
@@ -473,7 +535,7 @@ def _empty_window(scan: Scan, extent: tuple, core: tuple, margins: tuple) -> _Wi
 _OUTPUTS = ("range", "outlier", "candidates", "background", "spread")
 
 
-def _assemble_core(k: int, tile: Scan, c0: int, c1: int, windows: list) -> tuple[Scan, list, list]:
+def _assemble_core(k: int, tile: Scan, c0: int, c1: int, cols: int, windows: list) -> tuple[Scan, list, list]:
     """The corrected tile of core ``k`` (columns ``c0:c1``) from its windows and the regions its neighbours keep.
 
     Parameters
@@ -484,6 +546,9 @@ def _assemble_core(k: int, tile: Scan, c0: int, c1: int, windows: list) -> tuple
         The input scan's columns ``c0:c1``, all rows.
     c0, c1 : int
         The core's columns.
+    cols : int
+        Columns of the scan: a window continued past a 360 deg scan's seam gives its columns ``c + cols``
+        and ``c - cols`` to column ``c``.
     windows : list of (int, _Window, int)
         Core number, window and leaf-label offset of every band's window of core ``k`` and of its existing
         neighbours.
@@ -517,16 +582,17 @@ def _assemble_core(k: int, tile: Scan, c0: int, c1: int, windows: list) -> tuple
         leaf[r0:r1] = numbered(window, offset, src)
         leaves += [{"leaf": offset + i + 1, "core": k, **t} for i, t in enumerate(window.traits)]
         skipped += [{"core": k, "reason": reason} for reason in window.skipped]
-    for j, window, offset in windows:  # then the regions any window keeps outside its own core rectangle
-        a, b = max(c0, window.w0), min(c1, window.w1)
+    for (j, window, offset), shift in itertools.product(windows, (0, -cols, cols)):
+        # then the regions any window keeps outside its own core rectangle
+        a, b = max(c0 + shift, window.w0), min(c1 + shift, window.w1)
         if a >= b:
             continue
         src = (slice(None), slice(a - window.w0, b - window.w0))
         claim = window.claim[src].copy()
-        if j == k:
+        if j == k and shift == 0:
             r0, r1 = window.core[:2]
             claim[r0 - window.h0:r1 - window.h0] = False
-        dst = (slice(window.h0, window.h1), slice(a - c0, b - c0))
+        dst = (slice(window.h0, window.h1), slice(a - shift - c0, b - shift - c0))
         for name in _OUTPUTS:
             grids[name][dst][claim] = getattr(window, name)[src][claim]
         leaf[dst][claim] = numbered(window, offset, src)[claim]

@@ -10,7 +10,7 @@ import tlssim
 from benchmarks.experiments.calibration import simulated_calibration
 from leafsfs import SfsError, reconstruct
 from leafsfs.cli import main
-from leafsfs.tiled import GUARD_COLS, margin_columns, margin_rows, reconstruct_tiled
+from leafsfs.tiled import GUARD_COLS, is_full_circle, margin_columns, margin_rows, reconstruct_tiled
 from tlssim.simulate import simulate_tiled
 from tlssim.tiled import add_tile, open_tiled, start_tiled
 
@@ -140,3 +140,20 @@ def _retiled(tiled, path, tile_cols):
     for c0, c1 in todo:
         add_tile(path, index, c0, tiled.load_columns(c0, c1))
     return open_tiled(path)
+
+
+def test_a_leaf_cut_by_the_seam_of_a_360_deg_scan_is_one_leaf(tiled_leaf, tmp_path):
+    _, calibration, whole = tiled_leaf
+    scene = scenes.build("leaf-1.5m")  # the leaf spans azimuths -2.2 to 3.3 deg: the seam at 0 deg cuts it
+    section = {**scene.scanner, "window": {"theta_deg": [0.0, 359.964], "psi_deg": [88.5, 91.6], "step_deg": 0.036}}
+    scan = simulate_tiled(scene, tlssim.setup_from_section(section), tmp_path / "scan", seed=3, tile_cols=2500,
+                          progress=False, backend="llvm")
+    assert is_full_circle(scan.theta_columns) and not is_full_circle(scan.theta_columns[:-2])
+    result = reconstruct_tiled(scan, tmp_path / "out", "buffer", calibration=calibration, core_cols=2500)
+    (leaf,) = result.traits  # one leaf, not its two halves
+    (expected,) = whole.traits()  # the leaf in the middle of a window at half the step
+    assert leaf["area_m2"] == pytest.approx(expected["area_m2"], rel=0.05)
+    assert leaf["n_points"] == pytest.approx(expected["n_points"] / 4, rel=0.05)
+    assert not leaf["cut_by_border"] and leaf["core"] in (0, 3)
+    labels = result.scan.load().layers["leaf"]
+    assert labels[:, :80].max() == labels[:, -80:].max() == leaf["leaf"]  # both halves carry its label
