@@ -53,6 +53,8 @@ import json
 import math
 import multiprocessing
 import time
+import zipfile
+import zlib
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -65,7 +67,7 @@ from leafsfs.outputs import json_ready
 from leafsfs.params import VARIANTS, SfsParams
 from leafsfs.preprocess import resolve_calibration
 from leafsfs.reconstruct import reconstruct
-from tlssim.scan import Scan, grid_to_xyz
+from tlssim.scan import GRID_KEYS, Scan, grid_to_xyz
 from tlssim.tiled import INDEX, TiledScan, add_tile, concat_columns, open_tiled, start_tiled
 
 #: Columns a kept region must stay away from a window's inner border to count as whole: the leaf frame's
@@ -369,20 +371,41 @@ def _load_window(tiled: TiledScan, w0: int, w1: int, rows: slice) -> Scan:
     """Columns ``w0:w1`` of a scan, continued past its seam when ``w0 < 0`` or ``w1 > cols`` (360 deg scans).
 
     Columns before the first or after the last come from the other end of the scan, their azimuths shifted
-    by 2 pi so that they continue the window's (the points are the same).
+    by 2 pi so that they continue the window's (the points are the same). Only the arrays the reconstruction
+    reads are loaded (:func:`_grid_columns`).
     """
     cols = tiled.shape[1]
     parts = []
     if w0 < 0:
-        part = tiled.load_columns(cols + w0, cols, rows)
+        part = _grid_columns(tiled, cols + w0, cols, rows)
         parts.append(dataclasses.replace(part, theta=part.theta - 2 * math.pi))
-    parts.append(tiled.load_columns(max(0, w0), min(cols, w1), rows))
+    parts.append(_grid_columns(tiled, max(0, w0), min(cols, w1), rows))
     if w1 > cols:
-        part = tiled.load_columns(0, w1 - cols, rows)
+        part = _grid_columns(tiled, 0, w1 - cols, rows)
         parts.append(dataclasses.replace(part, theta=part.theta + 2 * math.pi))
     window = concat_columns(parts)
     window.meta = {**tiled.meta, "columns": [int(w0), int(w1)]}
     return window
+
+
+def _grid_columns(tiled: TiledScan, col0: int, col1: int, rows: slice) -> Scan:
+    """Rows ``rows`` of the columns ``col0:col1`` of a tiled scan, grid arrays only (no truth, no layers).
+
+    Only the tiles' grid members are decompressed (about half of a simulated tile's bytes), and only the
+    window's rows of them are kept.
+    """
+    parts = []
+    for tile in tiled.tiles:
+        if tile.col1 > col0 and tile.col0 < col1:
+            cut = (rows, slice(max(col0, tile.col0) - tile.col0, min(col1, tile.col1) - tile.col0))
+            try:
+                with np.load(tiled.path / tile.file, allow_pickle=False) as data:
+                    arrays = {key: np.ascontiguousarray(data[key][cut]) for key in GRID_KEYS}
+            except (OSError, ValueError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+                raise SfsError(f"{tiled.path / tile.file}: unreadable tile ({exc})") from None
+            parts.append(Scan(**arrays, pose=tiled.pose, scanner=tiled.scanner, object_names=tiled.object_names,
+                              meta=dict(tiled.meta)))
+    return concat_columns(parts)
 
 
 def _tile_leafsfs(path: Path, entry: dict) -> dict:
@@ -460,7 +483,7 @@ def _reconstruct_window(tiled: TiledScan, band: tuple, core: tuple, leaf_size_m:
     """
     (r0, r1), (c0, c1) = band, core
     rows, cols = tiled.shape
-    inner = tiled.load_columns(c0, c1, slice(r0, r1))
+    inner = _grid_columns(tiled, c0, c1, slice(r0, r1))
     margin_r = 0 if (r0, r1) == (0, rows) else margin_rows(inner, leaf_size_m, max_margin)
     margin_c = margin_columns(inner, leaf_size_m, max_margin)
     del inner
