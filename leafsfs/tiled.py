@@ -56,6 +56,7 @@ import time
 import zipfile
 import zlib
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 import numpy as np
@@ -328,13 +329,22 @@ def _in_order(tiled: TiledScan, tasks: list, workers: int):
                 ahead.append((key, pool.submit(_window_task, str(tiled.path), *args)))
                 if len(ahead) >= 2 * workers:
                     key, future = ahead.popleft()
-                    yield key, future.result()
+                    yield key, _result(future)
             while ahead:
                 key, future = ahead.popleft()
-                yield key, future.result()
+                yield key, _result(future)
         finally:
             for _, future in ahead:
                 future.cancel()
+
+
+def _result(future) -> _Window:
+    """A worker's window, or a one-line error when its process died."""
+    try:
+        return future.result()
+    except BrokenProcessPool:
+        raise SfsError("a window's worker process died (out of memory?); run again with fewer --workers or a smaller "
+                       "--memory-budget: the finished tiles are kept") from None
 
 
 _OPENED: dict[str, TiledScan] = {}
