@@ -55,7 +55,7 @@ import multiprocessing
 import time
 import zipfile
 import zlib
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
@@ -281,23 +281,33 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
             j += 1
         return offsets[k]
 
-    for i, (c0, c1) in enumerate(todo):
-        k = c0 // core_cols
-        windows = []
-        for j in neighbours(k):
-            label = offset(j)
-            for b in range(len(bands)):
-                windows.append((j, window(b, j), label))
-                label += len(window(b, j).traits)
-        tile, leaves, skipped = _assemble_core(k, tiled.load_columns(c0, c1), c0, c1, cols, windows)
-        tile.meta = {**tiled.meta, "columns": [c0, c1],
-                     "leafsfs": {"variant": variant, "leaves": json_ready(leaves), "skipped": skipped}}
-        add_tile(outdir / "corrected", index, c0, tile)
-        written[k] = next(t for t in index["tiles"] if t["col0"] == c0)
-        for key in [key for key in cache if last_use.get(key, -1) <= i]:
-            del cache[key]
-        if progress is not None:
-            progress(rows * (c1 - c0))
+    writer = ThreadPoolExecutor(1)  # writes core k (compression, SHA-256: no GIL) while core k + 1 is assembled
+    pending = None
+    try:
+        for i, (c0, c1) in enumerate(todo):
+            k = c0 // core_cols
+            windows = []
+            for j in neighbours(k):
+                label = offset(j)
+                for b in range(len(bands)):
+                    windows.append((j, window(b, j), label))
+                    label += len(window(b, j).traits)
+            tile, leaves, skipped = _assemble_core(k, tiled.load_columns(c0, c1), c0, c1, cols, windows)
+            tile.meta = {**tiled.meta, "columns": [c0, c1],
+                         "leafsfs": {"variant": variant, "leaves": json_ready(leaves), "skipped": skipped}}
+            if pending is not None:
+                pending.result()
+            pending = writer.submit(add_tile, outdir / "corrected", index, c0, tile)
+            del tile, windows
+            for key in [key for key in cache if last_use.get(key, -1) <= i]:
+                del cache[key]
+            if progress is not None:
+                progress(rows * (c1 - c0))
+        if pending is not None:
+            pending.result()
+    finally:
+        writer.shutdown(wait=True)
+    written = {t["col0"] // core_cols: t for t in index["tiles"]}
     corrected = open_tiled(outdir / "corrected")
     traits, skipped = [], []
     for k in sorted(written):
