@@ -41,6 +41,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "2048 rows, else 1024)")
     p.add_argument("--memory-budget", type=float, default=2.0,
                    help="tiled scan: memory of one window's reconstruction, GB (default 2)")
+    p.add_argument("--workers", type=int, default=1,
+                   help="tiled scan: processes reconstructing windows at once, each in about --memory-budget "
+                        "(default 1); the output is the same for any number")
     p.add_argument("--leaf-size-m", type=float,
                    help="tiled scan: largest leaf extent, m; a window's margin is the columns it spans at the "
                         "nearest pulses (default 0.12)")
@@ -105,8 +108,8 @@ def _reconstruct_tiled(args, params, mask) -> int:
     from tqdm import tqdm
 
     from leafsfs.errors import SfsError
-    from leafsfs.tiled import (BAND_ROWS, LEAF_SIZE_M, RECONSTRUCT_BYTES_PER_PULSE, core_columns, margin_columns,
-                               margin_rows, reconstruct_tiled)
+    from leafsfs.tiled import (BAND_ROWS, LEAF_SIZE_M, RECONSTRUCT_BYTES_PER_PULSE, SIZING_COLS, core_columns,
+                               margin_columns, margin_rows, reconstruct_tiled)
     from tlssim.tiled import open_tiled
 
     if mask is not None:
@@ -115,8 +118,9 @@ def _reconstruct_tiled(args, params, mask) -> int:
     leaf_size = args.leaf_size_m if args.leaf_size_m is not None else LEAF_SIZE_M
     rows = tiled.shape[0]
     band_rows = args.band_rows or (rows if rows <= 2 * BAND_ROWS else BAND_ROWS)
-    # The margins are not known before the data are read: the first tile's, median over its bands, stand for all.
-    first = tiled.load_columns(0, min(tiled.shape[1], tiled.tile_cols))
+    # The margins are not known before the data are read: the first columns', median over their bands, stand for
+    # all (a fixed count, so that the windows, and the output, do not depend on the scan's tile size).
+    first = tiled.load_columns(0, min(tiled.shape[1], SIZING_COLS))
     bands = [first.crop(slice(r0, r0 + band_rows), slice(None)) for r0 in range(0, rows, band_rows)]
     margin = int(np.median([margin_columns(band, leaf_size, 2048) for band in bands]))
     margin_r = 0 if band_rows >= rows else int(np.median([margin_rows(band, leaf_size, 2048) for band in bands]))
@@ -128,9 +132,10 @@ def _reconstruct_tiled(args, params, mask) -> int:
     with tqdm(total=tiled.shape[0] * tiled.shape[1], unit="pulse", unit_scale=True, desc="reconstruct") as bar:
         result = reconstruct_tiled(tiled, args.outdir, args.variant, params, calibration=args.calibration,
                                    core_cols=core_cols, band_rows=band_rows, leaf_size_m=leaf_size,
-                                   progress=bar.update)
+                                   workers=args.workers, progress=bar.update)
     print(f"{len(result.traits)} leaves in {len(result.scan.tiles)} tiles of {core_cols} columns; "
-          f"{result.windows} windows run in {result.elapsed_s:.1f} s: {result.pulses_per_s:,.0f} pulses/s")
+          f"{result.windows} windows run in {result.elapsed_s:.1f} s on {args.workers} worker(s): "
+          f"{result.pulses_per_s:,.0f} pulses/s")
     print(f"  corrected  {result.scan.path}\n  traits     {Path(args.outdir) / 'traits.json'}")
     return 0
 

@@ -27,18 +27,36 @@ traits of its core's leaves, so an interrupted run resumes with the
 tiles that check (:func:`tlssim.tiled.start_tiled`) and recomputes only
 the windows the remaining cores need. ``traits.json`` gathers all leaves.
 
-Not handled: a 360 deg scan's first and last columns are neighbours in
-the scene, but the windows do not wrap around (a leaf cut by the scan's
-own seam gives two regions, as on an untiled scan).
+The windows are independent: with ``workers > 1`` they run in that many
+worker processes, a few ahead of the core being written, and the cores are
+still assembled one at a time in column order from the same windows, so
+the output has the same bytes for any number of workers. The windows
+depend on ``core_cols`` and ``band_rows``, not on the input scan's tile
+size (:meth:`tlssim.tiled.TiledScan.load_columns` gives the same pulses for
+any tiling), so the output has the same bytes for any input tiling too.
+
+A 360 deg scan (:func:`is_full_circle`) is closed at its seam: its first
+and last columns are neighbours in the scene, so the windows of the first
+and last cores wrap around (their azimuths continued by 2 pi past the
+seam), the first and last cores are neighbours, and a leaf cut by the seam
+is one leaf, kept by the window that holds its centroid. The first core is
+then written last, as it takes regions from the last core's windows.
 """
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import hashlib
+import itertools
 import json
 import math
+import multiprocessing
 import time
+import zipfile
+import zlib
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 import numpy as np
@@ -50,8 +68,8 @@ from leafsfs.outputs import json_ready
 from leafsfs.params import VARIANTS, SfsParams
 from leafsfs.preprocess import resolve_calibration
 from leafsfs.reconstruct import reconstruct
-from tlssim.scan import Scan, grid_to_xyz
-from tlssim.tiled import INDEX, TiledScan, add_tile, open_tiled, start_tiled
+from tlssim.scan import GRID_KEYS, Scan, grid_to_xyz
+from tlssim.tiled import INDEX, TiledScan, add_tile, concat_columns, open_tiled, start_tiled
 
 #: Columns a kept region must stay away from a window's inner border to count as whole: the leaf frame's
 #: margin plus the segmentation's neighbourhood (about a footprint, at least 5 x 5 pulses; assumption: 5).
@@ -62,6 +80,9 @@ LEAF_SIZE_M = 0.12
 #: Rows per band of the ``leafsfs reconstruct`` command on scans of more than twice as many rows (a full
 #: 160 deg scan at 0.018 deg has 8,889): the ground near the tripod then widens only the bottom band's windows.
 BAND_ROWS = 1024
+#: Columns from the scan's start whose margins size the windows of the ``leafsfs reconstruct`` command (a fixed
+#: count rather than the first tile, so that the windows do not depend on how the scan was tiled).
+SIZING_COLS = 1024
 #: Memory of a reconstruction per pulse of its window, bytes: the ``leafsfs reconstruct`` process peaked at 664 MB
 #: on windows of 1.0 M pulses of the orchard row at 0.018 deg (``fused``), imports included.
 RECONSTRUCT_BYTES_PER_PULSE = 650
@@ -149,7 +170,8 @@ def core_columns(rows: int, budget_bytes: float, margin: int) -> int:
 
 def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params: SfsParams | None = None, *,
                       calibration=None, core_cols: int = 512, band_rows: int | None = None,
-                      leaf_size_m: float = LEAF_SIZE_M, max_margin: int = 2048, progress=None) -> TiledResult:
+                      leaf_size_m: float = LEAF_SIZE_M, max_margin: int = 2048, workers: int = 1,
+                      progress=None) -> TiledResult:
     """Reconstruct the leaves of a tiled scan window by window into ``outdir`` (tiled scan plus ``traits.json``).
 
     Parameters
@@ -174,6 +196,10 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
         pulses of the window's core rectangle (:func:`margin_columns`, :func:`margin_rows`).
     max_margin : int
         Largest margin of a window, columns or rows.
+    workers : int
+        Processes that reconstruct windows, ``>= 1`` (1: all in this process). Each holds one window
+        (about :data:`RECONSTRUCT_BYTES_PER_PULSE` per pulse); this process holds up to ``2 x workers``
+        finished windows' outputs (about 30 bytes per pulse) besides the three cores' it assembles from.
     progress : callable, optional
         Called with the number of pulses of every finished core.
 
@@ -190,9 +216,10 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
 
     rows, cols = tiled.shape
     band_rows = rows if band_rows is None else band_rows
-    if core_cols < 1 or band_rows < 1 or max_margin < GUARD_COLS or not leaf_size_m > 0:
-        raise SfsError(f"tiled reconstruction needs core_cols >= 1, band_rows >= 1, max_margin >= {GUARD_COLS} and "
-                       f"leaf_size_m > 0, got {core_cols}, {band_rows}, {max_margin}, {leaf_size_m}")
+    if core_cols < 1 or band_rows < 1 or max_margin < GUARD_COLS or not leaf_size_m > 0 or workers < 1:
+        raise SfsError(f"tiled reconstruction needs core_cols >= 1, band_rows >= 1, max_margin >= {GUARD_COLS}, "
+                       f"leaf_size_m > 0 and workers >= 1, got {core_cols}, {band_rows}, {max_margin}, "
+                       f"{leaf_size_m}, {workers}")
     if variant not in VARIANTS:
         raise SfsError(f"unknown variant {variant!r}; allowed: {', '.join(VARIANTS)}")
     if not tiled.complete:
@@ -201,9 +228,10 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
     params = params or SfsParams()
     calibration = resolve_calibration(calibration)
     outdir = Path(outdir)
+    wrap = is_full_circle(tiled.theta_columns)
     identity = {"scan": tiled.index.get("fingerprint"), "tiles": [t.sha256 for t in tiled.tiles], "variant": variant,
                 "params": params.to_dict(), "calibration": repr(calibration), "margin": [leaf_size_m, max_margin],
-                **({} if band_rows >= rows else {"band_rows": band_rows})}
+                **({} if band_rows >= rows else {"band_rows": band_rows}), **({"wrap": True} if wrap else {})}
     fingerprint = hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()
     header = {key: tiled.index[key] for key in ("shape", "scanner", "scanner_position", "scanner_rotation",
                                                 "object_names", "theta_columns", "psi_rows", "has_truth")}
@@ -220,14 +248,26 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
     written = {t["col0"] // core_cols: t for t in index["tiles"]}
     offsets = {0: 0}
     cache: dict[tuple[int, int], _Window] = {}
-    windows_run = 0
+
+    def neighbours(k: int) -> list:
+        if wrap:
+            return list(dict.fromkeys((k + d) % n_cores for d in (-1, 0, 1)))
+        return [j for j in (k - 1, k, k + 1) if 0 <= j < n_cores]
+
+    if wrap:  # the first core takes regions from the last core's windows: it is written last
+        todo = sorted(todo, key=lambda columns: (columns[0] == 0, columns[0]))
+    # The loop below asks for windows in this order (every band of a core and its neighbours, core by core).
+    uses = [[(b, j) for j in neighbours(c0 // core_cols) for b in range(len(bands))] for c0, _ in todo]
+    needed = list(dict.fromkeys(key for keys in uses for key in keys))
+    last_use = {key: i for i, keys in enumerate(uses) for key in keys}
+    tasks = [((b, j), (bands[b], (j * core_cols, min(cols, (j + 1) * core_cols)), leaf_size_m, max_margin,
+                       variant, params, calibration, wrap)) for b, j in needed]
+    results = _in_order(tiled, tasks, workers)
 
     def window(b: int, k: int) -> _Window:
-        nonlocal windows_run
-        if (b, k) not in cache:
-            cache[b, k] = _reconstruct_window(tiled, bands[b], (k * core_cols, min(cols, (k + 1) * core_cols)),
-                                              leaf_size_m, max_margin, variant, params, calibration)
-            windows_run += 1
+        while (b, k) not in cache:
+            key, value = next(results)
+            cache[key] = value
         return cache[b, k]
 
     def core_traits(k: int) -> list:
@@ -241,24 +281,33 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
             j += 1
         return offsets[k]
 
-    for c0, c1 in todo:
-        k = c0 // core_cols
-        windows = []
-        for j in (k - 1, k, k + 1):
-            if 0 <= j < n_cores:
+    writer = ThreadPoolExecutor(1)  # writes core k (compression, SHA-256: no GIL) while core k + 1 is assembled
+    pending = None
+    try:
+        for i, (c0, c1) in enumerate(todo):
+            k = c0 // core_cols
+            windows = []
+            for j in neighbours(k):
                 label = offset(j)
                 for b in range(len(bands)):
                     windows.append((j, window(b, j), label))
                     label += len(window(b, j).traits)
-        tile, leaves, skipped = _assemble_core(k, tiled.load_columns(c0, c1), c0, c1, windows)
-        tile.meta = {**tiled.meta, "columns": [c0, c1],
-                     "leafsfs": {"variant": variant, "leaves": json_ready(leaves), "skipped": skipped}}
-        add_tile(outdir / "corrected", index, c0, tile)
-        written[k] = next(t for t in index["tiles"] if t["col0"] == c0)
-        for key in [key for key in cache if key[1] < k]:
-            del cache[key]
-        if progress is not None:
-            progress(rows * (c1 - c0))
+            tile, leaves, skipped = _assemble_core(k, tiled.load_columns(c0, c1), c0, c1, cols, windows)
+            tile.meta = {**tiled.meta, "columns": [c0, c1],
+                         "leafsfs": {"variant": variant, "leaves": json_ready(leaves), "skipped": skipped}}
+            if pending is not None:
+                pending.result()
+            pending = writer.submit(add_tile, outdir / "corrected", index, c0, tile)
+            del tile, windows
+            for key in [key for key in cache if last_use.get(key, -1) <= i]:
+                del cache[key]
+            if progress is not None:
+                progress(rows * (c1 - c0))
+        if pending is not None:
+            pending.result()
+    finally:
+        writer.shutdown(wait=True)
+    written = {t["col0"] // core_cols: t for t in index["tiles"]}
     corrected = open_tiled(outdir / "corrected")
     traits, skipped = [], []
     for k in sorted(written):
@@ -268,8 +317,115 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
     report = {"variant": variant, "source": str(tiled.path), "core_cols": core_cols, "band_rows": band_rows,
               "leaves": traits, "skipped": skipped, "params": params.to_dict()}
     (outdir / "traits.json").write_text(json.dumps(json_ready(report), indent=1, allow_nan=False))
-    return TiledResult(corrected, traits, skipped, rows * sum(c1 - c0 for c0, c1 in todo), windows_run,
+    results.close()
+    return TiledResult(corrected, traits, skipped, rows * sum(c1 - c0 for c0, c1 in todo), len(needed),
                        time.perf_counter() - start)
+
+
+def _in_order(tiled: TiledScan, tasks: list, workers: int):
+    """Yield ``(key, window)`` for ``(key, arguments of _reconstruct_window after the scan)`` tasks, in order.
+
+    With ``workers > 1`` the windows run in that many spawned processes, up to ``2 x workers`` of them
+    running or waiting ahead of the one asked for; with one, here, when asked for.
+    """
+    if workers == 1:
+        for key, args in tasks:
+            yield key, _reconstruct_window(tiled, *args)
+        return
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        ahead: collections.deque = collections.deque()
+        try:
+            for key, args in tasks:
+                ahead.append((key, pool.submit(_window_task, str(tiled.path), *args)))
+                if len(ahead) >= 2 * workers:
+                    key, future = ahead.popleft()
+                    yield key, _result(future)
+            while ahead:
+                key, future = ahead.popleft()
+                yield key, _result(future)
+        finally:
+            for _, future in ahead:
+                future.cancel()
+
+
+def _result(future) -> _Window:
+    """A worker's window, or a one-line error when its process died."""
+    try:
+        return future.result()
+    except BrokenProcessPool:
+        raise SfsError("a window's worker process died (out of memory?); run again with fewer --workers or a smaller "
+                       "--memory-budget: the finished tiles are kept") from None
+
+
+_OPENED: dict[str, TiledScan] = {}
+
+
+def _window_task(path: str, *args) -> _Window:
+    """:func:`_reconstruct_window` on the tiled scan at ``path``, in a worker process (opened once per process)."""
+    if path not in _OPENED:
+        _OPENED[path] = open_tiled(path)
+    return _reconstruct_window(_OPENED[path], *args)
+
+
+def is_full_circle(theta_columns: np.ndarray) -> bool:
+    """Whether a scan's columns go once around (360 deg): its last column is a step before its first.
+
+    Parameters
+    ----------
+    theta_columns : ndarray
+        Azimuth of every column, rad, increasing at a regular step.
+
+    Returns
+    -------
+    bool
+        True when the columns times the median step make 2 pi within half a step.
+    """
+    theta = np.asarray(theta_columns, dtype=np.float64)
+    if theta.size < 3:
+        return False
+    step = float(np.median(np.diff(theta)))
+    return step > 0 and abs(theta.size * step - 2 * math.pi) < step / 2
+
+
+def _load_window(tiled: TiledScan, w0: int, w1: int, rows: slice) -> Scan:
+    """Columns ``w0:w1`` of a scan, continued past its seam when ``w0 < 0`` or ``w1 > cols`` (360 deg scans).
+
+    Columns before the first or after the last come from the other end of the scan, their azimuths shifted
+    by 2 pi so that they continue the window's (the points are the same). Only the arrays the reconstruction
+    reads are loaded (:func:`_grid_columns`).
+    """
+    cols = tiled.shape[1]
+    parts = []
+    if w0 < 0:
+        part = _grid_columns(tiled, cols + w0, cols, rows)
+        parts.append(dataclasses.replace(part, theta=part.theta - 2 * math.pi))
+    parts.append(_grid_columns(tiled, max(0, w0), min(cols, w1), rows))
+    if w1 > cols:
+        part = _grid_columns(tiled, 0, w1 - cols, rows)
+        parts.append(dataclasses.replace(part, theta=part.theta + 2 * math.pi))
+    window = concat_columns(parts)
+    window.meta = {**tiled.meta, "columns": [int(w0), int(w1)]}
+    return window
+
+
+def _grid_columns(tiled: TiledScan, col0: int, col1: int, rows: slice) -> Scan:
+    """Rows ``rows`` of the columns ``col0:col1`` of a tiled scan, grid arrays only (no truth, no layers).
+
+    Only the tiles' grid members are decompressed (about half of a simulated tile's bytes), and only the
+    window's rows of them are kept.
+    """
+    parts = []
+    for tile in tiled.tiles:
+        if tile.col1 > col0 and tile.col0 < col1:
+            cut = (rows, slice(max(col0, tile.col0) - tile.col0, min(col1, tile.col1) - tile.col0))
+            try:
+                with np.load(tiled.path / tile.file, allow_pickle=False) as data:
+                    arrays = {key: np.ascontiguousarray(data[key][cut]) for key in GRID_KEYS}
+            except (OSError, ValueError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+                raise SfsError(f"{tiled.path / tile.file}: unreadable tile ({exc})") from None
+            parts.append(Scan(**arrays, pose=tiled.pose, scanner=tiled.scanner, object_names=tiled.object_names,
+                              meta=dict(tiled.meta)))
+    return concat_columns(parts)
 
 
 def _tile_leafsfs(path: Path, entry: dict) -> dict:
@@ -338,21 +494,25 @@ def _margin(extent: np.ndarray, valid: np.ndarray, step_rad: float, leaf_size_m:
 
 
 def _reconstruct_window(tiled: TiledScan, band: tuple, core: tuple, leaf_size_m: float, max_margin: int,
-                        variant: str, params: SfsParams, calibration) -> _Window:
+                        variant: str, params: SfsParams, calibration, wrap: bool = False) -> _Window:
     """Reconstruct the window of a band's rows ``r0:r1`` and a core's columns ``c0:c1``.
 
-    The window widens (both margins doubled) while a leaf it keeps comes near an inner border.
+    The window widens (both margins doubled) while a leaf it keeps comes near an inner border. With
+    ``wrap`` (a 360 deg scan) its columns continue past the scan's seam (:func:`_load_window`), up to
+    the whole scan.
     """
     (r0, r1), (c0, c1) = band, core
     rows, cols = tiled.shape
-    inner = tiled.load_columns(c0, c1, slice(r0, r1))
+    inner = _grid_columns(tiled, c0, c1, slice(r0, r1))
     margin_r = 0 if (r0, r1) == (0, rows) else margin_rows(inner, leaf_size_m, max_margin)
     margin_c = margin_columns(inner, leaf_size_m, max_margin)
     del inner
     while True:
         h0, h1 = max(0, r0 - margin_r), min(rows, r1 + margin_r)
-        w0, w1 = max(0, c0 - margin_c), min(cols, c1 + margin_c)
-        scan = tiled.load_columns(w0, w1, slice(h0, h1))
+        w0, w1 = c0 - margin_c, c1 + margin_c
+        if not wrap or w1 - w0 >= cols:
+            w0, w1 = max(0, w0), min(cols, w1)
+        scan = _load_window(tiled, w0, w1, slice(h0, h1))
         try:
             result = reconstruct(scan, None, variant, params, calibration=calibration)
         except SfsError:  # no leaf in this window (inputs were checked before the first window)
@@ -368,7 +528,9 @@ def _reconstruct_window(tiled: TiledScan, band: tuple, core: tuple, leaf_size_m:
         mine[0] = False
         kept = [leaf for leaf in result.leaves if mine[leaf.label]]
         slices = ndimage.find_objects(labels)
-        touching = any(_near_inner_border(slices[leaf.label - 1], (h0, h1, w0, w1), (rows, cols)) for leaf in kept)
+        seam = wrap and w1 - w0 < cols  # both column borders are inside the scene
+        touching = any(_near_inner_border(slices[leaf.label - 1], (h0, h1, w0, w1), (rows, cols), seam)
+                       for leaf in kept)
         if not touching or max(margin_r, margin_c) >= max_margin or ((h0, h1, w0, w1) == (0, rows, 0, cols)):
             break
         margin_c = min(2 * max(margin_c, 1), max_margin)
@@ -385,7 +547,7 @@ def _reconstruct_window(tiled: TiledScan, band: tuple, core: tuple, leaf_size_m:
     claim = mine[labels] | (loose & mine[owner])
     dropped = ((labels > 0) | loose) & ~claim
     traits = [{**leaf.traits, "margin_cols": margin_c, "margin_rows": margin_r,
-               "centroid_col": float(centre[1][leaf.label]), "centroid_row": float(centre[0][leaf.label])}
+               "centroid_col": float(centre[1][leaf.label] % cols), "centroid_row": float(centre[0][leaf.label])}
               for leaf in kept]
     skipped = [reason for label, reason in result.skipped if mine[label]]
     return _Window(h0, h1, w0, w1, (r0, r1, c0, c1), (margin_r, margin_c), np.where(dropped, scan.range, result.range),
@@ -394,12 +556,16 @@ def _reconstruct_window(tiled: TiledScan, band: tuple, core: tuple, leaf_size_m:
                    traits, skipped)
 
 
-def _near_inner_border(where: tuple, extent: tuple, shape: tuple) -> bool:
-    """Whether a region (``find_objects`` slices) comes within the guard of a window border inside the scan."""
+def _near_inner_border(where: tuple, extent: tuple, shape: tuple, seam: bool = False) -> bool:
+    """Whether a region (``find_objects`` slices) comes within the guard of a window border inside the scan.
+
+    With ``seam`` both column borders are inside (a window continued past a 360 deg scan's seam).
+    """
     (h0, h1, w0, w1), (rows, cols) = extent, shape
     rows_of, cols_of = where
     return ((h0 > 0 and rows_of.start < GUARD_COLS) or (h1 < rows and rows_of.stop > h1 - h0 - GUARD_COLS)
-            or (w0 > 0 and cols_of.start < GUARD_COLS) or (w1 < cols and cols_of.stop > w1 - w0 - GUARD_COLS))
+            or ((seam or w0 > 0) and cols_of.start < GUARD_COLS)
+            or ((seam or w1 < cols) and cols_of.stop > w1 - w0 - GUARD_COLS))
 
 
 def _empty_window(scan: Scan, extent: tuple, core: tuple, margins: tuple) -> _Window:
@@ -412,7 +578,7 @@ def _empty_window(scan: Scan, extent: tuple, core: tuple, margins: tuple) -> _Wi
 _OUTPUTS = ("range", "outlier", "candidates", "background", "spread")
 
 
-def _assemble_core(k: int, tile: Scan, c0: int, c1: int, windows: list) -> tuple[Scan, list, list]:
+def _assemble_core(k: int, tile: Scan, c0: int, c1: int, cols: int, windows: list) -> tuple[Scan, list, list]:
     """The corrected tile of core ``k`` (columns ``c0:c1``) from its windows and the regions its neighbours keep.
 
     Parameters
@@ -423,6 +589,9 @@ def _assemble_core(k: int, tile: Scan, c0: int, c1: int, windows: list) -> tuple
         The input scan's columns ``c0:c1``, all rows.
     c0, c1 : int
         The core's columns.
+    cols : int
+        Columns of the scan: a window continued past a 360 deg scan's seam gives its columns ``c + cols``
+        and ``c - cols`` to column ``c``.
     windows : list of (int, _Window, int)
         Core number, window and leaf-label offset of every band's window of core ``k`` and of its existing
         neighbours.
@@ -456,16 +625,17 @@ def _assemble_core(k: int, tile: Scan, c0: int, c1: int, windows: list) -> tuple
         leaf[r0:r1] = numbered(window, offset, src)
         leaves += [{"leaf": offset + i + 1, "core": k, **t} for i, t in enumerate(window.traits)]
         skipped += [{"core": k, "reason": reason} for reason in window.skipped]
-    for j, window, offset in windows:  # then the regions any window keeps outside its own core rectangle
-        a, b = max(c0, window.w0), min(c1, window.w1)
+    for (j, window, offset), shift in itertools.product(windows, (0, -cols, cols)):
+        # then the regions any window keeps outside its own core rectangle
+        a, b = max(c0 + shift, window.w0), min(c1 + shift, window.w1)
         if a >= b:
             continue
         src = (slice(None), slice(a - window.w0, b - window.w0))
         claim = window.claim[src].copy()
-        if j == k:
+        if j == k and shift == 0:
             r0, r1 = window.core[:2]
             claim[r0 - window.h0:r1 - window.h0] = False
-        dst = (slice(window.h0, window.h1), slice(a - c0, b - c0))
+        dst = (slice(window.h0, window.h1), slice(a - shift - c0, b - shift - c0))
         for name in _OUTPUTS:
             grids[name][dst][claim] = getattr(window, name)[src][claim]
         leaf[dst][claim] = numbered(window, offset, src)[claim]

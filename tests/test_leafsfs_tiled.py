@@ -10,9 +10,9 @@ import tlssim
 from benchmarks.experiments.calibration import simulated_calibration
 from leafsfs import SfsError, reconstruct
 from leafsfs.cli import main
-from leafsfs.tiled import GUARD_COLS, margin_columns, margin_rows, reconstruct_tiled
+from leafsfs.tiled import GUARD_COLS, is_full_circle, margin_columns, margin_rows, reconstruct_tiled
 from tlssim.simulate import simulate_tiled
-from tlssim.tiled import open_tiled
+from tlssim.tiled import add_tile, open_tiled, start_tiled
 
 # The 9 cm pear leaf 1.5 m from the scanner spans columns 25-213 of the 309 of its scan (0.018 deg).
 LEAF_SIZE_M = 0.06  # smaller than the leaf: the margin that follows from it must grow (and does)
@@ -112,3 +112,48 @@ def test_reconstruct_command_on_a_tiled_scan(tiled_leaf, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "1 leaves in 3 tiles of 150 columns" in out and "pulses/s" in out
     assert open_tiled(tmp_path / "out" / "corrected").complete
+
+
+def test_same_output_for_any_worker_count_and_input_tiling(tiled_leaf, by_core, tmp_path):
+    tiled, calibration, _ = tiled_leaf
+    retiled = _retiled(tiled, tmp_path / "scan", 130)
+    assert retiled.tile_cols != tiled.tile_cols and retiled.load().range.tobytes() == tiled.load().range.tobytes()
+    runs = [by_core[77], reconstruct_tiled(retiled, tmp_path / "out", "buffer", calibration=calibration, core_cols=77,
+                                           leaf_size_m=LEAF_SIZE_M, workers=2)]
+    assert runs[1].windows == 5
+    (a, b) = (run.scan.load() for run in runs)
+    for key in ("range", "intensity", "xyz", "truth_id"):
+        assert getattr(a, key).tobytes() == getattr(b, key).tobytes(), key
+    assert a.layers.keys() == b.layers.keys()
+    for key in a.layers:
+        assert a.layers[key].tobytes() == b.layers[key].tobytes(), key
+    assert runs[0].traits == runs[1].traits and len(runs[0].traits) == 1
+    with pytest.raises(SfsError, match="workers >= 1"):
+        reconstruct_tiled(tiled, tmp_path / "none", "buffer", calibration=calibration, workers=0)
+
+
+def _retiled(tiled, path, tile_cols):
+    """The same scan written again in tiles of ``tile_cols`` columns."""
+    header = {key: tiled.index[key] for key in ("shape", "scanner", "scanner_position", "scanner_rotation",
+                                                "object_names", "meta", "theta_columns", "psi_rows", "has_truth")}
+    index, todo = start_tiled(path, header, tiled.index["fingerprint"], tile_cols)
+    for c0, c1 in todo:
+        add_tile(path, index, c0, tiled.load_columns(c0, c1))
+    return open_tiled(path)
+
+
+def test_a_leaf_cut_by_the_seam_of_a_360_deg_scan_is_one_leaf(tiled_leaf, tmp_path):
+    _, calibration, whole = tiled_leaf
+    scene = scenes.build("leaf-1.5m")  # the leaf spans azimuths -2.2 to 3.3 deg: the seam at 0 deg cuts it
+    section = {**scene.scanner, "window": {"theta_deg": [0.0, 359.964], "psi_deg": [88.5, 91.6], "step_deg": 0.036}}
+    scan = simulate_tiled(scene, tlssim.setup_from_section(section), tmp_path / "scan", seed=3, tile_cols=2500,
+                          progress=False, backend="llvm")
+    assert is_full_circle(scan.theta_columns) and not is_full_circle(scan.theta_columns[:-2])
+    result = reconstruct_tiled(scan, tmp_path / "out", "buffer", calibration=calibration, core_cols=2500)
+    (leaf,) = result.traits  # one leaf, not its two halves
+    (expected,) = whole.traits()  # the leaf in the middle of a window at half the step
+    assert leaf["area_m2"] == pytest.approx(expected["area_m2"], rel=0.05)
+    assert leaf["n_points"] == pytest.approx(expected["n_points"] / 4, rel=0.05)
+    assert not leaf["cut_by_border"] and leaf["core"] in (0, 3)
+    labels = result.scan.load().layers["leaf"]
+    assert labels[:, :80].max() == labels[:, -80:].max() == leaf["leaf"]  # both halves carry its label
