@@ -97,7 +97,7 @@ def _reconstruct(args) -> int:
     result = reconstruct(scan, mask, args.variant, params, calibration=args.calibration)
     paths = write_outputs(result, args.outdir)
     print(f"{len(result.leaves)} leaves, {int(result.corrected.sum())} distances corrected, "
-          f"{int(result.outlier.sum())} outliers; rppp_1 {result.rppp()['rppp_1']:.3f}")
+          f"{int(result.outlier.sum())} outliers ({int(result.removed.sum())} removed); rppp_1 {result.rppp()['rppp_1']:.3f}")
     for kind, path in paths.items():
         print(f"  {kind:10s} {path}")
     return 0

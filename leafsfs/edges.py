@@ -465,6 +465,40 @@ def _extrapolate(images: list, cores: np.ndarray, label: int, source: np.ndarray
     return values
 
 
+def bracketed(range_m: np.ndarray, band_px: int, tolerance_m: float) -> np.ndarray:
+    """Pulses whose range lies between those of two other pulses within the band, by more than the noise on each side.
+
+    A pulse that mixes two surfaces returns a distance between theirs, and
+    both surfaces have pulses within a footprint or two of it: within
+    ``band_px`` (a square of side ``2 band_px + 1``) there is a pulse nearer
+    and one farther by more than ``tolerance_m``. That is the range's proof
+    that a pulse is mixed; a pure pulse on the far side of an edge has no
+    farther pulse beside it, one on the near side no nearer one. A pure
+    pulse of a piece lying between a nearer and a farther surface passes the
+    test as well (the test cannot tell it from a mixed one).
+
+    Parameters
+    ----------
+    range_m : ndarray, 2-D
+        Measured ranges, m (NaN = no return).
+    band_px : int
+        Half the side of the square searched, pixels.
+    tolerance_m : float
+        Range difference that counts, m (the range noise's bound).
+
+    Returns
+    -------
+    ndarray of bool, 2-D
+        The bracketed pulses (False where there is no return).
+    """
+    size = 2 * int(band_px) + 1
+    valid = np.isfinite(range_m)
+    nearest = ndimage.minimum_filter(np.where(valid, range_m, np.inf), size=size, mode="nearest")
+    farthest = ndimage.maximum_filter(np.where(valid, range_m, -np.inf), size=size, mode="nearest")
+    with np.errstate(invalid="ignore"):
+        return valid & (range_m - nearest > tolerance_m) & (farthest - range_m > tolerance_m)
+
+
 def band_pixels(band_m: float, range_m: np.ndarray, surfaces: np.ndarray, step_rad: float) -> int:
     """``band_m`` in pixels at the nearest surface's median range (at least 2).
 

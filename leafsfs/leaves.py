@@ -111,12 +111,18 @@ class Segmentation:
         (about a radius outside the surface's edge) and one inside the
         edge, beyond which less than 3 % of a Gaussian footprint lies
         across it.
+    band_px : int
+        How far from a surface its mixed pulses may lie, pixels (``band_m``).
+    noise_m : float
+        Range noise the pairing allowed (a third of its tolerance), m.
     """
 
     leaves: np.ndarray
     leaf_surfaces: np.ndarray
     mixed: MixedPulses
     footprint_px: float = 1.0
+    band_px: int = 2
+    noise_m: float = NOISE_FLOOR_M
 
     def region_surface(self, label: int) -> int:
         """Surface label of leaf region ``label``."""
@@ -318,7 +324,8 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     leaf_surfaces = np.nonzero(leaf)[0]
     relabel = np.zeros(len(leaf), dtype=int)
     relabel[leaf_surfaces] = np.arange(1, len(leaf_surfaces) + 1)
-    return Segmentation(np.where(mixed.thin, 0, relabel[mixed.owner]), leaf_surfaces, mixed, max(1.0, 2 * footprint))
+    return Segmentation(np.where(mixed.thin, 0, relabel[mixed.owner]), leaf_surfaces, mixed, max(1.0, 2 * footprint),
+                        band, sigma)
 
 
 def _border_labels(surfaces: np.ndarray) -> np.ndarray:

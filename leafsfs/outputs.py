@@ -41,7 +41,7 @@ def write_outputs(result: SfsResult, outdir) -> dict[str, Path]:
     report = {"variant": result.variant, "leaves": json_ready(result.traits()),
               "skipped": [{"leaf": label, "reason": reason} for label, reason in result.skipped],
               "rppp": result.rppp(), "n_corrected": int(result.corrected.sum()),
-              "n_outliers": int(result.outlier.sum()), "params": result.params.to_dict()}
+              "n_outliers": int(result.outlier.sum()), "n_removed": int(result.removed.sum()), "params": result.params.to_dict()}
     paths["traits"] = outdir / "traits.json"
     paths["traits"].write_text(json.dumps(report, indent=1, allow_nan=False))
     paths["preview"] = preview(result, outdir / "preview.png")

@@ -119,6 +119,13 @@ class SfsParams:
         rounded up to the 1.8 mm the simulator gives at 1.5 m).
     gate_sigma : float
         Innovation gate of the fused variant in standard deviations.
+    unexplained : {"keep", "remove"}
+        What becomes of a mixed pulse that no surface explains (no leaf
+        region corrects it and no pair of surfaces gives it a distance) and
+        whose range proves it mixed (:func:`leafsfs.edges.bracketed`):
+        ``keep`` its measured distance, which lies between two surfaces and
+        on neither, or ``remove`` it (NaN in the corrected scan, flagged an
+        outlier and ``removed``).
     """
 
     n_smooth: int = 20
@@ -147,6 +154,7 @@ class SfsParams:
     sigma_alpha_deg: float = 3.0
     sigma_range_m: float = 0.002
     gate_sigma: float = 3.0
+    unexplained: str = "remove"
 
     def __post_init__(self):
         _choice(self, "quantization", ("shell", "percentile", "fixed"))
@@ -170,6 +178,7 @@ class SfsParams:
         if self.outlier_threshold_m is not None:
             _number(self, "outlier_threshold_m", 0.0, 10.0, open_low=True)
         _choice(self, "inliers", ("auto", "keep", "test", "refine", "replace"))
+        _choice(self, "unexplained", ("keep", "remove"))
         _number(self, "trait_smoothing_m", 0.0, 1.0, open_low=True)
         _number(self, "sigma_alpha_deg", 0.0, 45.0, open_low=True)
         _number(self, "sigma_range_m", 0.0, 1.0, open_low=True)

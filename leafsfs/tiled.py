@@ -120,7 +120,8 @@ class TiledResult:
     Attributes
     ----------
     scan : TiledScan
-        The corrected scan (layers ``outlier``, ``candidates``, ``leaf``, ``background``, ``range_spread``).
+        The corrected scan (layers ``outlier``, ``candidates``, ``leaf``, ``background``, ``removed``,
+        ``range_spread``).
     traits : list of dict
         One entry per leaf (``leaf``: its label in the ``leaf`` layer, plus the traits of
         :attr:`leafsfs.reconstruct.LeafResult.traits`, ``core`` and ``margin_cols``).
@@ -640,7 +641,8 @@ def _assemble_core(k: int, tile: Scan, c0: int, c1: int, cols: int, windows: lis
             grids[name][dst][claim] = getattr(window, name)[src][claim]
         leaf[dst][claim] = numbered(window, offset, src)[claim]
     layers = {**tile.layers, "outlier": grids["outlier"], "candidates": grids["candidates"].astype(np.int32),
-              "leaf": leaf, "background": grids["background"], "range_spread": grids["spread"].astype(np.float32)}
+              "leaf": leaf, "background": grids["background"],
+              "removed": grids["outlier"] & np.isnan(grids["range"]), "range_spread": grids["spread"].astype(np.float32)}
     scan = dataclasses.replace(tile, range=grids["range"], layers=layers,
                                xyz=grid_to_xyz(grids["range"], tile.theta, tile.psi, tile.pose))
     return scan, leaves, skipped

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from leafsfs.edges import attribute_mixed, geometric_share
+from leafsfs.edges import attribute_mixed, bracketed, geometric_share
 from leafsfs.frame import local_frame
 from leafsfs.grid import gaussian_planes
 from leafsfs.leaves import range_noise, segment_scan, split_thin_parts, surface_widths
@@ -52,6 +52,22 @@ def test_a_pulse_within_the_noise_of_a_surface_is_its_own():
     surfaces[40, 40] = 0
     mixed = attribute_mixed(range_m, surfaces, 12, tolerance_m=0.003)
     assert mixed.owner[40, 40] == 1 and not mixed.straddling[40, 40] and mixed.share_of(1)[40, 40] == 1.0
+
+
+def test_the_range_proves_mixed_the_pulses_between_a_nearer_and_a_farther_one():
+    # plate 1.5 m before a wall 2.5 m, an 8 px edge profile (12.5 cm per pulse), 1 mm noise, 5 sigma steps
+    rng = np.random.default_rng(2)
+    range_m, share, surfaces, _, _ = _edge_scene(rng, noise=0.001)
+    proven = bracketed(range_m, 2, 0.005)
+    assert proven[(share > 0.1) & (share < 0.9)].all()
+    # pure pulses: nothing nearer beside those of the plate, nothing farther beside those of the wall; but beside the
+    # edge a mixed pulse is on one side, and a noise tail of a neighbour can be on the other (2 of 5,120 here)
+    assert proven[surfaces > 0].mean() < 1e-3
+    assert not proven[(surfaces > 0) & (ndimage.distance_transform_edt(surfaces > 0) > 2)].any()
+    # no return is never proven mixed, and its NaN proves nothing about the pulses beside it
+    range_m[:, :10] = np.nan
+    again = bracketed(range_m, 2, 0.005)
+    assert not again[:, :10].any() and np.array_equal(again[:, 12:], proven[:, 12:])
 
 
 def test_geometric_share_inverts_the_power_share():

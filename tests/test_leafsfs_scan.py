@@ -1,5 +1,6 @@
 """PROP-SFS on scans: local frame, simulated single and clustered leaves, outputs, CLI and errors."""
 
+import copy
 import json
 import sys
 
@@ -192,7 +193,8 @@ def test_corrected_scan_round_trip_and_cli(leaf_scan, tmp_path):
                  str(outdir)]) == 0
     corrected = tlssim.Scan.load(outdir / "corrected.npz")
     with np.load(path) as before, np.load(outdir / "corrected.npz") as after:
-        assert set(before.files) | {"outlier", "candidates", "leaf", "background", "range_spread"} == set(after.files)
+        assert set(before.files) | {"outlier", "candidates", "leaf", "background", "removed", "range_spread"} == \
+            set(after.files)
     assert corrected.layers["outlier"].dtype == bool and corrected.layers["candidates"].max() >= 1
     changed = corrected.range != scan.range
     leaf, background = corrected.layers["leaf"] > 0, corrected.layers["background"]
@@ -309,6 +311,32 @@ def test_mixed_pulses_of_a_leaf_without_heights_take_the_leaf_planes_distance(le
     # one: a noise tail, about 1 in 10^4)
     pure = (result.labels > 0) & (scan.mixed_fraction < 1e-3)
     assert np.mean(result.range[pure] != scan.range[pure]) < 1e-3 and pure.sum() > 1000
+
+
+def test_a_mixed_pulse_that_no_surface_explains_is_removed(leaf_scan, leaf_result):
+    # A one-pulse fragment 30 cm before the wall (a twig end: no surface, fewer pulses than a piece) ringed by
+    # pulses half way between it and the wall: no pair of surfaces brackets them, their range proves them mixed
+    # (the fragment nearer, the wall farther): they are removed. The fragment's own pulse is kept, as is the leaf.
+    _, scan, calibration = leaf_scan
+    scan = copy.copy(scan)
+    scan.range = scan.range.copy()
+    wall = np.isfinite(scan.range) & (np.abs(scan.range - 2.5) < 0.01)
+    far = ndimage.distance_transform_edt(wall) > 12
+    i, j = np.argwhere(far)[len(np.argwhere(far)) // 2]
+    ring = np.zeros(scan.shape, bool)
+    ring[i - 1:i + 2, j - 1:j + 2] = True
+    ring[i, j] = False
+    scan.range[ring] = scan.range[i, j] - 0.15
+    scan.range[i, j] -= 0.3
+    result = reconstruct(scan, variant="buffer", calibration=calibration)
+    assert result.removed[ring].all() and not result.removed[i, j] and result.removed.sum() == ring.sum()
+    assert result.outlier[ring].all() and np.isnan(result.corrected_scan().xyz[ring]).all()
+    assert len(result.points()) == int((result.corrected & ~result.removed).sum())
+    # the leaf is untouched (its area moves by the range noise's estimate only); with unexplained="keep" nothing goes
+    areas = [leaf.traits["area_m2"] for leaf in result.leaves]
+    assert areas == pytest.approx([leaf.traits["area_m2"] for leaf in leaf_result.leaves], rel=1e-4)
+    kept = reconstruct(scan, variant="buffer", params=SfsParams(unexplained="keep"), calibration=calibration)
+    assert not kept.removed.any() and np.array_equal(kept.range[ring], scan.range[ring])
 
 
 def test_outline_pulses_mostly_off_their_leaf_take_its_corrected_distance(monkeypatch):
