@@ -25,6 +25,9 @@ steps, all from range and the scan grid (no truth), separate them:
   planes meet at an angle with no range step (:func:`crease_pulses`: a
   leaf touching another at the same distance, a leaf lying on a branch),
   and its parts are judged again.
+* :func:`narrow_surfaces`: surfaces narrower in 3-D than a leaf (four
+  second principal spreads under 1.6 cm) are no leaves: strips of leaves
+  split off by an occluder or the linking, and short twig pieces.
 * :func:`dark_surfaces`: surfaces whose intensity says a steeper incidence
   than the plane of their ranges by more than the intensity's tolerance
   are no leaves: short twig and branch pieces (a bulging front that a
@@ -36,7 +39,9 @@ than ``1 / max_aspect`` of its length (grass, willow) is taken for wood; a
 short twig piece seen between two leaves (shorter than ``max_aspect`` times
 its diameter) is taken for a leaf unless it is dark for its plane; a leaf
 darker than the calibrated leaf (seen through another, or of a lower
-reflectance) is taken for wood.
+reflectance) is taken for wood; a leaf narrower than 1.6 cm (olive, grass),
+or a visible strip of a leaf that narrow (most of it hidden, or turned
+edge-on), is no leaf.
 """
 
 from __future__ import annotations
@@ -50,9 +55,11 @@ from leafsfs.errors import SfsError
 from leafsfs.grid import gaussian_planes
 from tlssim.pattern import beam_frame
 
-#: Incidence at which the area of a pulse stops growing as 1 / cos(alpha), deg (the intensity is unreliable
-#: beyond about 60 deg, thesis ch.6).
-MAX_AREA_INCIDENCE_DEG = 75.0
+#: Incidence at which the area of a pulse stops growing as 1 / cos(alpha) in the sparse test of
+#: :func:`wood_surfaces`, deg (the intensity is unreliable beyond about 60 deg, thesis ch.6; at 75 deg a curled leaf
+#: seen beyond it filled less than half of its ellipse and was taken for wood; the wood pieces that 85 deg let
+#: through are mostly narrower than a leaf, :func:`narrow_surfaces`).
+MAX_AREA_INCIDENCE_DEG = 85.0
 #: Share of the ring around a leaf region nearer than the leaf above which the leaf is cut by an occluder
 #: (assumption: a twig 1/20 of the leaf's outline long crossing it).
 OCCLUDED_RING_SHARE = 0.05
@@ -526,6 +533,35 @@ def principal_spreads(surfaces: np.ndarray, range_m: np.ndarray, theta: np.ndarr
     return out
 
 
+def narrow_surfaces(surfaces: np.ndarray, range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray,
+                    min_width_m: float) -> np.ndarray:
+    """Which surfaces are narrower in 3-D than a leaf (index = label; False for 0).
+
+    A surface's width is four times the spread of its points along their
+    second principal axis (a filled ellipse of width ``w`` has a spread of
+    ``w / 4`` across it, a rectangle ``w / sqrt(12)``). Points in 3-D are
+    free of foreshortening, so a leaf seen at grazing incidence keeps its
+    width; what is narrower is a piece of a leaf (a strip between an
+    occluder and the leaf's outline, or a rim the linking split off) or a
+    short twig piece, neither of which holds a leaf's traits.
+
+    Parameters
+    ----------
+    surfaces : ndarray of int, 2-D
+        Surface labels (0: none).
+    range_m, theta, psi : ndarray, 2-D
+        Scan grids (m, rad).
+    min_width_m : float
+        Narrowest leaf, m (0: none is narrow).
+    """
+    if not min_width_m >= 0:
+        raise SfsError(f"min_width_m must be non-negative, got {min_width_m!r}")
+    with np.errstate(invalid="ignore"):
+        narrow = 4 * principal_spreads(surfaces, range_m, theta, psi)[:, 1] < min_width_m
+    narrow[0] = False
+    return narrow
+
+
 def wood_surfaces(surfaces: np.ndarray, range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, step_rad: float,
                   alpha: np.ndarray | None = None, *, max_aspect: float = 4.0, min_fill: float = 0.5) -> np.ndarray:
     """Which surfaces are shaped like wood (index = label; False for 0).
@@ -537,7 +573,7 @@ def wood_surfaces(surfaces: np.ndarray, range_m: np.ndarray, theta: np.ndarray, 
       ellipse the ratio is its length over its width, whatever its size,
       distance or orientation to the beam): a twig, branch or trunk piece;
     * sparse: its area (pixel footprints divided by ``cos(alpha)``, the
-      intensity-derived incidence capped at 75 deg) covers less than
+      intensity-derived incidence capped at :data:`MAX_AREA_INCIDENCE_DEG`) covers less than
       ``min_fill`` of the ellipse its two principal spreads span (``4 pi s1
       s2``; a filled ellipse or rectangle gives about 1): a fork or a
       network of branches.

@@ -28,7 +28,7 @@ import numpy as np
 from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 
-from leafsfs.canopy import (dark_surfaces, edge_pulses, join_occluded, pulse_noise, shifted,
+from leafsfs.canopy import (dark_surfaces, edge_pulses, join_occluded, narrow_surfaces, pulse_noise, shifted,
                             split_creases, split_necks, wood_surfaces)
 from leafsfs.edges import MixedPulses, attribute_mixed, band_pixels
 from leafsfs.errors import SfsError
@@ -176,7 +176,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
                  intensity: np.ndarray | None = None, edge_radius_m: float = 0.0025, edge_factor: float = 2.5,
                  neck_ratio: float = 0.3, gain_dn: float | None = None, max_aspect: float = 4.0,
                  min_fill: float = 0.5, occluder_gap_m: float = 0.01, crease_angle_deg: float = 40.0,
-                 min_piece_px: int = 3) -> Segmentation:
+                 min_piece_px: int = 3, min_leaf_width_m: float = 0.016) -> Segmentation:
     """Surfaces, mixed pulses and leaf regions of a scan.
 
     Parameters
@@ -261,6 +261,11 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         a piece of a mostly hidden leaf or a twig and what lies behind it are
         paired with both, never leaves themselves (3: the fewest pulses that
         fix a plane; 0: none).
+    min_leaf_width_m : float
+        Surfaces narrower in 3-D (four second principal spreads,
+        :func:`leafsfs.canopy.narrow_surfaces`) are no leaves: leaf pieces and
+        twig pieces (assumption: 1.6 cm; pear, apple and vine leaves are
+        3-10 cm wide; 0: none).
     """
     valid = np.isfinite(range_m)
     if not valid.any():
@@ -294,7 +299,8 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         surfaces = split_necks(surfaces, neck_ratio, piece_px, keep=_border_labels(surfaces) if drop_border else None)
     def leaves_of(surfaces):
         leaf = (surface_widths(surfaces, range_m, step) >= min_width_m) & \
-            ~wood_surfaces(surfaces, range_m, theta, psi, step, alpha, max_aspect=max_aspect, min_fill=min_fill)
+            ~wood_surfaces(surfaces, range_m, theta, psi, step, alpha, max_aspect=max_aspect, min_fill=min_fill) \
+            & ~narrow_surfaces(surfaces, range_m, theta, psi, min_leaf_width_m)
         if alpha is not None:
             leaf &= ~dark_surfaces(surfaces, range_m, alpha, step, math.radians(alpha_margin_deg), sigma)
         leaf[0] = False

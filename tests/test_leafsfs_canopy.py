@@ -9,12 +9,12 @@ import pytest
 import scenes
 import tlssim
 from leafsfs import SfsError, reconstruct
-from leafsfs.canopy import (crease_pulses, dark_surfaces, edge_pulses, join_occluded, plane_fits, rim_shares,
-                            shifted, split_creases, split_necks,
-                            visibility, wood_surfaces)
+from leafsfs.canopy import (crease_pulses, dark_surfaces, edge_pulses, join_occluded, narrow_surfaces, plane_fits,
+                            rim_shares, shifted, split_creases, split_necks, visibility, wood_surfaces)
 from leafsfs.leaves import range_noise
 from leafsfs.leaves import segment_scan
 from leafsfs.preprocess import scan_alpha
+from tlssim.pattern import beam_frame
 from benchmarks.experiments.calibration import simulated_calibration
 
 STEP = math.radians(0.036)
@@ -132,6 +132,44 @@ def test_wood_surfaces_are_elongated_or_sparse_whatever_their_scale():
         assert wood.tolist() == [False, False, True, True]
     with pytest.raises(SfsError):
         wood_surfaces(labels, range_m, theta, psi, STEP, max_aspect=0.5)
+
+
+def _tilted_plane(distance, incidence_deg, rows=200, cols=200):
+    """Ranges of a plane ``distance`` m ahead turned ``incidence_deg`` about the vertical, and its points' in-plane
+    coordinates (across the turn, vertical), m."""
+    theta, psi = _grid(rows, cols)
+    u = beam_frame(theta, psi)[0]
+    axis = u[rows // 2, cols // 2]
+    turn = math.radians(incidence_deg)
+    up = np.array([0.0, 0.0, 1.0])
+    side = np.cross(up, axis)
+    normal = math.cos(turn) * axis + math.sin(turn) * side
+    range_m = distance * (axis @ normal) / (u @ normal)
+    point = u * range_m[..., None] - distance * axis
+    return theta, psi, range_m, point @ (math.cos(turn) * side - math.sin(turn) * axis), point @ up
+
+
+def test_narrow_surfaces_measure_the_width_in_3d_not_in_the_image():
+    rng = np.random.default_rng(3)
+    for distance, incidence in ((2.0, 0.0), (2.0, 80.0), (5.0, 75.0)):
+        theta, psi, range_m, across, up = _tilted_plane(distance, incidence)
+        labels = np.zeros(range_m.shape, int)
+        # a 3 x 6 cm leaf (seen at 80 deg only 5 mm wide in the image) and a 1 cm wide strip of a leaf or a twig
+        labels[(across / 0.015) ** 2 + ((up - 0.035) / 0.03) ** 2 <= 1] = 1
+        labels[(np.abs(across) <= 0.005) & (np.abs(up + 0.03) <= 0.03)] = 2
+        noisy = range_m + rng.normal(0, NOISE_M, range_m.shape)
+        assert narrow_surfaces(labels, noisy, theta, psi, 0.016).tolist() == [False, False, True]
+        assert not narrow_surfaces(labels, noisy, theta, psi, 0.0).any()
+    with pytest.raises(SfsError):
+        narrow_surfaces(labels, range_m, theta, psi, -0.01)
+
+
+def test_a_flat_leaf_seen_at_83_deg_fills_its_ellipse_and_is_no_wood():
+    # the sparse test counts each pulse's area up to MAX_AREA_INCIDENCE_DEG (at a cap of 75 deg: fill 0.47, wood)
+    theta, psi, range_m, across, up = _tilted_plane(1.0, 83.0, 300, 300)
+    labels = ((across / 0.015) ** 2 + (up / 0.03) ** 2 <= 1).astype(int)
+    alpha = np.full(range_m.shape, math.radians(83.0))
+    assert labels.sum() > 30 and wood_surfaces(labels, range_m, theta, psi, STEP, alpha).tolist() == [False, False]
 
 
 def test_dark_surfaces_a_bark_cylinder_is_darker_than_its_plane_a_leaf_is_not():
