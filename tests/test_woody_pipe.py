@@ -52,4 +52,22 @@ def test_a_resolved_tree_keeps_its_radii(y_tree):
         [r for r, b in zip(radii, plain.branches) if b["n_points"] >= 100]
     assert piped.volume <= plain.volume
     assert all(piped.branches[0]["reliable"])
-    assert "reliable" not in plain.branches[0]
+    assert all(plain.branches[0]["reliable"])  # strict mode marks clamped sections only: none here
+
+
+def test_a_clamped_circle_drawn_across_twigs_is_told_from_a_limb_under_a_thin_parent():
+    from woody.cylinders import _cap_radii, _covered
+
+    spacing = 0.005
+    # A limb's visible half (r 2 cm, 0.2 m long) sampled at the spacing; three twigs (lines of points 1 cm apart)
+    # whose points a 6 cm circle was fitted across.
+    phi, z = np.meshgrid(np.arange(-np.pi / 2, np.pi / 2, spacing / 0.02), np.arange(0.0, 0.2, spacing))
+    limb = np.c_[0.02 * np.cos(phi.ravel()), 0.02 * np.sin(phi.ravel()), z.ravel()]
+    twigs = np.concatenate([np.c_[np.full(40, x), np.zeros(40), np.arange(40) * spacing] for x in (0.0, 0.01, 0.02)])
+    assert _covered([([0, 0, 0], [0, 0, 0.2], 0.02)], limb, spacing) == [True]
+    assert _covered([([0, 0, 0], [0, 0, 0.2], 0.06)], twigs, spacing) == [False]
+    parent = {"sections": [([0, 0, -1.0], [0, 0, 0.0], 0.01)], "radius_m": 0.01}
+    child = {"start": [0, 0, 0], "radius_m": 0.06,
+             "sections": [([0, 0, 0], [0, 0, 0.1], 0.0105), ([0, 0, 0.1], [0, 0, 0.2], 0.06)]}
+    assert _cap_radii(child, parent, 1.1) == [False, True]  # within k_r of the parent: not a misfit
+    assert [s[2] for s in child["sections"]] == [0.01, 0.01] and child["radius_m"] == 0.01
