@@ -20,6 +20,12 @@ area element grows as ``1 / cos``, a slightly flattened leaf loses much of
 its area (a flat 9 cm leaf at 80 deg and 3.5 m, 0.018 deg, whose band of
 edge pulses is as wide as its pure part: -21 % from all pulses, +2 % from
 the pure ones), on half the smoothing (:data:`AREA_SMOOTHING_FRACTION`).
+In the band of mixed pulses beyond the reach of those planes the slope is
+that of the quadratic surface fitted to all pure pulses, not the nearest
+plane's: a rolled or cupped leaf is steeper towards its margins, and at
+grazing incidence, where most of a leaf's pulses are mixed, the flatter
+middle's slope carried out to the border lost area (the standard suite's 80
+deg leaves: median -37.6 -> -32.5 %).
 Parts of a curled leaf turned edge-on or hidden behind its own curl are not
 seen and not counted.
 
@@ -52,6 +58,13 @@ PURE_SLOPE_MIN_PX = 16
 #: within the smoothing, and near grazing incidence the area element, convex in the slope, loses what a wide plane
 #: averages away; range noise of 2 mm inflates a plate's area by under 1 % at this scale.
 AREA_SMOOTHING_FRACTION = 0.5
+#: Largest RMS residual of the quadratic fitted to a leaf's pure heights, in units of their noise, for its slopes to
+#: be carried to the border (assumption: a leaf's smooth curl fits within a few noise widths; two leaves or a leaf
+#: and a twig in one region do not).
+QUADRATIC_MAX_NOISE_RATIO = 3.0
+#: Smallest noise that ratio is taken of, m (assumption: a scanner's range noise is no finer than half a millimetre;
+#: noiseless heights would otherwise hold the quadratic to a leaf's exact shape).
+MIN_HEIGHT_NOISE_M = 0.0005
 
 
 def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoothing_m: float) -> dict:
@@ -133,7 +146,12 @@ def _area_slope_elements(elements, height: np.ndarray, known: np.ndarray, weight
                          fallback: np.ndarray) -> np.ndarray:
     """Area elements from the local planes of the pure pulses (weight 1) alone, or ``fallback`` with too few of them.
 
-    The orientation keeps the planes of all pulses; only the area takes these.
+    Where no local plane of pure pulses could be fitted (the band of mixed
+    pulses along the border), the slope is that of the quadratic surface
+    fitted to all pure pulses (:func:`_quadratic_slope`): a curled leaf gets
+    steeper towards its margins, and the nearest plane's slope would carry
+    the flatter middle out to the border. The orientation keeps the planes of
+    all pulses; only the area takes these.
     """
     pure = known & (weight >= 1)
     if pure.sum() < PURE_SLOPE_MIN_PX:
@@ -141,4 +159,43 @@ def _area_slope_elements(elements, height: np.ndarray, known: np.ndarray, weight
     _, slope, fitted = gaussian_planes(height, pure, sigma_px)
     if not fitted.any():
         return fallback
-    return elements(slope[tuple(ndimage.distance_transform_edt(~fitted, return_distances=False, return_indices=True))])
+    quadratic = _quadratic_slope(height, pure)
+    if quadratic is None:
+        return elements(slope[tuple(ndimage.distance_transform_edt(~fitted, return_distances=False,
+                                                                   return_indices=True))])
+    return elements(np.where(fitted[..., None], slope, quadratic))
+
+
+def _quadratic_slope(height: np.ndarray, known: np.ndarray) -> np.ndarray | None:
+    """Gradient per pixel step ``(rows, cols, 2)`` of the least-squares quadratic surface through the known heights.
+
+    The quadratic ``h = c0 + c1 i + c2 j + c3 i^2 + c4 i j + c5 j^2`` in the
+    pixel indices, centred and scaled on the known pixels so the normal
+    equations stay well conditioned. ``None`` where its RMS residual exceeds
+    :data:`QUADRATIC_MAX_NOISE_RATIO` times the heights' noise (estimated
+    from their second differences along rows and columns): a region that is
+    no single smooth leaf, whose extrapolated slopes would be arbitrary.
+    """
+    rows, cols = np.nonzero(known)
+    centre = np.array([rows.mean(), cols.mean()])
+    scale = max(float(np.ptp(rows)), float(np.ptp(cols)), 1.0)
+    i, j = (rows - centre[0]) / scale, (cols - centre[1]) / scale
+    design = np.column_stack([np.ones_like(i), i, j, i * i, i * j, j * j])
+    c = np.linalg.lstsq(design, height[known], rcond=None)[0]
+    residual = np.sqrt(np.mean((design @ c - height[known]) ** 2))
+    if not residual <= QUADRATIC_MAX_NOISE_RATIO * max(_noise(height, known), MIN_HEIGHT_NOISE_M):
+        return None
+    grid_i, grid_j = ((index - centre[k]) / scale for k, index in enumerate(np.indices(height.shape)))
+    return np.stack([c[1] + 2 * c[3] * grid_i + c[4] * grid_j, c[2] + c[4] * grid_i + 2 * c[5] * grid_j],
+                    axis=-1) / scale
+
+
+def _noise(height: np.ndarray, known: np.ndarray) -> float:
+    """Robust standard deviation of the known heights' noise, from their second differences (``var = 6 sigma^2``)."""
+    steps = []
+    for axis in (0, 1):
+        a, b = np.moveaxis(height, axis, 0), np.moveaxis(known, axis, 0)
+        both = b[:-2] & b[1:-1] & b[2:]
+        steps.append((a[:-2] - 2 * a[1:-1] + a[2:])[both])
+    second = np.abs(np.concatenate(steps))
+    return 1.4826 * float(np.median(second)) / math.sqrt(6.0) if len(second) else math.inf

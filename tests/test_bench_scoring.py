@@ -9,7 +9,6 @@ from benchmarks import scoring
 from benchmarks.generators import background_wall, elliptic_leaf, scanner_window
 from benchmarks.registry import VariantOutput
 from scenes.scene import Scene
-from tlssim.scan import Scan
 from tlssim.simulate import setup_from_section, simulate
 
 
@@ -24,18 +23,31 @@ def two_leaves():
     return scene, scan, scoring.prepare_leaves(scene, scan)
 
 
-def test_area_elements_use_the_measured_range_where_the_central_ray_misses():
-    """A plate facing the scanner at 2 m: r² dtheta dpsi per pulse, also at an edge pulse whose central ray missed."""
-    step = np.radians(0.1)
-    theta, psi = np.meshgrid(np.arange(5) * step, np.pi / 2 + np.arange(4) * step)
-    rng = np.full(theta.shape, 2.0)
-    truth = rng.copy()
-    truth[1, 4] = np.nan  # the central ray passed the plate's edge; other sub-rays returned at 2 m
-    scan = Scan(rng, np.ones(rng.shape, np.float32), theta, psi, np.zeros(rng.shape + (3,)), truth_range=truth,
-                truth_id=np.zeros(rng.shape, np.int32), mixed_fraction=np.zeros(rng.shape),
-                incidence=np.zeros(rng.shape), truth_normal=np.zeros(rng.shape + (3,)))
-    elements = scoring.area_elements(scan)
-    assert elements == pytest.approx(4.0 * step ** 2 * np.sin(psi), rel=1e-12)
+def test_visible_areas_count_edge_on_parts_and_leave_out_hidden_and_out_of_window_ones():
+    """Analytic visible areas: a leaf facing the scanner, one at 89.5 deg (a footprint sum diverges or misses it),
+    one whose middle another leaf hides exactly, one half outside the window."""
+    tilt = np.radians(89.5)
+    facing = elliptic_leaf("facing", (2.0, 0.0, 0.0), (-1, 0, 0), (0, 1, 0), 0.08, 0.05)
+    grazing = elliptic_leaf("grazing", (2.0, 0.2, 0.0), (-np.cos(tilt), 0, np.sin(tilt)), (0, 1, 0), 0.08, 0.05)
+    hidden = elliptic_leaf("hidden", (3.0, -0.2, 0.0), (-1, 0, 0), (0, 1, 0), 0.08, 0.05)
+    cover = elliptic_leaf("cover", (2.0, -0.2 * 2.0 / 3.0, 0.0), (-1, 0, 0), (0, 1, 0), 0.04, 0.025)
+    cut = elliptic_leaf("cut", (2.0, 0.0, 0.3), (-1, 0, 0), (0, 0, 1), 0.08, 0.05)
+    objects = [facing, grazing, hidden, cover, cut]
+    section = scanner_window(objects[:4], margin_deg=0.2)
+    section["window"]["psi_deg"][0] = 90.0 - np.degrees(np.arctan2(0.3, 2.0))  # through the cut leaf's centre
+    section["window"]["step_deg"] = 0.2
+    scene = Scene(objects, section, "visible-areas")
+    scan = simulate(scene, setup_from_section(scene.scanner), seed=1, progress=False)
+    seen = scoring.visible_areas(scene, scan, range(5))
+    area = {i: o.truth["area_m2"] for i, o in enumerate(objects)}
+    assert seen[0] == pytest.approx(area[0], rel=1e-9)
+    assert seen[1] == pytest.approx(area[1], rel=1e-9)
+    # The cover, at 2/3 of the distance and 1/2 the size, spans 3/4 of its angles: it hides 9/16 of its area.
+    assert seen[2] == pytest.approx(7 / 16 * area[2], rel=0.02)
+    assert seen[3] == pytest.approx(area[3], rel=1e-9)
+    # The window's first row (half a step beyond the first beam) cuts the 8 x 5 cm ellipse at height z_b.
+    t = (2.0 / np.tan(scan.psi[0, 0] - np.radians(0.1)) - 0.3) / 0.04
+    assert seen[4] / area[4] == pytest.approx((t * np.sqrt(1 - t * t) + np.arcsin(t) + np.pi / 2) / np.pi, rel=0.01)
 
 
 def test_leaf_points_include_mixed_pulses_and_visibility_sees_occlusion(two_leaves):
@@ -43,9 +55,9 @@ def test_leaf_points_include_mixed_pulses_and_visibility_sees_occlusion(two_leav
     back, front = leaves
     assert (back.name, front.name) == ("back", "front")
     assert front.scan_stats["visibility"] == pytest.approx(1.0)
-    # What the pulses it dominates see of the front leaf (flat, facing the scanner): its whole area, to the pixel.
-    assert front.scan_stats["visible_area_ratio"] == pytest.approx(1.0, abs=0.1)
-    assert back.scan_stats["visible_area_ratio"] == pytest.approx(0.5, abs=0.15)
+    # The front leaf is seen whole; it hides half the back leaf (visible areas traced on the mesh).
+    assert front.scan_stats["visible_area_ratio"] == pytest.approx(1.0, rel=1e-9)
+    assert back.scan_stats["visible_area_ratio"] == pytest.approx(0.5, abs=0.1)
     assert back.scan_stats["visibility"] == pytest.approx(0.5, abs=0.1)
     # The leaf's points: its own pulses plus wall- or leaf-dominated pulses with >= 10 % of their power from it.
     assert front.own.sum() < front.mask.sum()
