@@ -222,7 +222,15 @@ def scene_delta_alpha(scene, seed: int) -> np.ndarray:
 
 
 def leaf_delta_alpha(distance_m: float, seed: int) -> np.ndarray:
-    """:func:`scene_delta_alpha` on the built-in ``leaf-<d>m`` scene (1.5, 3 or 5 m), degrees."""
+    """:func:`scene_delta_alpha` on the built-in ``leaf-<d>m`` scene (1.5, 3 or 5 m), degrees.
+
+    Parameters
+    ----------
+    distance_m : float
+        Distance of the leaf, m: 1.5, 3 or 5 (the built-in scenes).
+    seed : int
+        Seed of the scan and of the calibration scans.
+    """
     return scene_delta_alpha(scenes.build(f"leaf-{distance_m:g}m"), seed)
 
 
