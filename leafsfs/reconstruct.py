@@ -477,6 +477,8 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
             share = mixed.share_of(surface, gain, box)
             # Pure pulses at the outline with nothing beside the leaf count for the part of their footprint on it.
             rim = rim_shares(labels[box] == k, scan.intensity[box], gain, segmentation.footprint_px)
+            rim = np.where(_mixes_in_range(labels[box] == k, mixed.pair[box] == surface, segmentation.footprint_px),
+                           1.0, rim)
             shares.add(k, box, np.where(share >= 1, np.minimum(share, rim), share))
             partial[box] |= (labels[box] == k) & (share >= 1) & (rim < RIM_PARTIAL_SHARE)
         # Mixed pulses dominated by a surface that is not a leaf (the wall behind) take its distance; so do those of
@@ -507,6 +509,34 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
     proven = unreliable & bracketed(scan.range, max(1, segmentation.band_px // 3),
                                     MIXED_PROOF_SIGMA * segmentation.noise_m)
     return _Regions(labels, shares, background, unreliable, out_range, owner_range, proven)
+
+
+def _mixes_in_range(region: np.ndarray, paired: np.ndarray, rim_px: float) -> np.ndarray:
+    """Pulses of ``region`` whose footprint can reach past its outline only onto pulses paired with its surface.
+
+    Where the part of a footprint off the leaf returns (a surface behind),
+    its range shows the mixing and :func:`leafsfs.edges.attribute_mixed`
+    pairs it; a pulse the range found pure is then wholly on the leaf, and
+    its intensity deficit at a grazing leaf's outline is incidence (a few
+    degrees more of it at 80 deg take a quarter of the power), not partial
+    cover. Only pulses within ``rim_px`` of something else (no return, or
+    an unpaired pulse) can lose power to the outline unseen in range.
+
+    Parameters
+    ----------
+    region : ndarray of bool, 2-D
+        The region's pulses.
+    paired : ndarray of bool, (rows, cols, 2)
+        Mixed pulses paired with the region's surface (either member).
+    rim_px : float
+        A footprint radius, pixels.
+
+    Returns
+    -------
+    ndarray of bool, 2-D
+    """
+    seen = region | paired.any(axis=-1)
+    return region & (ndimage.distance_transform_edt(np.pad(seen, 1, constant_values=False))[1:-1, 1:-1] > rim_px)
 
 
 def _fit_leaf(scan: Scan, alpha: np.ndarray, region: np.ndarray, share: np.ndarray, unreliable: np.ndarray,
