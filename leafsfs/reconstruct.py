@@ -265,8 +265,8 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
                        for a, b, n in zip(boxes[label - 1], regions.shares.box(label), scan.shape))
         region = regions.labels[window] == label
         try:
-            fit = _fit_leaf(scan, alpha, region, regions.shares.crop(label, window) > 0, regions.unreliable, variant,
-                            params, inliers, window)
+            fit = _fit_leaf(scan, alpha, region, (regions.shares.crop(label, window) > 0) & ~regions.thin[window],
+                            regions.unreliable, variant, params, inliers, window)
         except _Skipped as exc:
             skipped.append((int(label), str(exc)))
             continue
@@ -311,6 +311,11 @@ class _Regions:
         pair of surfaces was found).
     mixed : ndarray of bool, 2-D
         Unreliable pulses whose range proves them mixed (:func:`leafsfs.edges.bracketed`).
+    thin : ndarray of bool, 2-D
+        Mixed pulses beyond the band paired with a leaf's surface
+        (:attr:`leafsfs.edges.MixedPulses.thin`; none for given regions):
+        they count for their share in the leaf's area, but the leaf's fit
+        does not take them.
     """
 
     labels: np.ndarray
@@ -320,6 +325,7 @@ class _Regions:
     range: np.ndarray
     owner_range: np.ndarray
     mixed: np.ndarray
+    thin: np.ndarray
 
 
 class _Shares:
@@ -471,10 +477,14 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
         extents = mixed.extents()
         partial = np.zeros(scan.shape, dtype=bool)
         shares = _Shares(scan.shape)
+        # A grazing leaf narrows below a footprint towards its tip and base: the mixed pulses there lie beyond the
+        # band and are paired as a thin part attached to it, with the leaf's power share (pear leaf, 2.5 m, 80 deg:
+        # 78 pulses, median share 0.07, true 0.07), and their area elements are large at grazing.
+        with_thin, thin = dataclasses.replace(mixed, thin=np.zeros_like(mixed.thin)), mixed.thin
         for k in np.unique(labels[labels > 0]):
             surface = segmentation.region_surface(k)
             box = extents[surface]
-            share = mixed.share_of(surface, gain, box)
+            share = with_thin.share_of(surface, gain, box)
             # Pure pulses at the outline with nothing beside the leaf count for the part of their footprint on it.
             rim = rim_shares(labels[box] == k, scan.intensity[box], gain, segmentation.footprint_px)
             rim = np.where(_mixes_in_range(labels[box] == k, mixed.pair[box] == surface, segmentation.footprint_px),
@@ -491,7 +501,7 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
         # A given region counts its pixels whole, except the mixed pulses of its main surface, which count (inside
         # the region or just outside it) for their share of that surface; its mixed pulses that another surface
         # dominates (the wall behind) take that surface's distance and leave the region.
-        shares = _Shares(scan.shape)
+        shares, thin = _Shares(scan.shape), np.zeros(scan.shape, dtype=bool)
         whole = (slice(None), slice(None))
         for k in np.unique(labels[labels > 0]):
             main = _main_surface(mixed.surfaces, labels == k)
@@ -508,7 +518,7 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
     # The band is three footprint radii: a mixed pulse has a nearer and a farther pulse within one radius.
     proven = unreliable & bracketed(scan.range, max(1, segmentation.band_px // 3),
                                     MIXED_PROOF_SIGMA * segmentation.noise_m)
-    return _Regions(labels, shares, background, unreliable, out_range, owner_range, proven)
+    return _Regions(labels, shares, background, unreliable, out_range, owner_range, proven, thin)
 
 
 def _mixes_in_range(region: np.ndarray, paired: np.ndarray, rim_px: float) -> np.ndarray:
