@@ -313,9 +313,8 @@ class _Regions:
         Unreliable pulses whose range proves them mixed (:func:`leafsfs.edges.bracketed`).
     thin : ndarray of bool, 2-D
         Mixed pulses beyond the band paired with a leaf's surface
-        (:attr:`leafsfs.edges.MixedPulses.thin`; none for given regions):
-        they count for their share in the leaf's area, but the leaf's fit
-        does not take them.
+        (:attr:`leafsfs.edges.MixedPulses.thin`): they count for their share
+        in the leaf's area, but the leaf's fit does not take them.
     """
 
     labels: np.ndarray
@@ -472,15 +471,15 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
     unreliable = valid & mixed.straddling
     out_range = scan.range.copy()
     background = np.zeros(scan.shape, dtype=bool)
+    # A grazing leaf narrows below a footprint towards its tip and base: the mixed pulses there lie beyond the band
+    # and are paired as a thin part attached to it, with the leaf's power share (pear leaf, 2.5 m, 80 deg: 78 pulses,
+    # median share 0.07, true 0.07), and their area elements are large at grazing.
+    with_thin, thin = dataclasses.replace(mixed, thin=np.zeros_like(mixed.thin)), mixed.thin
     if labels is None:
         labels = segmentation.leaves
         extents = mixed.extents()
         partial = np.zeros(scan.shape, dtype=bool)
         shares = _Shares(scan.shape)
-        # A grazing leaf narrows below a footprint towards its tip and base: the mixed pulses there lie beyond the
-        # band and are paired as a thin part attached to it, with the leaf's power share (pear leaf, 2.5 m, 80 deg:
-        # 78 pulses, median share 0.07, true 0.07), and their area elements are large at grazing.
-        with_thin, thin = dataclasses.replace(mixed, thin=np.zeros_like(mixed.thin)), mixed.thin
         for k in np.unique(labels[labels > 0]):
             surface = segmentation.region_surface(k)
             box = extents[surface]
@@ -501,13 +500,14 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
         # A given region counts its pixels whole, except the mixed pulses of its main surface, which count (inside
         # the region or just outside it) for their share of that surface; its mixed pulses that another surface
         # dominates (the wall behind) take that surface's distance and leave the region.
-        shares, thin = _Shares(scan.shape), np.zeros(scan.shape, dtype=bool)
+        shares = _Shares(scan.shape)
         whole = (slice(None), slice(None))
         for k in np.unique(labels[labels > 0]):
             main = _main_surface(mixed.surfaces, labels == k)
             paired = (mixed.surfaces == 0) & (mixed.pair == main).any(axis=-1)
             own = rim_shares(labels == k, scan.intensity, gain, segmentation.footprint_px)
-            shares.add(k, whole, np.where(paired, mixed.share_of(main, gain), own))
+            own = np.where(_mixes_in_range(labels == k, mixed.pair == main, segmentation.footprint_px), 1.0, own)
+            shares.add(k, whole, np.where(paired, with_thin.share_of(main, gain), own))
             background |= unreliable & (labels == k) & (mixed.owner > 0) & (mixed.owner != main)
         labels = np.where(background, 0, labels)
     owner_range = np.where(unreliable & (mixed.owner > 0), mixed.owner_range(), np.nan)
