@@ -688,7 +688,7 @@ def _range_plane(rows: np.ndarray, cols: np.ndarray, range_m: np.ndarray) -> np.
 
 
 def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndarray, gap_px: float,
-                  tolerance_m: float) -> np.ndarray:
+                  tolerance_m: float, local_px: float = 0.0) -> np.ndarray:
     """Surfaces cut apart by an occluder in front of them joined into one (the label of the first).
 
     Two candidate surfaces are the parts of one leaf when they come within
@@ -697,7 +697,10 @@ def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndar
     planes by more than ``tolerance_m`` (something in front of the leaf cut
     it: a twig or a petiole; a gap showing what lies behind, or nothing,
     separates two leaves), and each part's range plane predicts the other's
-    ranges within ``tolerance_m`` (median absolute residual: one plane).
+    ranges within ``tolerance_m`` (median absolute residual: one plane) --
+    the planes of the whole parts, or (a curved or curled leaf, whose whole
+    parts are on no common plane) those of the pulses of each part within
+    ``local_px`` of the other.
 
     Parameters
     ----------
@@ -711,6 +714,8 @@ def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndar
         Widest occluder, pixels.
     tolerance_m : float
         Range tolerance of the plane tests, m.
+    local_px : float
+        Reach of the planes fitted near the cut, pixels (0: whole parts' planes only).
 
     Returns
     -------
@@ -748,16 +753,27 @@ def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndar
             gap = grown & _dilated(other, gap_px) & ~inside & ~other
             rows, cols = np.nonzero(gap)
             rows, cols = rows + box[0].start, cols + box[1].start
-            rows_m, cols_m, plane_m = planes[m]
-            plane = 0.5 * (plane_k + plane_m)
-            with np.errstate(invalid="ignore"):
-                nearer = np.mean(range_m[rows, cols] < plane[0] + plane[1] * rows + plane[2] * cols - tolerance_m)
-            off_m = np.median(np.abs(range_m[rows_m, cols_m] - plane_k[0] - plane_k[1] * rows_m - plane_k[2] * cols_m))
-            off_k = np.median(np.abs(range_m[rows_k, cols_k] - plane_m[0] - plane_m[1] * rows_k - plane_m[2] * cols_k))
-            if len(rows) and nearer >= 0.5 and max(off_m, off_k) <= tolerance_m:
-                parent[root(m)] = root(k)
+            fits = [((rows_k, cols_k, plane_k), planes[m])]  # the whole parts' planes; then the planes near the cut
+            near_k, near_m = _facing(inside, other, box, local_px), _facing(other, inside, box, local_px)
+            if local_px > 0 and len(near_k[0]) >= 3 and len(near_m[0]) >= 3:
+                fits.append(tuple((r, c, _range_plane(r, c, range_m[r, c])) for r, c in (near_k, near_m)))
+            for (rk, ck, pk), (rm, cm, pm) in fits:
+                plane = 0.5 * (pk + pm)
+                with np.errstate(invalid="ignore"):
+                    nearer = np.mean(range_m[rows, cols] < plane[0] + plane[1] * rows + plane[2] * cols - tolerance_m)
+                off_m = np.median(np.abs(range_m[rm, cm] - pk[0] - pk[1] * rm - pk[2] * cm))
+                off_k = np.median(np.abs(range_m[rk, ck] - pm[0] - pm[1] * rk - pm[2] * ck))
+                if len(rows) and nearer >= 0.5 and max(off_m, off_k) <= tolerance_m:
+                    parent[root(m)] = root(k)
+                    break
     roots = np.array([root(k) for k in range(len(parent))])
     return roots[surfaces]
+
+
+def _facing(region: np.ndarray, other: np.ndarray, box: tuple, radius_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """Whole-image rows and columns of the pixels of ``region`` within ``radius_px`` of ``other`` (both in ``box``)."""
+    rows, cols = np.nonzero(region & _dilated(other, radius_px)) if radius_px > 0 else (np.zeros(0, int),) * 2
+    return rows + box[0].start, cols + box[1].start
 
 
 def _dilated(region: np.ndarray, radius_px: float) -> np.ndarray:

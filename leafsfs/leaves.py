@@ -248,7 +248,9 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         separated by something nearer than both and on one range plane
         within 3 sigma, are one leaf cut by an occluder
         (:func:`leafsfs.canopy.join_occluded`; assumption: 1 cm, twigs and
-        petioles in front of a leaf; 0: not joined).
+        petioles in front of a leaf; 0: not joined). The common plane is that
+        of the whole parts or, for curved leaves, that of each part's pulses
+        within 1.5 times this of the other part.
     crease_angle_deg : float
         Surfaces meeting with no range step but normals this far apart are
         cut there (:func:`leafsfs.canopy.split_creases`: two leaves touching
@@ -314,8 +316,8 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         if cut:
             leaf = leaves_of(surfaces)
     if occluder_gap_m > 0:
-        surfaces = join_occluded(surfaces, range_m, leaf, occluder_gap_m / (float(np.nanmedian(range_m)) * step),
-                                 3 * sigma)
+        gap = occluder_gap_m / (float(np.nanmedian(range_m)) * step)
+        surfaces = join_occluded(surfaces, range_m, leaf, gap, 3 * sigma, 1.5 * gap)
         leaf &= np.bincount(surfaces.ravel(), minlength=len(leaf)) > 0  # the labels joined into another
     band = band_pixels(band_m, range_m, surfaces, step)
     reach = band_pixels(reach_m, range_m, surfaces, step) if reach_m > 0 else 0

@@ -242,6 +242,25 @@ def test_join_occluded_joins_the_parts_of_a_leaf_behind_a_twig_only():
         join_occluded(labels, range_m, candidates, 0.0, 0.005)
 
 
+def test_join_occluded_joins_a_curved_leaf_behind_a_twig_on_the_planes_near_the_cut():
+    rows, cols = np.mgrid[0:40, 0:60]
+    curved = 3.0 + 0.001 * rows + 4e-5 * cols ** 2  # a leaf curving away: 14 cm deeper over 60 pixels
+    labels = np.zeros(rows.shape, int)
+    labels[5:35, 5:27], labels[5:35, 31:55] = 1, 2  # two parts 4 pixels apart
+    gap = (cols >= 27) & (cols < 31)
+    candidates = np.array([False, True, True])
+    for between, joined in ((curved - 0.03, True),  # a twig in front: one leaf
+                            (np.nan, False),  # nothing returns between them: two leaves
+                            (curved + 0.05, False)):  # what lies behind shows between them
+        range_m = np.where(gap, between, curved)
+        # the whole parts' planes miss each other by centimetres: joined only on the planes within 9 pixels of the cut
+        assert (join_occluded(labels, range_m, candidates, 6.0, 0.005)[labels == 2] == 2).all()
+        assert (join_occluded(labels, range_m, candidates, 6.0, 0.005, 9.0)[labels == 2] == 1).all() == joined
+    folded = 3.0 + 0.001 * rows + 1e-3 * np.abs(cols - 29)  # a fold at the cut: the planes near it disagree too
+    range_m = np.where(gap, folded - 0.03, folded)
+    assert (join_occluded(labels, range_m, candidates, 6.0, 0.005, 9.0)[labels == 2] == 2).all()
+
+
 # --- small simulated canopies (0.036 deg, 2 m: a 9 cm leaf spans about 70 pulses) ------------------------------
 
 LEAF = {"type": "leaf", "preset": "pear", "seed": 7, "length": 0.09, "material": "pear-leaf"}
@@ -258,11 +277,17 @@ CANOPIES = {
     # a short piece of branch (4 cm long, 1.6 cm across: 2.5 : 1, as wide as a leaf) beside the leaf
     "stub": [{**WOOD, "name": "stub", "radius": 0.008, "length": 0.04, "pose": {"translate": [2.0, 0.07, 0.0]}}],
 }
+# the twig 4 cm in front of a curled leaf (bent and rolled 40 deg, at 30 deg): its two parts are on no common plane
+_TWIG = CANOPIES["twig"][0]
+CANOPIES["curled-twig"] = [{**_TWIG, "pose": {**_TWIG["pose"], "translate": [1.96, 0.01, 0.0]}}]
+CURLED = {"curled-twig": ({"bend_deg": 40, "roll_deg": 40}, 30)}
 
 
 @functools.lru_cache(maxsize=None)
 def _canopy_scan(kind):
-    objects = [{**LEAF, "name": "front", "pose": {"center": [2.0, 0, 0], "facing": "scanner", "incidence_deg": 10}},
+    shape, incidence = CURLED.get(kind, ({}, 10))
+    objects = [{**LEAF, **shape, "name": "front",
+                "pose": {"center": [2.0, 0, 0], "facing": "scanner", "incidence_deg": incidence}},
                *CANOPIES[kind]]
     spec = {"name": kind, "scanner": {"preset": "faro-ls880", "position": [0, 0, 0],
                                       "window": {"theta_deg": [-3.5, 3.5], "psi_deg": [87, 93], "step_deg": 0.036}},
@@ -288,7 +313,7 @@ def test_each_leaf_is_its_own_region_and_wood_is_none(kind):
         if obj in ("front", "behind"):
             region, cover = _best_region(labels, pixels)
             # found: one region covers at least half of its visible pulses (the front one nearly all of them)
-            # (the twig cuts the front leaf in two: its parts are joined)
+            # (the twig cuts the front leaf in two: its parts are joined, on the planes near the cut when curled)
             assert region > 0 and cover >= (0.9 if obj == "front" else 0.5)
             # and that region is that leaf's: at most 5 % of it from other objects
             assert np.mean(scan.truth_id[labels == region] == index) > 0.95
