@@ -23,6 +23,18 @@ def _tilted_plate(incidence_deg, distance_m=3.5, rows=90, cols=60):
     return theta, psi, range_m, axis
 
 
+def _traits_with_flattened_rim(theta, psi, range_m, region, rings):
+    """Traits of ``region`` whose outer ``rings`` of pulses are mixed (share 0.5) with heights flattened towards the
+    middle, as a biased correction of edge pulses leaves them; also the pulses' weights."""
+    frame = local_frame(theta, psi, range_m, region)
+    height = np.where(region, frame.height(range_m), np.nan)
+    rim = region & ~ndimage.binary_erosion(region, iterations=rings)
+    centre = np.nanmedian(height[region])
+    height[rim] = centre + 0.3 * (height[rim] - centre)
+    weight = np.where(rim, 0.5, region.astype(float))
+    return leaf_traits(frame, height[frame.box], weight[frame.box], 0.005), weight
+
+
 def test_area_of_a_flat_plate_at_80_deg_incidence_ignores_flattened_rim_heights():
     # A 14 x 50 pulse rectangle of a plate at 80 deg, 3.5 m away (a 7 cm leaf seen foreshortened): its area is
     # N r^2 dOmega / cos(80 deg). Its outermost 3 rings of pulses (mixed, share 0.5) got heights flattened towards
@@ -30,13 +42,7 @@ def test_area_of_a_flat_plate_at_80_deg_incidence_ignores_flattened_rim_heights(
     theta, psi, range_m, axis = _tilted_plate(80.0)
     region = np.zeros(theta.shape, bool)
     region[38:52, 5:55] = True
-    frame = local_frame(theta, psi, range_m, region)
-    height = np.where(region, frame.height(range_m), np.nan)
-    rim = region & ~ndimage.binary_erosion(region, iterations=3)
-    centre = np.nanmedian(height[region])
-    height[rim] = centre + 0.3 * (height[rim] - centre)
-    weight = np.where(rim, 0.5, region.astype(float))
-    traits = leaf_traits(frame, height[frame.box], weight[frame.box], 0.005)
+    traits, weight = _traits_with_flattened_rim(theta, psi, range_m, region, rings=3)
     expected = np.sum(weight * range_m**2 * STEP**2 / np.abs(np.sum(axis * [-math.cos(math.radians(80)), 0,
                                                                              math.sin(math.radians(80))], -1)))
     assert traits["area_m2"] == pytest.approx(expected, rel=0.03)
@@ -81,13 +87,7 @@ def test_area_of_a_rolled_leaf_takes_its_steeper_margins_from_the_curvature_of_i
     theta, psi, range_m, cos_incidence = _rolled_leaf(incidence_deg, 15.0)
     region = np.zeros(theta.shape, bool)
     region[25:95, 5:55] = True
-    frame = local_frame(theta, psi, range_m, region)
-    height = np.where(region, frame.height(range_m), np.nan)
-    rim = region & ~ndimage.binary_erosion(region, iterations=10)
-    centre = np.nanmedian(height[region])
-    height[rim] = centre + 0.3 * (height[rim] - centre)
-    weight = np.where(rim, 0.5, region.astype(float))
-    traits = leaf_traits(frame, height[frame.box], weight[frame.box], 0.005)
+    traits, weight = _traits_with_flattened_rim(theta, psi, range_m, region, rings=10)
     assert traits["area_m2"] == pytest.approx(np.sum(weight * range_m**2 * STEP**2 / cos_incidence), rel=0.01)
 
 
