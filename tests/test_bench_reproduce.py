@@ -432,3 +432,13 @@ def test_mendez_table6_ranking_claim_and_design_sweep(monkeypatch):
     sweep = {r.key.split("/")[0]: r.ours for r in rows if r.quantity.startswith("mean angle error, covariance")}
     assert len(sweep) == len(woody_papers.TABLE6_DESIGNS)
     assert sweep["noise 0 mm, arc 360 deg"] == pytest.approx(0.7) and sweep["noise 5 mm, arc 180 deg"] < 0
+
+
+def test_inversion_errors_single_returns_and_station_means():
+    # a linear curve I = 1000 - 10 alpha_deg: +-20 DN of symmetric noise is +-2 deg on each return, 0 on the mean;
+    # the station at 70 deg lies beyond the validity limit and is left out
+    table = {"alpha_rad": np.radians([10.0, 30.0, 70.0]), "sample_station": np.repeat([0, 1, 2], 2),
+             "sample_intensity_dn": np.array([900 + 20, 900 - 20, 700 + 20, 700 - 20, 300.0, 300.0]),
+             "sample_range_m": np.full(6, 2.16)}
+    single, means = sensors2011.inversion_errors(lambda i, r: np.radians((1000.0 - i) / 10.0), table)
+    assert single == pytest.approx([2.0, 2.0, 2.0, 2.0]) and means == pytest.approx([0.0, 0.0], abs=1e-9)
