@@ -83,6 +83,7 @@ RULES = {
     "surface_rmse_m": Rule("lower", "m"),
     "area_rel_err_median": Rule("lower", "fraction"),
     "area_rel_err_bias": Rule("zero", "fraction"),
+    "area_seen_rel_err_median": Rule("lower", "fraction"),
     "elevation_err_median_deg": Rule("lower", "deg"),
     "azimuth_err_median_deg": Rule("lower", "deg"),
     "diameter_err_median_m": Rule("lower", "m"),

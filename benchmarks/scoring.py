@@ -626,6 +626,8 @@ def score_leaf(leaf: LeafTruth, output: VariantOutput) -> dict:
     own = max(int(leaf.own.sum()), 1)
     scores["completeness"] = int((leaf.own & kept & (after <= tau)).sum()) / own
     scores.update(trait_errors(leaf.truth, output.traits))
+    if "area_m2" in scores and leaf.scan_stats["visible_area_m2"] > 0:
+        scores["area_seen_rel_err"] = metrics.relative_error(scores["area_m2"], leaf.scan_stats["visible_area_m2"])
     scores.update(output.stats)
     return json_ready(scores)
 

@@ -18,8 +18,10 @@ drown 60 single-leaf cases):
   visible leaves (``visibility`` >= :data:`benchmarks.metrics.MIN_VISIBILITY`, like the
   thesis' 58 fully visible field leaves: no method recovers a hidden part)
   of |relative area error| (``area_rel_err_bias``: the same with the
-  signed error); ``elevation_err_median_deg``, ``azimuth_err_median_deg``:
-  the same with the absolute angle errors (on ``n_leaves_traits`` leaves);
+  signed error; ``area_seen_rel_err_median``: the same against the true
+  area in the scanner's line of sight, ``visible_area_m2``, which leaves
+  out what a leaf hides behind its own curl); ``elevation_err_median_deg``,
+  ``azimuth_err_median_deg``: the same with the absolute angle errors (on ``n_leaves_traits`` leaves);
   ``surface_rmse_m``: median over cases of the median over leaves;
 - ``runtime_s``: median wall time of the variant on one case (all its
   targets), over the cases where it had targets; ``runtime_total_s``: sum over cases; ``peak_mem_mb``: largest
@@ -58,8 +60,8 @@ SUMMARY_KEYS = ("suite", "variant", "family", "n_cases", "n_targets", "n_leaves_
                 "rop_after", "rop_reduction", "rop_before_1cm", "rop_after_1cm", "rop_reduction_1cm", "good_points_lost",
                 "outliers_restored", "good_points_damaged", "completeness", "flag_precision", "flag_recall",
                 "rppp_1", "abs_eps_mean", "within_5pct", "surface_rmse_m",
-                "area_rel_err_median", "area_rel_err_bias", "elevation_err_median_deg", "azimuth_err_median_deg",
-                "n_found", "n_missed", "n_false", "found_visible",
+                "area_rel_err_median", "area_rel_err_bias", "area_seen_rel_err_median", "elevation_err_median_deg",
+                "azimuth_err_median_deg", "n_found", "n_missed", "n_false", "found_visible",
                 "diameter_err_median_m", "volume_rel_err", "runtime_s", "runtime_total_s", "pulses_per_s",
                 "peak_mem_mb")
 
@@ -171,6 +173,7 @@ def _summary_row(mine: list[dict], labels: dict) -> dict:
     row["n_leaves_traits"] = sum(1 for leaf in leaves if (leaf.get("visibility") or 0.0) >= metrics.MIN_VISIBILITY)
     row["area_rel_err_median"] = _over_cases(ok, "area_rel_err", np.median, absolute=True, visible=True)
     row["area_rel_err_bias"] = _over_cases(ok, "area_rel_err", np.median, visible=True)
+    row["area_seen_rel_err_median"] = _over_cases(ok, "area_seen_rel_err", np.median, absolute=True, visible=True)
     row["elevation_err_median_deg"] = _over_cases(ok, "elevation_err_deg", np.median, visible=True)
     row["azimuth_err_median_deg"] = _over_cases(ok, "azimuth_err_deg", np.median, visible=True)
     row["diameter_err_median_m"] = _over_cases(ok, "diameter_err_mae_m", np.median)
@@ -239,7 +242,7 @@ def headline_table(summary: list[dict]) -> str:
 
 #: Keys of a row of the thesis' validation table (:func:`validation_table`), in display order.
 VALIDATION_KEYS = ("variant", "n_leaves", "n_success", "success", "area_slope", "area_intercept_cm2", "area_r2",
-                   "area_bias_cm2", "area_rel_err_median", "elevation_r2", "elevation_precision_deg", "azimuth_r2",
+                   "area_bias_cm2", "area_rel_err_median", "area_seen_r2", "elevation_r2", "elevation_precision_deg", "azimuth_r2",
                    "azimuth_precision_deg", "n_found", "n_merged", "n_missed", "n_false")
 
 
@@ -265,7 +268,10 @@ def validation_table(rows: list[dict]) -> list[dict]:
     line of estimated against true area (``area_slope``,
     ``area_intercept_cm2``, ``area_r2``, :func:`benchmarks.metrics.linear_fit`),
     the area BIAS of eq 2.1 (:func:`benchmarks.metrics.area_bias`, cm²),
-    the median |relative area error|, and the R² and precision (standard
+    the median |relative area error|, ``area_seen_r2`` (R² of the estimated
+    against the true area in the scanner's line of sight,
+    ``visible_area_m2``: what one scan can measure, without the parts a
+    leaf hides behind its own curl), and the R² and precision (standard
     deviation of the error, :func:`benchmarks.metrics.precision`) of the
     midrib elevation and azimuth. ``n_found`` / ``n_missed``: visible
     leaves found or missed by variants that segment the scan themselves
@@ -292,6 +298,9 @@ def validation_table(rows: list[dict]) -> list[dict]:
                "area_slope": fit["slope"], "area_intercept_cm2": fit["intercept"], "area_r2": fit["r2"],
                "area_bias_cm2": metrics.area_bias(area, true_area),
                "area_rel_err_median": float(np.median(np.abs(area / true_area - 1))) if len(done) else None}
+        seen = [leaf for leaf in done if leaf.get("visible_area_m2")]
+        row["area_seen_r2"] = metrics.linear_fit([leaf["visible_area_m2"] * 1e4 for leaf in seen],
+                                                 [leaf["area_m2"] * 1e4 for leaf in seen])["r2"]
         for angle in ("elevation", "azimuth"):
             pairs = [(leaf[f"{angle}_true_deg"], leaf[f"{angle}_deg"]) for leaf in done
                      if leaf.get(f"{angle}_deg") is not None]

@@ -83,6 +83,8 @@ def test_inline_run_stores_every_pair_with_consistent_scores(tiny_run):
     leaf = rows[("leaf-5.0m", "raw")]["metrics"]["targets"][0]
     assert leaf["object_type"] == "leaf" and leaf["range_m"] == pytest.approx(5.0, abs=0.05)
     assert leaf["area_true_m2"] > 0 and -0.5 < leaf["area_rel_err"] < 0.5
+    # A flat leaf seen whole: its visible area is its area, and so are the two errors.
+    assert leaf["area_seen_rel_err"] == pytest.approx(leaf["area_rel_err"], abs=0.02)
     assert "area_rel_err" not in rows[("edge", "raw")]["metrics"]["targets"][0], "the knife-edge plate has no area truth"
 
 

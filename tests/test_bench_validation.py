@@ -41,6 +41,7 @@ def test_precision_and_aligned_angles():
 def leaf(area_true_cm2, area_cm2, found=1, visibility=1.0, elevation=(30.0, 30.0), azimuth=(10.0, 10.0),
          pixels=1000, rppp_1=0.9):
     scores = {"object_type": "leaf", "area_true_m2": area_true_cm2 * 1e-4, "area_m2": area_cm2 * 1e-4,
+              "visible_area_m2": area_true_cm2 * 1e-4,
               "visibility": visibility, "found": found, "region_pixels": pixels, "rppp_0": 0.0, "rppp_1": rppp_1,
               "rppp_2": 1 - rppp_1, "rppp_3": 0.0, "rppp_more": 0.0}
     if found:
@@ -57,7 +58,7 @@ def row(case, variant, leaves, counts=None, runtime=2.0):
 
 def test_validation_table_over_all_scored_leaves():
     a = [leaf(10, 8, elevation=(10, 12), azimuth=(0, 5)), {**leaf(20, 18, elevation=(30, 28), azimuth=(90, 85)),
-                                                           "merged": 1},
+                                                           "merged": 1, "visible_area_m2": 18e-4},
          leaf(30, 0, found=0), leaf(40, 99, visibility=0.5)]
     b = [leaf(40, 38, elevation=(50, 50), azimuth=(45, 45), pixels=7000, rppp_1=0.5)]
     counts = {"n_regions": 5, "n_false": 2, "n_visible": 3, "n_found_visible": 2, "n_found": 3, "n_missed": 1,
@@ -71,6 +72,8 @@ def test_validation_table_over_all_scored_leaves():
     expected_bias = -((-0.2) + (-0.1) + (-0.05)) / (1 / 10 + 1 / 20 + 1 / 40)
     assert table["area_bias_cm2"] == pytest.approx(expected_bias)
     assert table["area_rel_err_median"] == pytest.approx(0.1)
+    # Against the visible area (the 20 cm² leaf hides 2 cm² behind its curl): 8 / 18 / 38 on 10 / 18 / 40.
+    assert table["area_seen_r2"] == pytest.approx(metrics.linear_fit([10, 18, 40], [8, 18, 38])["r2"])
     assert table["elevation_r2"] == pytest.approx(metrics.linear_fit([10, 30, 50], [12, 28, 50])["r2"])
     assert table["elevation_precision_deg"] == pytest.approx(np.std([2, -2, 0], ddof=1))
     assert table["azimuth_precision_deg"] == pytest.approx(np.std([5, -5, 0], ddof=1))
