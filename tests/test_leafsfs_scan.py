@@ -290,7 +290,8 @@ def test_reconstruct_an_e57_or_ptx_scan_without_truth(leaf_scan, leaf_result, tm
 def test_mixed_pulses_of_a_leaf_without_heights_take_the_leaf_planes_distance(leaf_scan, monkeypatch):
     # A region the engine cannot reconstruct (here: it rejects every region) is skipped, but its mixed pulses are
     # still paired with the leaf and the wall: those the leaf dominates take the leaf's distance extrapolated from
-    # its own pure pulses, nothing is deleted.
+    # its own pure pulses; nothing is deleted but the few whose range lies within OWNER_TOLERANCE_M of the midpoint
+    # between leaf and wall (no owner: the leaf's and the wall's power shares are then equal within 0.6 %).
     module = sys.modules["leafsfs.reconstruct"]  # the package exports the function under the module's name
 
     def reject(*args, **kwargs):
@@ -305,8 +306,10 @@ def test_mixed_pulses_of_a_leaf_without_heights_take_the_leaf_planes_distance(le
     mixed = (scan.truth_id == leaf) & (scan.mixed_fraction > 0.05) & (measured > 0.01) & (result.labels > 0)
     assert mixed.sum() > 100
     corrected = np.abs(result.range - scan.truth_range)
-    assert np.all(result.outlier[mixed]) and np.all(np.isfinite(result.range[mixed]))
-    assert np.median(corrected[mixed]) < 0.05 * np.median(measured[mixed])
+    assert np.all(result.outlier[mixed]) and np.all(np.isfinite(result.range[mixed]) == ~result.removed[mixed])
+    assert 0 < result.removed[mixed].sum() < 0.02 * mixed.sum()
+    assert np.all(np.abs(scan.mixed_fraction[result.removed] - 0.5) < 0.1)
+    assert np.nanmedian(corrected[mixed]) < 0.05 * np.median(measured[mixed])
     # pure pulses keep their measured distance (all but the rare pure pulse the straddle test takes for a mixed
     # one: a noise tail, about 1 in 10^4)
     pure = (result.labels > 0) & (scan.mixed_fraction < 1e-3)
@@ -329,7 +332,9 @@ def test_a_mixed_pulse_that_no_surface_explains_is_removed(leaf_scan, leaf_resul
     scan.range[ring] = scan.range[i, j] - 0.15
     scan.range[i, j] -= 0.3
     result = reconstruct(scan, variant="buffer", calibration=calibration)
-    assert result.removed[ring].all() and not result.removed[i, j] and result.removed.sum() == ring.sum()
+    # (besides the few leaf-edge pulses that no surface owns, removed without the fragment too)
+    assert result.removed[ring].all() and not result.removed[i, j]
+    assert np.array_equal(result.removed & ~ring, leaf_result.removed)
     assert result.outlier[ring].all() and np.isnan(result.corrected_scan().xyz[ring]).all()
     assert len(result.points()) == int((result.corrected & ~result.removed).sum())
     # the leaf is untouched (its area moves by the range noise's estimate only); with unexplained="keep" nothing goes
