@@ -125,7 +125,10 @@ class SfsParams:
         whose range proves it mixed (:func:`leafsfs.edges.bracketed`):
         ``keep`` its measured distance, which lies between two surfaces and
         on neither, or ``remove`` it (NaN in the corrected scan, flagged an
-        outlier and ``removed``).
+        outlier and ``removed``). ``remove`` also removes a corrected pulse
+        that no surface owns: its two surfaces share its power within
+        ``leafsfs.reconstruct.OWNER_MARGIN`` of one half and its range lies
+        within ``OWNER_TOLERANCE_M`` of their midpoint.
     """
 
     n_smooth: int = 20
