@@ -133,7 +133,11 @@ class Fusion:
             # Gate on the fit's own consistency (mixed points spoil it), not on the disagreement with the
             # prediction: a biased calibration must not lock the point cloud out.
             accept = planes.rms[measured] <= self.gate_sigma * self.sigma_range
-            gain = prior[measured] @ np.linalg.inv(total)
+            try:
+                inverse = np.linalg.inv(total)
+            except np.linalg.LinAlgError:  # a prior so wide (alpha near 90 deg) that adding the noise rounds away
+                inverse = np.linalg.pinv(total)
+            gain = prior[measured] @ inverse
             update = gradient[measured] + np.einsum("nij,nj->ni", gain, innovation)
             index = np.nonzero(measured)[0][accept]
             fused[index] = update[accept]

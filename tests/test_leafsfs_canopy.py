@@ -412,3 +412,23 @@ def test_a_leaf_with_nothing_behind_it_is_not_dilated_by_its_footprint():
     (leaf,) = result.leaves
     # +0.2 %; counted whole, the outline pulses add about the perimeter times a footprint radius (+15 %)
     assert abs(leaf.traits["area_m2"] / scene.objects[0].truth["area_m2"] - 1) < 0.05
+
+
+@pytest.mark.parametrize("incidence_deg, seed", [(40, 1), (50, 0)])
+def test_a_leaf_of_thirty_pulses_at_a_coarse_step_is_one_region(incidence_deg, seed):
+    # a 4 cm leaf 4 m away at 0.08 deg (7 mm between pulses, a footprint under one pulse): about 30 pulses, 4 to 6
+    # across; its outline pulses, darkened by the part of their footprint off the leaf, made a 5 x 5 edge test's
+    # surface darker than its plane (no leaf) in these draws; a 3 x 3 one sets them apart as edge pulses
+    half = math.degrees(0.03)
+    spec = {"name": "coarse", "scanner": {"preset": "faro-ls880", "position": [0, 0, 0], "window": {
+                "theta_deg": [-half, half], "psi_deg": [90 - half, 90 + half], "step_deg": 0.08}},
+            "objects": [{**LEAF, "name": "front", "length": 0.04,
+                         "pose": {"center": [4.0, 0, 0], "facing": "scanner", "incidence_deg": incidence_deg}}]}
+    scene = scenes.scene_from_spec(spec)
+    scan = tlssim.simulate(scene, tlssim.setup_from_section(scene.scanner), seed=seed, progress=False)
+    alpha, _ = scan_alpha(scan.intensity, scan.range, simulated_calibration(scan.scanner.model))
+    labels = segment_scan(scan.range, scan.theta, scan.psi, alpha, intensity=scan.intensity).leaves
+    pixels = scan.valid & (scan.truth_id == 0)
+    assert 25 <= pixels.sum() <= 40
+    region, cover = _best_region(labels, pixels)
+    assert region > 0 and cover >= 0.75
