@@ -240,7 +240,7 @@ def _tiled_rows(case: Case, scene, setup, build_s: float, variants: list[dict]):
     """
     import numpy as np
 
-    from leafsfs.tiled import LEAF_SIZE_M, core_columns, margin_columns
+    from leafsfs.tiled import LEAF_SIZE_M, SIZING_COLS, core_columns, margin_columns
     from tlssim.simulate import simulate_tiled
 
     try:
@@ -253,7 +253,8 @@ def _tiled_rows(case: Case, scene, setup, build_s: float, variants: list[dict]):
             yield error_row(case, spec, _message(exc))
         return
     rows, cols = tiled.shape
-    first = tiled.load_columns(0, min(cols, tiled.tile_cols))
+    # the cores are sized from a fixed count of columns, not the first tile: the scores do not depend on the tiling
+    first = tiled.load_columns(0, min(cols, SIZING_COLS))
     core = core_columns(rows, TILED_WINDOW_BYTES, margin_columns(first, LEAF_SIZE_M, cols))
     del first
     chosen = {spec["name"]: case_variant(case, spec) for spec in variants}

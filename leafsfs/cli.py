@@ -37,13 +37,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="tiled scan: columns per output tile, each reconstructed in a window of it plus margins "
                         "(default: from --memory-budget)")
     p.add_argument("--band-rows", type=int,
-                   help="tiled scan: rows per band, each with margins of its own (default: all rows up to "
-                        "2048 rows, else 1024)")
-    p.add_argument("--memory-budget", type=float, default=2.0,
-                   help="tiled scan: memory of one window's reconstruction, GB (default 2)")
+                   help="tiled scan: rows per band, each with margins of its own (default: from --memory-budget, "
+                        "at most all rows up to 2048 rows, else 1024)")
+    p.add_argument("--memory-budget", type=float, default=3.5,
+                   help="tiled scan: memory of the whole run (this process and its workers), GB, that sizes the "
+                        "cores and bands (default 3.5)")
     p.add_argument("--workers", type=int, default=1,
-                   help="tiled scan: processes reconstructing windows at once, each in about --memory-budget "
-                        "(default 1); the output is the same for any number")
+                   help="tiled scan: processes reconstructing windows at once (default 1); the output is the same "
+                        "for any number")
     p.add_argument("--leaf-size-m", type=float,
                    help="tiled scan: largest leaf extent, m; a window's margin is the columns it spans at the "
                         "nearest pulses (default 0.12)")
@@ -104,34 +105,28 @@ def _reconstruct(args) -> int:
 
 
 def _reconstruct_tiled(args, params, mask) -> int:
-    import numpy as np
     from tqdm import tqdm
 
     from leafsfs.errors import SfsError
-    from leafsfs.tiled import (BAND_ROWS, LEAF_SIZE_M, RECONSTRUCT_BYTES_PER_PULSE, SIZING_COLS, core_columns,
-                               margin_columns, margin_rows, reconstruct_tiled)
+    from leafsfs.tiled import LEAF_SIZE_M, plan_windows, reconstruct_tiled
     from tlssim.tiled import open_tiled
 
     if mask is not None:
         raise SfsError("--mask is not supported on a tiled scan (leaves are found window by window)")
     tiled = open_tiled(args.scan)
     leaf_size = args.leaf_size_m if args.leaf_size_m is not None else LEAF_SIZE_M
-    rows = tiled.shape[0]
-    band_rows = args.band_rows or (rows if rows <= 2 * BAND_ROWS else BAND_ROWS)
-    # The margins are not known before the data are read: the first columns', median over their bands, stand for
-    # all (a fixed count, so that the windows, and the output, do not depend on the scan's tile size).
-    first = tiled.load_columns(0, min(tiled.shape[1], SIZING_COLS))
-    bands = [first.crop(slice(r0, r0 + band_rows), slice(None)) for r0 in range(0, rows, band_rows)]
-    margin = int(np.median([margin_columns(band, leaf_size, 2048) for band in bands]))
-    margin_r = 0 if band_rows >= rows else int(np.median([margin_rows(band, leaf_size, 2048) for band in bands]))
-    height = min(rows, band_rows + 2 * margin_r)
-    core_cols = args.core_cols or core_columns(height, args.memory_budget * 1e9, margin)
-    window = min(tiled.shape[1], core_cols + 2 * margin)
-    print(f"windows of about {height} x {window} pulses ({band_rows} + 2 x {margin_r} rows, {core_cols} + 2 x "
-          f"{margin} columns): about {window * height * RECONSTRUCT_BYTES_PER_PULSE / 1e9:.1f} GB each")
+    plan = plan_windows(tiled, args.memory_budget * 1e9, args.workers, leaf_size, args.band_rows)
+    core_cols = args.core_cols or plan.core_cols
+    if args.core_cols:
+        print(f"cores of {core_cols} columns, bands of {plan.band_rows} rows")
+    else:
+        print(f"cores of {core_cols} columns, bands of {plan.band_rows} rows; largest window about {plan.window[0]} "
+              f"x {plan.window[1]} pulses; expected peak of the run {plan.peak_bytes / 1e9:.1f} GB" + (
+                  "" if plan.fits else f", over the {args.memory_budget:g} GB budget (the smallest windows tried): "
+                                       "use fewer --workers or a larger --memory-budget"))
     with tqdm(total=tiled.shape[0] * tiled.shape[1], unit="pulse", unit_scale=True, desc="reconstruct") as bar:
         result = reconstruct_tiled(tiled, args.outdir, args.variant, params, calibration=args.calibration,
-                                   core_cols=core_cols, band_rows=band_rows, leaf_size_m=leaf_size,
+                                   core_cols=core_cols, band_rows=plan.band_rows, leaf_size_m=leaf_size,
                                    workers=args.workers, progress=bar.update)
     print(f"{len(result.traits)} leaves in {len(result.scan.tiles)} tiles of {core_cols} columns; "
           f"{result.windows} windows run in {result.elapsed_s:.1f} s on {args.workers} worker(s): "

@@ -20,8 +20,12 @@ The corrected scan is written as a tiled scan (one tile per core): a
 pixel takes the values of the window that kept the region covering it
 (a kept region reaches at most a margin past its core rectangle), and
 otherwise those of the window of its own core rectangle, where the pixels of a
-region that window did not keep get back their measured range. So at most
-three cores' windows' outputs are in memory at a time.
+region that window did not keep get back their measured range. A window
+is kept as its outputs over its core rectangle (until that core is
+written) and the pixels it keeps beyond it; a core's tile is written member
+by member, its input arrays read one at a time, so this process holds a few
+cores' outputs, not their whole tiles (:func:`plan_windows` sizes the
+cores and bands for a memory budget of the whole run).
 Leaves are numbered in core order, then band order; every tile's metadata holds the
 traits of its core's leaves, so an interrupted run resumes with the
 tiles that check (:func:`tlssim.tiled.start_tiled`) and recomputes only
@@ -47,6 +51,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import functools
 import hashlib
 import itertools
 import json
@@ -68,8 +73,9 @@ from leafsfs.outputs import json_ready
 from leafsfs.params import VARIANTS, SfsParams
 from leafsfs.preprocess import resolve_calibration
 from leafsfs.reconstruct import reconstruct
-from tlssim.scan import GRID_KEYS, Scan, grid_to_xyz
-from tlssim.tiled import INDEX, TiledScan, add_tile, concat_columns, open_tiled, start_tiled
+from tlssim.pattern import ScannerPose
+from tlssim.scan import GRID_KEYS, META_KEYS, TRUTH_KEYS, Scan, ScannerDescription, grid_to_xyz, write_npz
+from tlssim.tiled import INDEX, TiledScan, add_tile_members, concat_columns, open_tiled, start_tiled
 
 #: Columns a kept region must stay away from a window's inner border to count as whole: the leaf frame's
 #: margin plus the segmentation's neighbourhood (about a footprint, at least 5 x 5 pulses; assumption: 5).
@@ -86,29 +92,36 @@ SIZING_COLS = 1024
 #: Memory of a reconstruction per pulse of its window, bytes: the ``leafsfs reconstruct`` process peaked at 664 MB
 #: on windows of 1.0 M pulses of the orchard row at 0.018 deg (``fused``), imports included.
 RECONSTRUCT_BYTES_PER_PULSE = 650
+#: Peak memory of a window's reconstruction per pulse of the window, bytes, for :func:`plan_windows`: a window of
+#: 1546 x 1200 pulses of the orchard row at 0.018 deg (rows 7168-8192 and their margins, near the tripod; ``fused``)
+#: peaked at 2.04 GB in a fresh process, 0.12 GB of it imports: 1,034 bytes per pulse.
+PEAK_WINDOW_BYTES_PER_PULSE = 1050
+#: Memory of the process that assembles and writes the cores, per pulse of a core, bytes (:func:`plan_windows`):
+#: the outputs of the cores held (about 19 bytes per pulse each, up to three cores), the core being written and
+#: its points (about 64), and the input members read one at a time (assumption, from the arrays' sizes).
+ASSEMBLY_BYTES_PER_PULSE = 150
+#: Memory of a Python process with ``leafsfs`` imported, bytes (0.12 GB measured; rounded up).
+PROCESS_BYTES = 0.2e9
+#: Fewest rows per band :func:`plan_windows` tries (halving :data:`BAND_ROWS`).
+MIN_BAND_ROWS = 128
 
 
 @dataclasses.dataclass
 class _Window:
-    """What one window contributes: its outputs over rows ``h0:h1`` and columns ``w0:w1``, the leaves it kept.
+    """What one window contributes: its outputs over its core rectangle and where it keeps pixels beyond it.
 
     ``core`` is the window's core rectangle ``(r0, r1, c0, c1)``; ``margins`` its row and column margins.
+    ``inside`` holds the outputs (:data:`_OUTPUTS` and ``leaf``, the rank 1..n of the kept leaf, 0 elsewhere)
+    over the core rectangle (``None`` once its core is assembled); ``outside`` the pixels beyond it of the
+    regions (reconstructed or skipped) the window keeps: ``row``, ``col`` (columns of the scan, continued past
+    a 360 deg scan's seam: below 0 or from ``cols`` on) and the same outputs there. So a window held for its
+    neighbours costs a few bytes per kept pixel, not its whole extent.
     """
 
-    h0: int
-    h1: int
-    w0: int
-    w1: int
     core: tuple
     margins: tuple
-    range: np.ndarray
-    outlier: np.ndarray
-    candidates: np.ndarray
-    leaf: np.ndarray  # rank of the kept leaf (1..n) per pixel, 0 elsewhere
-    claim: np.ndarray  # pixels of the regions (reconstructed or skipped) this window keeps
-    background: np.ndarray
-    spread: np.ndarray
-    corrected: np.ndarray
+    inside: dict | None
+    outside: dict
     traits: list = dataclasses.field(default_factory=list)
     skipped: list = dataclasses.field(default_factory=list)
 
@@ -169,6 +182,103 @@ def core_columns(rows: int, budget_bytes: float, margin: int) -> int:
     return max(window - 2 * margin, margin, 1)
 
 
+@dataclasses.dataclass
+class WindowPlan:
+    """Cores and bands of a tiled reconstruction within a memory budget (:func:`plan_windows`).
+
+    Attributes
+    ----------
+    core_cols, band_rows : int
+        Columns per core and rows per band (:func:`reconstruct_tiled`).
+    window : (int, int)
+        Rows and columns of the largest window expected (the sampled columns' margins).
+    peak_bytes : float
+        Expected peak of the whole run (this process and the workers), bytes.
+    fits : bool
+        Whether ``peak_bytes`` is within the budget (else the smallest windows tried).
+    """
+
+    core_cols: int
+    band_rows: int
+    window: tuple
+    peak_bytes: float
+    fits: bool
+
+
+def plan_windows(tiled: TiledScan, budget_bytes: float, workers: int = 1, leaf_size_m: float = LEAF_SIZE_M,
+                 band_rows: int | None = None, samples: int = 4) -> WindowPlan:
+    """Cores and bands whose windows keep a whole tiled reconstruction (all its processes) within a budget.
+
+    The margins are measured on ``samples`` stretches of :data:`SIZING_COLS` columns spread over the scan
+    (fixed columns, so that the plan does not depend on the scan's tiling), per band; the largest window
+    is that of the band with the widest margins. The run's peak is taken as this process
+    (:data:`PROCESS_BYTES` plus :data:`ASSEMBLY_BYTES_PER_PULSE` per pulse of a core) plus ``workers``
+    windows (:data:`PROCESS_BYTES` plus :data:`PEAK_WINDOW_BYTES_PER_PULSE` per pulse; with one worker the
+    window runs in this process). Bands of :data:`BAND_ROWS` rows (all rows up to twice that) are halved down
+    to :data:`MIN_BAND_ROWS` while that lets wider cores fit, so that fewer margins are reconstructed twice.
+
+    Parameters
+    ----------
+    tiled : TiledScan
+        The scan.
+    budget_bytes : float
+        Memory of the whole run, bytes.
+    workers : int
+        Worker processes (:func:`reconstruct_tiled`).
+    leaf_size_m : float
+        Largest leaf extent, m (:func:`margin_columns`).
+    band_rows : int, optional
+        Rows per band (default: chosen as above).
+    samples : int
+        Stretches of columns whose margins are measured.
+
+    Returns
+    -------
+    WindowPlan
+        The plan that reconstructs the fewest pulses per pulse of the scan among those that fit; when none
+        fits, the one with the smallest peak (``fits`` False).
+    """
+    rows, cols = tiled.shape
+    width = min(cols, SIZING_COLS)
+    starts = sorted({(i * cols // samples) // width * width for i in range(samples)})
+    if band_rows is not None:
+        choices = [band_rows]
+    else:
+        first = rows if rows <= 2 * BAND_ROWS else BAND_ROWS
+        choices = [first] + [b for b in (BAND_ROWS // 2 ** i for i in range(1, 8)) if MIN_BAND_ROWS <= b < first]
+    # per band choice and band: the largest row and column margins over the samples (one sample in memory)
+    found = {band: [[0, 0] for _ in range(0, rows, band)] for band in choices}
+    for c0 in starts:
+        sample = _grid_columns(tiled, c0, min(cols, c0 + width), slice(None))
+        for band, per_band in found.items():
+            for (r0, most) in zip(range(0, rows, band), per_band):
+                part = sample.crop(slice(r0, min(rows, r0 + band)), slice(None))
+                most[0] = max(most[0], 0 if band >= rows else margin_rows(part, leaf_size_m, 2048))
+                most[1] = max(most[1], margin_columns(part, leaf_size_m, 2048))
+        del sample
+    plans = []
+    for band in choices:
+        starts_r = range(0, rows, band)
+        heights = [min(rows, r0 + band + mr) - max(0, r0 - mr) for r0, (mr, _) in zip(starts_r, found[band])]
+        margins = [mc for _, mc in found[band]]
+
+        def peak(core, heights=heights, margins=margins):
+            window = max(h * min(cols, core + 2 * m) for h, m in zip(heights, margins))
+            processes = PROCESS_BYTES * (1 + (workers if workers > 1 else 0))
+            return processes + rows * core * ASSEMBLY_BYTES_PER_PULSE + workers * window * PEAK_WINDOW_BYTES_PER_PULSE
+
+        lo, hi = 1, cols  # the widest core that fits: peak() grows with the core
+        while lo < hi:
+            mid = (lo + hi + 1) // 2
+            lo, hi = (mid, hi) if peak(mid) <= budget_bytes else (lo, mid - 1)
+        cost = sum(h * min(cols, lo + 2 * m) for h, m in zip(heights, margins)) / (rows * lo)
+        worst = max(zip(heights, margins), key=lambda hm: hm[0] * min(cols, lo + 2 * hm[1]))
+        plans.append((peak(lo) > budget_bytes, cost if peak(lo) <= budget_bytes else peak(lo),
+                      WindowPlan(lo, band, (worst[0], min(cols, lo + 2 * worst[1])), peak(lo),
+                                 peak(lo) <= budget_bytes)))
+    return min(plans, key=lambda plan: plan[:2])[2]
+
+
 def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params: SfsParams | None = None, *,
                       calibration=None, core_cols: int = 512, band_rows: int | None = None,
                       leaf_size_m: float = LEAF_SIZE_M, max_margin: int = 2048, workers: int = 1,
@@ -199,8 +309,9 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
         Largest margin of a window, columns or rows.
     workers : int
         Processes that reconstruct windows, ``>= 1`` (1: all in this process). Each holds one window
-        (about :data:`RECONSTRUCT_BYTES_PER_PULSE` per pulse); this process holds up to ``2 x workers``
-        finished windows' outputs (about 30 bytes per pulse) besides the three cores' it assembles from.
+        (about :data:`PEAK_WINDOW_BYTES_PER_PULSE` per pulse); this process holds the outputs of up to
+        ``2 x workers`` finished windows and of the cores it assembles from (about 19 bytes per pulse of their
+        core rectangles), and the core it writes (:data:`ASSEMBLY_BYTES_PER_PULSE` in all).
     progress : callable, optional
         Called with the number of pulses of every finished core.
 
@@ -293,13 +404,17 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
                 for b in range(len(bands)):
                     windows.append((j, window(b, j), label))
                     label += len(window(b, j).traits)
-            tile, leaves, skipped = _assemble_core(k, tiled.load_columns(c0, c1), c0, c1, cols, windows)
-            tile.meta = {**tiled.meta, "columns": [c0, c1],
-                         "leafsfs": {"variant": variant, "leaves": json_ready(leaves), "skipped": skipped}}
+            grids, leaves, skipped = _assemble_core(k, rows, c0, c1, cols, windows)
+            meta = {**tiled.meta, "columns": [c0, c1],
+                    "leafsfs": {"variant": variant, "leaves": json_ready(leaves), "skipped": skipped}}
             if pending is not None:
                 pending.result()
-            pending = writer.submit(add_tile, outdir / "corrected", index, c0, tile)
-            del tile, windows
+            pending = writer.submit(add_tile_members, outdir / "corrected", index, c0, c1,
+                                    functools.partial(_write_core, tiled, c0, c1, grids, meta))
+            for _, used, _ in windows:
+                if used.core[2] == c0:  # the core is assembled: only the pixels beyond it are still needed
+                    used.inside = None
+            del grids, windows
             for key in [key for key in cache if last_use.get(key, -1) <= i]:
                 del cache[key]
             if progress is not None:
@@ -551,10 +666,25 @@ def _reconstruct_window(tiled: TiledScan, band: tuple, core: tuple, leaf_size_m:
                "centroid_col": float(centre[1][leaf.label] % cols), "centroid_row": float(centre[0][leaf.label])}
               for leaf in kept]
     skipped = [reason for label, reason in result.skipped if mine[label]]
-    return _Window(h0, h1, w0, w1, (r0, r1, c0, c1), (margin_r, margin_c), np.where(dropped, scan.range, result.range),
-                   result.outlier & ~dropped, np.where(dropped, 0, result.candidates), rank[labels], claim,
-                   result.background & ~dropped, np.where(dropped, np.nan, result.spread), result.corrected & ~dropped,
-                   traits, skipped)
+    outputs = {"range": np.where(dropped, scan.range, result.range), "outlier": result.outlier & ~dropped,
+               "candidates": np.where(dropped, 0, result.candidates).astype(np.int32),
+               "background": result.background & ~dropped,
+               "spread": np.where(dropped, np.nan, result.spread).astype(np.float32), "leaf": rank[labels]}
+    return _split_window((h0, h1, w0, w1), (r0, r1, c0, c1), (margin_r, margin_c), outputs, claim, traits, skipped)
+
+
+def _split_window(extent: tuple, core: tuple, margins: tuple, outputs: dict, claim: np.ndarray, traits: list,
+                  skipped: list) -> _Window:
+    """A window's outputs over its core rectangle, dense, and its kept pixels beyond it, as a list."""
+    (h0, h1, w0, w1), (r0, r1, c0, c1) = extent, core
+    inner = (slice(r0 - h0, r1 - h0), slice(c0 - w0, c1 - w0))
+    beyond = claim.copy()
+    beyond[inner] = False
+    where = np.nonzero(beyond)
+    outside = {"row": (where[0] + h0).astype(np.int32), "col": where[1] + w0,
+               **{name: value[where] for name, value in outputs.items()}}
+    inside = {name: np.ascontiguousarray(value[inner]) for name, value in outputs.items()}
+    return _Window(core, margins, inside, outside, traits, skipped)
 
 
 def _near_inner_border(where: tuple, extent: tuple, shape: tuple, seam: bool = False) -> bool:
@@ -572,22 +702,23 @@ def _near_inner_border(where: tuple, extent: tuple, shape: tuple, seam: bool = F
 def _empty_window(scan: Scan, extent: tuple, core: tuple, margins: tuple) -> _Window:
     """The contribution of a window without leaves: the measured scan, nothing corrected."""
     none = np.zeros(scan.shape, dtype=bool)
-    return _Window(*extent, core, margins, scan.range, none, np.zeros(scan.shape, np.int32),
-                   np.zeros(scan.shape, np.int32), none, none, np.full(scan.shape, np.nan), none)
+    outputs = {"range": scan.range, "outlier": none, "candidates": np.zeros(scan.shape, np.int32), "background": none,
+               "spread": np.full(scan.shape, np.nan, np.float32), "leaf": np.zeros(scan.shape, np.int32)}
+    return _split_window(extent, core, margins, outputs, none, [], [])
 
 
 _OUTPUTS = ("range", "outlier", "candidates", "background", "spread")
 
 
-def _assemble_core(k: int, tile: Scan, c0: int, c1: int, cols: int, windows: list) -> tuple[Scan, list, list]:
-    """The corrected tile of core ``k`` (columns ``c0:c1``) from its windows and the regions its neighbours keep.
+def _assemble_core(k: int, rows: int, c0: int, c1: int, cols: int, windows: list) -> tuple[dict, list, list]:
+    """The corrected grids of core ``k`` (columns ``c0:c1``) from its windows and the regions its neighbours keep.
 
     Parameters
     ----------
     k : int
         Core number.
-    tile : Scan
-        The input scan's columns ``c0:c1``, all rows.
+    rows : int
+        Rows of the scan.
     c0, c1 : int
         The core's columns.
     cols : int
@@ -599,53 +730,104 @@ def _assemble_core(k: int, tile: Scan, c0: int, c1: int, cols: int, windows: lis
 
     Returns
     -------
-    tile : Scan
-        The corrected scan of the core's columns.
+    grids : dict of str to ndarray
+        The core's :data:`_OUTPUTS` and ``leaf`` (the leaves' labels), ``rows x (c1 - c0)``.
     leaves : list of dict
         Traits of the leaves kept by core ``k``'s windows, with their labels.
     skipped : list of dict
         Regions of core ``k``'s windows not reconstructed.
     """
     grids = {name: None for name in _OUTPUTS}
-    leaf = np.zeros(tile.shape, np.int32)
+    leaf = np.zeros((rows, c1 - c0), np.int32)
     leaves, skipped = [], []
 
-    def numbered(window, offset, src):
-        return np.where(window.leaf[src] > 0, window.leaf[src] + offset, 0).astype(np.int32)
+    def numbered(rank, offset):
+        return np.where(rank > 0, rank + offset, 0).astype(np.int32)
 
     for j, window, offset in windows:  # first each band's own window over its core rectangle
         if j != k:
             continue
         r0, r1 = window.core[:2]
-        src = (slice(r0 - window.h0, r1 - window.h0), slice(c0 - window.w0, c1 - window.w0))
         for name in _OUTPUTS:
-            value = getattr(window, name)[src]
+            value = window.inside[name]
             if grids[name] is None:
-                grids[name] = np.empty(tile.shape, value.dtype)
+                grids[name] = np.empty((rows, c1 - c0), value.dtype)
             grids[name][r0:r1] = value
-        leaf[r0:r1] = numbered(window, offset, src)
+        leaf[r0:r1] = numbered(window.inside["leaf"], offset)
         leaves += [{"leaf": offset + i + 1, "core": k, **t} for i, t in enumerate(window.traits)]
         skipped += [{"core": k, "reason": reason} for reason in window.skipped]
     for (j, window, offset), shift in itertools.product(windows, (0, -cols, cols)):
         # then the regions any window keeps outside its own core rectangle
-        a, b = max(c0 + shift, window.w0), min(c1 + shift, window.w1)
-        if a >= b:
+        outside = window.outside
+        here = (outside["col"] >= c0 + shift) & (outside["col"] < c1 + shift)
+        if not here.any():
             continue
-        src = (slice(None), slice(a - window.w0, b - window.w0))
-        claim = window.claim[src].copy()
-        if j == k and shift == 0:
-            r0, r1 = window.core[:2]
-            claim[r0 - window.h0:r1 - window.h0] = False
-        dst = (slice(window.h0, window.h1), slice(a - shift - c0, b - shift - c0))
+        dst = (outside["row"][here], outside["col"][here] - shift - c0)
         for name in _OUTPUTS:
-            grids[name][dst][claim] = getattr(window, name)[src][claim]
-        leaf[dst][claim] = numbered(window, offset, src)[claim]
-    layers = {**tile.layers, "outlier": grids["outlier"], "candidates": grids["candidates"].astype(np.int32),
-              "leaf": leaf, "background": grids["background"],
-              "removed": grids["outlier"] & np.isnan(grids["range"]), "range_spread": grids["spread"].astype(np.float32)}
-    scan = dataclasses.replace(tile, range=grids["range"], layers=layers,
-                               xyz=grid_to_xyz(grids["range"], tile.theta, tile.psi, tile.pose))
-    return scan, leaves, skipped
+            grids[name][dst] = outside[name][here]
+        leaf[dst] = numbered(outside["leaf"][here], offset)
+    return {**grids, "leaf": leaf}, leaves, skipped
+
+
+def _write_core(tiled: TiledScan, c0: int, c1: int, grids: dict, meta: dict, file: Path) -> Path:
+    """Write the corrected tile of columns ``c0:c1`` to ``file``, member by member (:func:`_core_members`)."""
+    return write_npz(file, _core_members(tiled, c0, c1, grids, meta))
+
+
+def _core_members(tiled: TiledScan, c0: int, c1: int, grids: dict, meta: dict):
+    """Yield ``(name, array)``: the corrected tile of columns ``c0:c1`` as :meth:`Scan.save` writes it.
+
+    The tile is the input scan's columns with the corrected range, its points and the layers of the
+    reconstruction (``outlier``, ``candidates``, ``leaf``, ``background``, ``removed``, ``range_spread``)
+    added to (or replacing) the input's. The input's arrays are read from its tiles one member at a time,
+    and the points computed a band of rows at a time, so that the whole tile is never in memory.
+    """
+    parts = [(tiled.path / tile.file, slice(max(c0, tile.col0) - tile.col0, min(c1, tile.col1) - tile.col0))
+             for tile in tiled.tiles if tile.col1 > c0 and tile.col0 < c1]
+
+    def columns(key):
+        pieces = []
+        for file, cut in parts:
+            with np.load(file, allow_pickle=False) as data:
+                pieces.append(data[key][:, cut])
+        return pieces[0] if len(pieces) == 1 else np.concatenate(pieces, axis=1)
+
+    with np.load(parts[0][0], allow_pickle=False) as data:
+        files = list(data.files)
+        pose = ScannerPose(data["scanner_position"], data["scanner_rotation"])
+        scanner = ScannerDescription.from_dict(json.loads(str(data["scanner"])))
+        names = [str(n) for n in data["object_names"]] if "object_names" in files else None
+    added = {"outlier": grids["outlier"], "candidates": grids["candidates"], "leaf": grids["leaf"],
+             "background": grids["background"], "removed": grids["outlier"] & np.isnan(grids["range"]),
+             "range_spread": grids["spread"]}
+    for key in GRID_KEYS + TRUTH_KEYS:
+        if key == "xyz":
+            yield key, _points(grids["range"], columns("theta"), columns("psi"), pose)
+        elif key in files:
+            yield key, grids["range"] if key == "range" else columns(key)
+    layers = [key for key in files if key not in GRID_KEYS + TRUTH_KEYS + META_KEYS]
+    for key in layers + [key for key in added if key not in layers]:
+        yield key, added[key] if key in added else columns(key)
+    yield "scanner_position", pose.position
+    yield "scanner_rotation", pose.rotation
+    yield "scanner", np.array(json.dumps(scanner.to_dict()))
+    yield "meta", np.array(json.dumps(meta))
+    if names is not None:
+        yield "object_names", np.array(names, dtype=str)
+
+
+#: Rows of a tile whose points are computed at once when it is written (about 24 bytes per pulse each, and
+#: three times that in passing).
+_POINT_ROWS = 256
+
+
+def _points(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, pose: ScannerPose) -> np.ndarray:
+    """:func:`tlssim.scan.grid_to_xyz` a band of :data:`_POINT_ROWS` rows at a time (the same values)."""
+    xyz = np.empty(range_m.shape + (3,))
+    for r0 in range(0, range_m.shape[0], _POINT_ROWS):
+        rows = slice(r0, r0 + _POINT_ROWS)
+        xyz[rows] = grid_to_xyz(range_m[rows], theta[rows], psi[rows], pose)
+    return xyz
 
 
 def is_tiled(path) -> bool:

@@ -157,3 +157,42 @@ def test_a_leaf_cut_by_the_seam_of_a_360_deg_scan_is_one_leaf(tiled_leaf, tmp_pa
     assert not leaf["cut_by_border"] and leaf["core"] in (0, 3)
     labels = result.scan.load().layers["leaf"]
     assert labels[:, :80].max() == labels[:, -80:].max() == leaf["leaf"]  # both halves carry its label
+
+
+def test_a_core_written_member_by_member_is_the_file_scan_save_writes(tiled_leaf, tmp_path, monkeypatch):
+    import dataclasses
+
+    from leafsfs import tiled as tiled_module
+    from tlssim.scan import grid_to_xyz
+
+    tiled, _, _ = tiled_leaf
+    monkeypatch.setattr(tiled_module, "_POINT_ROWS", 16)  # the points of the 169 rows in several bands
+    c0, c1 = 30, 120  # across the input's tiles of 50 columns
+    scan = tiled.load_columns(c0, c1)
+    rng = np.random.default_rng(0)
+    grids = {"range": scan.range + rng.normal(0, 1e-3, scan.shape), "outlier": rng.random(scan.shape) < 0.1,
+             "candidates": rng.integers(0, 5, scan.shape, dtype=np.int32), "background": rng.random(scan.shape) < 0.2,
+             "spread": rng.random(scan.shape).astype(np.float32),
+             "leaf": rng.integers(0, 3, scan.shape, dtype=np.int32)}
+    meta = {**tiled.meta, "columns": [c0, c1], "leafsfs": {"leaves": []}}
+    streamed = tiled_module._write_core(tiled, c0, c1, grids, meta, tmp_path / "streamed.npz")
+    layers = {**scan.layers, "outlier": grids["outlier"], "candidates": grids["candidates"], "leaf": grids["leaf"],
+              "background": grids["background"], "removed": grids["outlier"] & np.isnan(grids["range"]),
+              "range_spread": grids["spread"]}
+    whole = dataclasses.replace(scan, range=grids["range"], layers=layers, meta=meta,
+                                xyz=grid_to_xyz(grids["range"], scan.theta, scan.psi, scan.pose))
+    assert streamed.read_bytes() == whole.save(tmp_path / "whole.npz").read_bytes()
+
+
+def test_the_window_plan_fits_its_budget_whatever_the_tiling(tiled_leaf, tmp_path):
+    from leafsfs.tiled import plan_windows
+
+    tiled, _, _ = tiled_leaf
+    rows, cols = tiled.shape
+    small, large = (plan_windows(tiled, budget, leaf_size_m=0.06) for budget in (0.255e9, 0.3e9))
+    assert small.fits and large.fits and small.peak_bytes <= 0.255e9 and large.peak_bytes <= 0.3e9
+    assert 1 < small.core_cols < large.core_cols == cols and small.band_rows == rows  # 169 rows: one band
+    one, two = (plan_windows(tiled, 0.71e9, workers=workers, leaf_size_m=0.06) for workers in (1, 2))
+    assert two.fits and two.core_cols < one.core_cols  # two windows at once, and one more process
+    assert plan_windows(_retiled(tiled, tmp_path / "scan", 130), 0.3e9, leaf_size_m=0.06) == large
+    assert not plan_windows(tiled, 0.1e9, leaf_size_m=0.06).fits  # less than the imports of one process

@@ -45,7 +45,7 @@ from tlssim.scanner import ScannerModel, get_preset
 
 GRID_KEYS = ("range", "intensity", "theta", "psi", "xyz")
 TRUTH_KEYS = ("truth_range", "truth_id", "mixed_fraction", "incidence", "truth_normal")
-_META_KEYS = ("object_names", "scanner_position", "scanner_rotation", "scanner", "scanner_model", "meta")
+META_KEYS = ("object_names", "scanner_position", "scanner_rotation", "scanner", "scanner_model", "meta")
 
 
 @dataclass(frozen=True)
@@ -155,7 +155,7 @@ class Scan:
                 ok = np.shape(value) == expected
             if not ok:
                 raise ScanError(f"scan array {key!r} has shape {np.shape(value)}, expected {expected}")
-        clash = sorted(set(self.layers) & set(GRID_KEYS + TRUTH_KEYS + _META_KEYS))
+        clash = sorted(set(self.layers) & set(GRID_KEYS + TRUTH_KEYS + META_KEYS))
         if clash:
             raise ScanError(f"extra layers may not reuse reserved scan keys: {clash}")
 
@@ -272,7 +272,7 @@ class Scan:
 NPZ_COMPRESS_LEVEL = 1
 
 
-def write_npz(path, arrays: dict[str, np.ndarray]) -> Path:
+def write_npz(path, arrays) -> Path:
     """Write arrays as a compressed NPZ (:data:`NPZ_COMPRESS_LEVEL`) whose bytes depend only on the arrays.
 
     ``numpy.savez`` stamps the current time into the archive; here every
@@ -284,8 +284,9 @@ def write_npz(path, arrays: dict[str, np.ndarray]) -> Path:
     ----------
     path : str or Path
         Output ``.npz`` file; missing folders are created.
-    arrays : dict of str to ndarray
-        Arrays to store, by member name.
+    arrays : dict of str to ndarray, or iterable of (str, ndarray)
+        Arrays to store, by member name, in order; an iterable (e.g. a generator) is consumed one member at
+        a time, so that only the member being written need be in memory.
 
     Returns
     -------
@@ -296,7 +297,7 @@ def write_npz(path, arrays: dict[str, np.ndarray]) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".partial")
     with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as archive:
-        for name, value in arrays.items():
+        for name, value in (arrays.items() if isinstance(arrays, dict) else arrays):
             info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
             info.compress_type = zipfile.ZIP_DEFLATED
             info._compresslevel = NPZ_COMPRESS_LEVEL  # ZipFile.open takes the level from the member's info

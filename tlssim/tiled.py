@@ -358,10 +358,29 @@ def add_tile(path, index: dict, col0: int, tile: Scan) -> None:
     tile : Scan
         The tile (all rows).
     """
+    add_tile_members(path, index, col0, col0 + tile.shape[1], tile.save)
+
+
+def add_tile_members(path, index: dict, col0: int, col1: int, write) -> None:
+    """Write one finished tile with ``write(file)`` and record it in the index (as :func:`add_tile`).
+
+    For a tile written member by member (:func:`tlssim.scan.write_npz` of a generator), so that it need not
+    be in memory whole.
+
+    Parameters
+    ----------
+    path : str or Path
+        The scan directory (:func:`start_tiled`).
+    index : dict
+        The index returned by :func:`start_tiled`; updated in place.
+    col0, col1 : int
+        First and past-the-last column of the tile in the whole scan.
+    write : callable
+        Writes the tile's NPZ to the path it is given and returns that path.
+    """
     path = Path(path)
-    col1 = col0 + tile.shape[1]
     name = f"tile-{col0:06d}-{col1:06d}.npz"
-    file = tile.save(path / name)
+    file = write(path / name)
     entry = TileEntry(name, int(col0), int(col1), file.stat().st_size, file_sha256(file))
     tiles = [t for t in index["tiles"] if t["col0"] != col0] + [dataclasses.asdict(entry)]
     index["tiles"] = sorted(tiles, key=lambda t: t["col0"])
