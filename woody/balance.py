@@ -84,6 +84,11 @@ def _balance_pair(source: Branch, target: Branch, child: Branch, parent: Branch,
     t_s, r_s = _cylinder_stats(points[src], source.axis_point, source.direction)
     tgt_t, tgt_r = _cylinder_stats(points[np.array(target.points)], target.axis_point, target.direction)
     t_lo, t_hi, r_tgt = tgt_t.min(), tgt_t.max(), tgt_r.max()
+    # Strict mode: a point moves only where the target's inclusion test would take it (within max(k_r) times its
+    # envelope radius). With the paper's largest distance, every point within a trunk's one stray point's distance
+    # costs the trunk nothing: on a simulated leafless apple-like tree (seed 5, simulation seed 8) the trunk took in
+    # 1,500 points of the crown's base and its median radius went from 26 to 84 mm.
+    reach = max(params.k_r) * target.reference_radius()
     keep = np.ones(len(src), bool)
     while keep.sum() > params.min_branch_points:
         rows = np.flatnonzero(keep)
@@ -100,7 +105,7 @@ def _balance_pair(source: Branch, target: Branch, child: Branch, parent: Branch,
             change = (v_src_new - volume_src) + (v_tgt_new - volume_tgt)
             if params.mode == "strict":
                 r_child, r_parent = (r_src_new, r_tgt_new) if source is child else (r_tgt_new, r_src_new)
-                allowed = r_child < r_parent
+                allowed = r_child < r_parent and r_k <= reach
             else:
                 allowed = r_src_new < r_tgt_new
             if change < 0 and allowed and (best is None or change < best[0]):

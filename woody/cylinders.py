@@ -71,7 +71,11 @@ test trees (spec Part D; each a documented departure in the default mode):
   compares only their angles to the parent, as printed;
 - volume balancing (D-M12): axes fixed within a pass (a refit per
   candidate point would cost O(n)); strict mode keeps the child thinner
-  than its parent, faithful mode applies the printed
+  than its parent and moves a point only where the inclusion test would
+  take it (within ``max(k_r)`` times the robust envelope radius of the
+  taking branch: with the paper's largest distance a trunk's one stray
+  point let it take in the crown's base),
+  faithful mode applies the printed
   ``Tmp1.radius < Tmp2.radius``; at most ``max_balance_passes`` passes;
 - start and gaps (strict mode, additions): the trunk starts from every
   point connected to the lowest one within four ``Precision`` above it,

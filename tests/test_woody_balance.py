@@ -1,0 +1,42 @@
+"""Cylinder following: volume balancing moves a point only where the inclusion test would take it (strict mode)."""
+
+import numpy as np
+
+from woody import FollowParams
+from woody.balance import balance_volume
+from woody.branch import Branch
+
+
+def _pair(mode):
+    rng = np.random.default_rng(4)
+    angle, z = rng.uniform(0, 2 * np.pi, 600), rng.uniform(0.0, 1.0, 600)
+    trunk = np.column_stack([0.03 * np.cos(angle), 0.03 * np.sin(angle), z])
+    stray = np.array([[0.0, 0.25, 0.5]])  # one mixed pulse far off the trunk: its largest distance, 0.25 m
+    angle, x = rng.uniform(0, 2 * np.pi, 120), rng.uniform(0.08, 0.2, 120)
+    twig = np.column_stack([x, 0.005 * np.cos(angle), 0.5 + 0.005 * np.sin(angle)])
+    points = np.vstack([trunk, stray, twig])
+    params = FollowParams(mode=mode)
+    parent = Branch(0, 0, None, 1, (points, None), params)
+    parent.points = list(range(len(trunk) + 1))
+    parent.refit()
+    child = Branch(1, len(trunk) + 1, parent, 2, (points, None), params)
+    child.points = list(range(len(trunk) + 1, len(points)))
+    child.refit()
+    parent.children.append(child)
+    balance_volume([parent, child], points, params)
+    return parent, child, len(twig)
+
+
+def test_a_twig_inside_a_trunks_widest_point_is_not_taken_in_strict_mode():
+    parent, child, twig = _pair("strict")
+    assert len(child.points) == twig
+    assert parent.r_median < 0.035
+
+
+def test_the_papers_balancing_moves_it_into_the_trunk():
+    # The paper's volume uses the largest distance: every twig point within 0.25 m of the trunk's axis costs the
+    # trunk nothing, so the twig shrinks towards the trunk (the behaviour strict mode refuses).
+    parent, child, twig = _pair("faithful")
+    assert len(child.points) < twig / 2
+    assert parent.r_median > 0.1
+
