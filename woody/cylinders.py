@@ -74,9 +74,8 @@ test trees (spec Part D; each a documented departure in the default mode):
   than its parent and moves a point only where the inclusion test would
   take it (within ``max(k_r)`` times the robust envelope radius of the
   taking branch: with the paper's largest distance a trunk's one stray
-  point let it take in the crown's base),
-  faithful mode applies the printed
-  ``Tmp1.radius < Tmp2.radius``; at most ``max_balance_passes`` passes;
+  point let it take in the crown's base), faithful mode applies the
+  printed ``Tmp1.radius < Tmp2.radius``; at most ``max_balance_passes`` passes;
 - start and gaps (strict mode, additions): the trunk starts from every
   point connected to the lowest one within four ``Precision`` above it,
   not from one point: which pulse at the stem base is lowest decided how
