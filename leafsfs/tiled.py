@@ -78,7 +78,7 @@ from tlssim.scan import GRID_KEYS, META_KEYS, TRUTH_KEYS, Scan, ScannerDescripti
 from tlssim.tiled import INDEX, TiledScan, add_tile_members, concat_columns, open_tiled, start_tiled
 
 #: Columns a kept region must stay away from a window's inner border to count as whole: the leaf frame's
-#: margin plus the segmentation's neighbourhood (about a footprint, at least 5 x 5 pulses; assumption: 5).
+#: margin plus the segmentation's neighbourhood (the edge test's disc, ``leafsfs.leaves``; assumption: 5 columns).
 GUARD_COLS = MARGIN_PX + 5
 #: Largest leaf extent assumed by default, m: about twice the mean pear-leaf blade length measured in the
 #: lab (6.47 cm, scenes.leaf), for the petiole and larger leaves (assumption).
