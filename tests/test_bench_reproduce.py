@@ -161,6 +161,37 @@ def test_ch5_experiments_quick_table_shapes():
     assert all(r.claim and r.source for r in bias + vase if r.holds is not None)
 
 
+def test_asymmetry_of_an_error_matrix():
+    y, x = np.mgrid[-10:11, -10:11]
+    radial = np.hypot(x, y) / 10.0
+    radial[radial > 1] = np.nan  # a disk, as the hemisphere's mask
+    assert thesis_ch5.asymmetry(radial) == pytest.approx(0.0, abs=1e-12)
+    star = radial.copy()
+    star[10, 15:] += 1.0  # one spike along +x only
+    assert thesis_ch5.asymmetry(star) > 0.03  # 6 of the 7 symmetries move it: about 6/7 x 12 px / 317 px / 0.67
+    assert math.isnan(thesis_ch5.asymmetry(np.full((5, 5), np.nan)))
+
+
+def test_ch5_error_maps_rows_figures_and_claim(monkeypatch):
+    def fake(surface, side, *, noise_deg=0.0, n_smooth=0, rule="median", seed=0, **kwargs):
+        y, x = np.mgrid[-3:4, -3:4].astype(float)
+        errors = 0.01 + 0.001 * np.hypot(x, y)  # 1-1.4 % of h_tot, symmetric
+        if n_smooth < 5 and rule == "median":
+            errors[3, 4:] += 0.1  # a one-sided spike with fewer than 5 passes
+        return errors
+
+    monkeypatch.setattr(thesis_ch5, "error_matrix", fake)
+    rows, figures = thesis_ch5.error_maps(quick=True, seed=0)
+    rows = {r.key: r for r in rows}
+    assert set(figures) == {"error-matrices", "error-histograms"}
+    assert rows["median/symmetric from the 5th pass"].verdict == WITHIN
+    # no asymmetry at all: 'less asymmetric from 5 passes' does not hold
+    assert rows["lower/symmetric from the 5th pass"].verdict == OUTSIDE
+    assert rows["lower/5 passes/|error| < 1 %"].ours == pytest.approx(0.0)
+    assert rows["lower/5 passes/|error| < 2 %"].ours == pytest.approx(100.0)
+    assert sum(k.endswith("asymmetry") for k in rows) == 2 * 5 and sum("|error| <" in k for k in rows) == 2 * 3 * 4
+
+
 def test_ch5_smoothing_rows_separate_noise_from_smoothing(monkeypatch):
     calls = []
 
@@ -334,7 +365,12 @@ def test_dask_scheduler_runs_each_experiment_as_a_task(monkeypatch, tmp_path, ca
     from distributed import LocalCluster
 
     def fake(quick, seed):
-        return [Row("a", "q", "cm", 1.0 + seed, 1.0, 0.5, "test", "src"), Row("b", "claim", "", 2.0, holds=quick)]
+        from matplotlib.figure import Figure
+
+        figure = Figure(figsize=(2, 2))
+        figure.add_subplot().imshow(np.eye(4))
+        rows = [Row("a", "q", "cm", 1.0 + seed, 1.0, 0.5, "test", "src"), Row("b", "claim", "", 2.0, holds=quick)]
+        return rows, {"map": figure}  # an extra figure travels back from the worker as PNG
 
     def broken(quick, seed):
         raise ValueError("no data")
@@ -354,6 +390,9 @@ def test_dask_scheduler_runs_each_experiment_as_a_task(monkeypatch, tmp_path, ca
     assert "ValueError: no data" in remote[1].error and not remote[1].rows
     assert code == 0 and capsys.readouterr().out.strip().endswith("2/2 rows within tolerance")
     assert [r.key for r in read_csv(tmp_path / "fake-ok.csv")] == ["a", "b"]
+    assert list(remote[0].images) == ["map"] and remote[0].images == local[0].images
+    assert (tmp_path / "fake-ok-map.png").read_bytes()[:4] == b"\x89PNG"
+    assert 'alt="fake-ok map"' in (tmp_path / "reproduction.html").read_text()
     with Store(tmp_path / "r.sqlite") as store:
         (run,) = store.runs("reproduce-quick")
         assert {r["variant"] for r in store.results(run["run_id"])} == {"fake-ok/a", "fake-ok/b"}
@@ -442,3 +481,11 @@ def test_inversion_errors_single_returns_and_station_means():
              "sample_range_m": np.full(6, 2.16)}
     single, means = sensors2011.inversion_errors(lambda i, r: np.radians((1000.0 - i) / 10.0), table)
     assert single == pytest.approx([2.0, 2.0, 2.0, 2.0]) and means == pytest.approx([0.0, 0.0], abs=1e-9)
+
+
+def test_page_names_the_experiments_it_left_out():
+    from benchmarks.reproduce.page import page
+
+    text = page([], "tlsbench reproduce --quick", ["step-ds1a", "mendez-fig4"])
+    assert "Not run here" in text and "step-ds1a, mendez-fig4" in text
+    assert "Not run here" not in page([], "tlsbench reproduce")

@@ -452,6 +452,164 @@ def vase(quick: bool, seed: int) -> list[Row]:
     return rows
 
 
+def error_matrix(surface: str, side: int, *, noise_deg: float = 0.0, n_smooth: int = 0, eps_alpha: float = 0.2,
+                 rule: str = "median", seed: int = 0) -> np.ndarray:
+    """The thesis' error matrix: signed ``eps = (d_hat - d) / h_tot`` per pixel (eq 3.1), NaN where not reconstructed.
+
+    Parameters
+    ----------
+    surface : str
+        Name in :mod:`scenes.surfaces`.
+    side : int
+        Matrix side, pixels.
+    noise_deg : float
+        Uniform alpha noise amplitude, degrees.
+    n_smooth : int
+        Smoothing passes.
+    eps_alpha : float
+        Quantisation percentile (fraction).
+    rule : {"median", "upper", "lower"}
+        Domain-alpha rule.
+    seed : int
+        Seed of the noise.
+
+    Returns
+    -------
+    ndarray, 2-D
+        Signed relative error (fraction of h_tot); NaN outside the object or where not reconstructed.
+    """
+    sample = sample_surface(get_surface(surface), side, alpha_noise_deg=noise_deg, seed=seed)
+    params = SfsParams(n_smooth=n_smooth, quantization="percentile", eps_alpha=eps_alpha, eps_seed=0.2,
+                       alpha_max_deg=85, rim_px=0, alpha_rule=rule)
+    result = reconstruct_heights(sample.alpha, sample.height, sample.mask, sample.grid, "buffer", params)
+    h_tot = float(np.ptp(sample.truth[sample.mask]))
+    done = sample.mask & np.isfinite(result.height)
+    return np.where(done, (result.height - sample.truth) / h_tot, np.nan)
+
+
+def asymmetry(errors: np.ndarray) -> float:
+    """How far an error matrix of a square-symmetric surface departs from the square's symmetries.
+
+    The mean of ``| |e| - |T(e)| |`` over the seven rotations and reflections
+    ``T`` of the square (pixels finite in both), divided by the mean ``|e|``:
+    0 for an error pattern with the hemisphere's symmetry.
+
+    Parameters
+    ----------
+    errors : ndarray, 2-D, square
+        Error matrix (NaN where missing), centred on the surface's axis.
+
+    Returns
+    -------
+    float
+        Asymmetry index (dimensionless, >= 0); NaN without finite errors.
+    """
+    a = np.abs(np.asarray(errors, float))
+    if not np.isfinite(a).any() or np.nanmean(a) == 0:
+        return math.nan if not np.isfinite(a).any() else 0.0
+    images = [np.rot90(a, k) for k in (1, 2, 3)] + [np.fliplr(a), np.flipud(a), a.T, np.rot90(a, 2).T]
+    return float(np.mean([np.nanmean(np.abs(a - t)) for t in images]) / np.nanmean(a))
+
+
+#: Thresholds of the cumulative |error| distribution, % of h_tot (5 %: the thesis' criterion).
+CUMULATIVE_PCT = (1.0, 2.0, 5.0, 10.0)
+
+
+def _maps_figures(maps: dict, passes) -> dict:
+    """Error matrices (|eps|, one panel per rule and pass count) and their |eps| histograms, as figures."""
+    from matplotlib.figure import Figure
+
+    rules = list(dict.fromkeys(rule for rule, _ in maps))
+    matrices = Figure(figsize=(2.0 * len(passes) + 0.8, 2.1 * len(rules)), layout="constrained")
+    axes = matrices.subplots(len(rules), len(passes), squeeze=False)
+    for i, rule in enumerate(rules):
+        for j, n in enumerate(passes):
+            image = axes[i][j].imshow(100 * np.abs(maps[rule, n]), vmin=0, vmax=10, cmap="magma", origin="lower")
+            axes[i][j].set_title(f"{rule}, {n} passes", fontsize=7)
+            axes[i][j].set_xticks([])
+            axes[i][j].set_yticks([])
+    matrices.colorbar(image, ax=axes, shrink=0.8, label="|error|, % of h_tot")
+    matrices.suptitle("Thesis ch.5 Fig. 10: error matrices, hemisphere with +-5.7 deg alpha noise", fontsize=9)
+    histograms = Figure(figsize=(4.6 * len(rules), 3.2), layout="constrained")
+    hist_axes = histograms.subplots(1, len(rules), squeeze=False)[0]
+    for axes_, rule in zip(hist_axes, rules):
+        for n in passes:
+            values = 100 * np.abs(maps[rule, n])
+            axes_.hist(values[np.isfinite(values)], bins=np.linspace(0, 15, 31), histtype="step", label=f"{n} passes")
+        axes_.axvline(5.0, color="grey", lw=0.8, ls="--")
+        axes_.set_title(f"{rule} rule", fontsize=8)
+        axes_.set_xlabel("|error|, % of h_tot", fontsize=8)
+        axes_.set_ylabel("pixels", fontsize=8)
+        axes_.legend(fontsize=6)
+    histograms.suptitle("Thesis ch.5 Fig. 10: error distributions, hemisphere with +-5.7 deg alpha noise", fontsize=9)
+    return {"error-matrices": matrices, "error-histograms": histograms}
+
+
+@register("ch5-error-maps", "Thesis ch.5 Fig. 10: error matrices and error distributions against smoothing passes",
+          description="Hemisphere (radius 20) at 41 px, +-5.7 deg uniform alpha noise, 20 % quantisation and seed, "
+                      "0-20 smoothing passes, median and lower-bound domain-alpha rules: the error matrix |eps| per "
+                      "pixel (eq 3.2, shown as images) and its distribution (histograms; the cumulative shares below "
+                      "1 / 2 / 5 / 10 % of h_tot as rows), and the error matrix's asymmetry (its mean departure from "
+                      "the square's 8 symmetries, relative to its mean |eps|) against the passes.",
+          findings="The thesis shows these as figures only (prop-sfs §5.1, §5.5): its one statement on the error "
+                   "matrices is that the local error pattern is non-symmetric with 2-4 passes (a bad iso-alpha curve "
+                   "extraction) and symmetric from the 5th pass on. 'Symmetric from the 5th pass' is read as: the "
+                   "mean asymmetry index at 5 and 10 passes is below its mean at 2-4 passes (an assumption; the "
+                   "thesis gives no measure). Measured in development (seed 0; seed 1, not looked at first, in "
+                   "brackets): under the median rule the asymmetry falls steadily with the passes (0.70 / 0.64 / 0.61 "
+                   "at 2 / 3 / 4 passes, 0.56 / 0.36 at 5 / 10; seed 1: 0.60 / 0.58 / 0.53, 0.58 / 0.39), so there is "
+                   "no step at the 5th pass but the claim's comparison holds; under the lower rule the pattern is "
+                   "nearly symmetric from 2 passes on (0.15 / 0.14 / 0.14, 0.14 / 0.12; seed 1: 0.13 / 0.14 / 0.13, "
+                   "0.15 / 0.14): the comparison holds on seed 0 and fails on seed 1, inside the noise of the index. "
+                   "Ours has no 2-4-pass defect of curve extraction to remove. The noise-free hemisphere's own "
+                   "asymmetry under the median rule is 0.43 at 0 passes and 0.23 at 10 (lower rule 0.06): the "
+                   "median rule's small errors (-0.3 % mean) are not axis-symmetric (a property of the rule on the "
+                   "pixel grid, reported, not a claim of the thesis). The distributions (seed 0): under the median "
+                   "rule 88.9 / 97.2 / 93.2 % of the pixels are within 5 % of h_tot at 0 / 5 / 20 passes (the "
+                   "thesis' '> 95 % within 5 % with 2-10 passes' at 5 passes, and 'no smoothing is poor'); under the "
+                   "lower rule 65.3 / 62.2 / 77.0 %, its +5 % offset (ch5-alpha-bias) showing as the bright rim of "
+                   "its error matrices.")
+def error_maps(quick: bool, seed: int):
+    """Rows (cumulative error shares, asymmetry, the symmetry claim) and the error-matrix and histogram figures.
+
+    Parameters
+    ----------
+    quick : bool
+        25 px and passes 0, 2, 4, 5, 20.
+    seed : int
+        Seed of the alpha noise.
+
+    Returns
+    -------
+    rows : list of Row
+    figures : dict of matplotlib.figure.Figure
+        ``error-matrices`` and ``error-histograms``.
+    """
+    side, passes = (25, (0, 2, 4, 5, 20)) if quick else (41, (0, 2, 3, 4, 5, 10, 20))
+    rows, maps = [], {}
+    for rule in ("median", "lower"):
+        index = {}
+        for n in passes:
+            maps[rule, n] = errors = error_matrix("hemisphere", side, noise_deg=5.7, n_smooth=n, rule=rule, seed=seed)
+            index[n] = asymmetry(errors)
+            rows.append(Row(f"{rule}/{n} passes/asymmetry", "asymmetry of the error matrix", "", index[n], x=n,
+                            series=rule, source="ours (thesis Fig. 10 error matrices)"))
+            if n in (0, 5, 20):
+                values = 100 * np.abs(errors[np.isfinite(errors)])
+                rows += [Row(f"{rule}/{n} passes/|error| < {c:g} %", "share of pixels with |error| below x",
+                             "%", 100 * float(np.mean(values < c)), x=c, series=f"{rule}, {n} passes",
+                             source="ours (thesis Fig. 10 error distributions)") for c in CUMULATIVE_PCT]
+        few = [index[n] for n in passes if 2 <= n <= 4]
+        many = [index[n] for n in passes if 5 <= n <= 10]
+        rows.append(Row(f"{rule}/symmetric from the 5th pass", "claim", "", float(np.mean(many)),
+                        source="thesis ch.5 §3.3.1 (prop-sfs §5.5)", series=rule,
+                        holds=bool(np.mean(many) < np.mean(few)),
+                        claim="the local error pattern is non-symmetric with 2-4 passes and symmetric from the 5th "
+                              "pass on (ours: mean asymmetry index at 5-10 passes below its mean at 2-4)",
+                        note=f"asymmetry at 2-4 passes {np.mean(few):.3f}, at 5-10 passes {np.mean(many):.3f}"))
+    return rows, _maps_figures(maps, passes)
+
+
 def fit_law(area, eps, seconds) -> tuple[float, float]:
     """Exponents ``p, q`` of ``t = A a^p / eps^q + C`` fitted to timings (the form of the thesis' eq 3.10).
 
