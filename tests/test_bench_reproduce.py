@@ -489,3 +489,20 @@ def test_page_names_the_experiments_it_left_out():
     text = page([], "tlsbench reproduce --quick", ["step-ds1a", "mendez-fig4"])
     assert "Not run here" in text and "step-ds1a, mendez-fig4" in text
     assert "Not run here" not in page([], "tlsbench reproduce")
+
+
+def test_ch5_saddle_cutoff_claims(monkeypatch):
+    def fake(side, cutoff, *, rule="median", seed=0):
+        # each saddle is best at its own 2 / l (perimeter l about 1.37 side); no low-pass is the worst
+        best = 2.0 / (1.37 * side)
+        error = 0.5 if cutoff is None else 0.04 + abs(math.log(cutoff / best)) * (0.1 if cutoff < best else 0.01)
+        return {"abs_eps_mean": error, "seed_px": side, "completeness": 1.0}
+
+    monkeypatch.setattr(thesis_ch5, "saddle_error", fake)
+    rows = {r.key: r for r in thesis_ch5.saddle_cutoff(quick=True, seed=0)}
+    assert len(rows) == 2 * (3 * 4 + 3)
+    for rule in ("median", "lower"):
+        assert rows[f"{rule}/too small a cutoff flattens the small saddle"].verdict == WITHIN
+        assert rows[f"{rule}/too large a cutoff keeps the noise on the large saddle"].verdict == WITHIN
+        assert rows[f"{rule}/a larger cutoff perturbs less"].verdict == WITHIN
+    assert rows["median/side 50/no low-pass"].ours == pytest.approx(50.0) and rows["median/side 50/no low-pass"].x == 50
