@@ -506,3 +506,19 @@ def test_ch5_saddle_cutoff_claims(monkeypatch):
         assert rows[f"{rule}/too large a cutoff keeps the noise on the large saddle"].verdict == WITHIN
         assert rows[f"{rule}/a larger cutoff perturbs less"].verdict == WITHIN
     assert rows["median/side 50/no low-pass"].ours == pytest.approx(50.0) and rows["median/side 50/no low-pass"].x == 50
+
+
+def test_ch5_variants_claims(monkeypatch):
+    table = {"simple": (0.7, 0.005, 2.0, 0.09, 0.2), "sps": (1.0, 0.007, 1.8, 0.27, 0.3),
+             "buffer": (0.97, 0.007, 1.0, 0.08, 0.4)}
+
+    def fake(surface, variant, side=50):
+        keys = ("completeness", "abs_eps_mean", "points_per_pixel", "outliers", "distance_rho")
+        return {**dict(zip(keys, table[variant])), "parts": 1}
+
+    monkeypatch.setattr(thesis_ch5, "variant_scores", fake)
+    rows = thesis_ch5.variants(quick=True, seed=0)
+    assert len(rows) == 3 * 3 * 5 + 5 and all(r.verdict == WITHIN for r in rows if r.holds is not None)
+    table["buffer"] = (0.9, 0.02, 1.9, 0.3, -0.1)  # Buffer incomplete, worse than SPS, error not from the seeds
+    claims = [r for r in thesis_ch5.variants(quick=True, seed=0) if r.holds is not None]
+    assert [r.verdict for r in claims] == [OUTSIDE] * 5
