@@ -267,15 +267,29 @@ def test_fit_law_recovers_known_exponents():
 def test_insitu_claims_on_known_distributions(monkeypatch):
     rng = np.random.default_rng(0)
     skewed = rng.exponential(4.0, 4000) - 1.0  # skewness 2, median about +1.8 deg
-    monkeypatch.setattr(sensors2011, "leaf_delta_alpha", lambda d, seed: skewed + (0.0 if d < 2 else 5.0))
-    monkeypatch.setattr(sensors2011, "bent_leaf_delta_alpha", lambda bend, seed: skewed + bend / 30)
+    symmetric = rng.normal(0.0, 3.0, 4000)
+    # whole leaves differ at 3 m, flat parts only at 5 m (beyond the paper's 4.30 m: reported, not judged)
+    monkeypatch.setattr(sensors2011, "leaf_delta_alpha", lambda d, seed, flat=None:
+                        skewed + (0.0 if d < 2 else 5.0) if flat is None else skewed + (9.0 if d > 4.3 else 0.0))
+    monkeypatch.setattr(sensors2011, "bent_leaf_delta_alpha", lambda bend, seed, wrinkle_m=None:
+                        skewed + bend / 30 if wrinkle_m is None or wrinkle_m > 0.0025 else symmetric)
     rows = sensors2011.insitu(quick=True, seed=0)
     bent = [r for r in rows if r.key.startswith("bend ")]
     assert len(bent) == 2 * len(sensors2011.BENDS_DEG) and {r.verdict for r in bent} == {REPORTED}
     assert sensors2011.skewness(skewed) == pytest.approx(2.0, abs=0.3)
     verdicts = {r.key: r.verdict for r in rows if r.holds is not None}
     assert verdicts == {"1.5 m/skewed and shifted": WITHIN, "3 m/skewed and shifted": WITHIN,
-                        "5 m/skewed and shifted": WITHIN, "no clear difference between distances": OUTSIDE}
+                        "5 m/skewed and shifted": WITHIN, "no clear difference between distances": OUTSIDE,
+                        "flat parts: no clear difference between distances": WITHIN,
+                        "wrinkles 2 mm/skewed or multimodal": OUTSIDE, "wrinkles 3 mm/skewed or multimodal": WITHIN}
+
+
+def test_bimodality_coefficient_of_known_distributions():
+    rng = np.random.default_rng(1)
+    assert sensors2011.bimodality(rng.normal(size=20000)) == pytest.approx(1 / 3, abs=0.02)
+    assert sensors2011.bimodality(rng.uniform(size=20000)) == pytest.approx(5 / 9, abs=0.02)
+    two_modes = np.concatenate([rng.normal(-5, 1, 5000), rng.normal(5, 1, 5000)])
+    assert sensors2011.bimodality(two_modes) > 0.8 and math.isnan(sensors2011.bimodality(np.ones(3)))
 
 
 def test_insitu_pure_returns_leave_out_the_wall_mixed_edge():
