@@ -536,3 +536,21 @@ def test_ch5_variants_claims(monkeypatch):
     table["buffer"] = (0.9, 0.02, 1.9, 0.3, -0.1)  # Buffer incomplete, worse than SPS, error not from the seeds
     claims = [r for r in thesis_ch5.variants(quick=True, seed=0) if r.holds is not None]
     assert [r.verdict for r in claims] == [OUTSIDE] * 5
+
+
+def test_ch2_rop_rows_and_trends(monkeypatch):
+    from benchmarks.reproduce import thesis_ch2
+
+    def fake(distance_m, seed, length_m=0.09):
+        # ROP grows with distance and falls with size; points fall as 1/d^2; noise flat
+        return {"points": int(4000 * (3.0 / distance_m) ** 2), "rop": 0.02 * distance_m / length_m,
+                "rop_1cm": 0.01, "precision_mm": 1.5 + 0.01 * distance_m, "rns": 0.02}
+
+    monkeypatch.setattr(thesis_ch2, "leaf_row", fake)
+    rows = {r.key: r for r in thesis_ch2.rop_study(quick=False, seed=0)}
+    assert len(rows) == 3 * 5 + 3 + 3 + 1
+    assert all(rows[k].verdict == WITHIN for k in ("ROP rises with distance", "point counts fall as 1/d^2",
+                                                     "precision worsens with distance", "ROP falls with leaf size"))
+    assert rows["3 m/6 cm leaf/rop"].ours == pytest.approx(100.0) and rows["3 m/6 cm leaf/rop"].published is None
+    monkeypatch.setattr(thesis_ch2, "leaf_row", lambda d, seed, length_m=0.09: {**fake(d, seed), "rop": length_m})
+    assert {r.key: r for r in thesis_ch2.rop_study(quick=True, seed=0)}["ROP falls with leaf size"].verdict == OUTSIDE
