@@ -273,7 +273,9 @@ def test_insitu_claims_on_known_distributions(monkeypatch):
                         skewed + (0.0 if d < 2 else 5.0) if flat is None else skewed + (9.0 if d > 4.3 else 0.0))
     monkeypatch.setattr(sensors2011, "bent_leaf_delta_alpha", lambda bend, seed, wrinkle_m=None:
                         skewed + bend / 30 if wrinkle_m is None or wrinkle_m > 0.0025 else symmetric)
+    monkeypatch.setattr(sensors2011, "attached_flat_parts", lambda d, seed: [(100, 1.0), (60, 2.0 + d), (80, 9.0)])
     rows = sensors2011.insitu(quick=True, seed=0)
+    assert {r.key: r.ours for r in rows}["attached leaves/3 m/median"] == pytest.approx(5.0)
     bent = [r for r in rows if r.key.startswith("bend ")]
     assert len(bent) == 2 * len(sensors2011.BENDS_DEG) and {r.verdict for r in bent} == {REPORTED}
     assert sensors2011.skewness(skewed) == pytest.approx(2.0, abs=0.3)
@@ -281,6 +283,7 @@ def test_insitu_claims_on_known_distributions(monkeypatch):
     assert verdicts == {"1.5 m/skewed and shifted": WITHIN, "3 m/skewed and shifted": WITHIN,
                         "5 m/skewed and shifted": WITHIN, "no clear difference between distances": OUTSIDE,
                         "flat parts: no clear difference between distances": WITHIN,
+                        "attached leaves: no clear difference between distances": WITHIN,
                         "wrinkles 2 mm/skewed or multimodal": OUTSIDE, "wrinkles 3 mm/skewed or multimodal": WITHIN}
 
 
