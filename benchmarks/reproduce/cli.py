@@ -19,8 +19,8 @@ from pathlib import Path
 
 from benchmarks.errors import BenchError
 from benchmarks.reproduce.core import EXPERIMENTS, Outcome, Row, count_within, select
-from benchmarks.reproduce.output import (format_rows, store_outcomes, summary_line, summary_table, write_csv,
-                                         write_png)
+from benchmarks.reproduce.output import (figure_png, format_rows, store_outcomes, summary_line, summary_table,
+                                         write_csv, write_images, write_png)
 from benchmarks.store import Store
 
 #: Modules that register experiments, in the order of the page.
@@ -72,17 +72,21 @@ def run_one(name: str, quick: bool, seed: int) -> dict:
     Returns
     -------
     dict
-        ``rows`` (the rows' fields, plain values), ``seconds`` and ``error`` (empty when it ran).
+        ``rows`` (the rows' fields, plain values), ``seconds``, ``error`` (empty when it ran) and ``images``
+        (the experiment's extra figures as base64 PNG by name).
     """
     experiment = load_experiments()[name]
     start = time.perf_counter()
-    rows, error = [], ""
+    rows, error, images = [], "", {}
     try:
-        rows = [{k: v for k, v in r.as_dict().items() if k != "verdict"} for r in experiment.run(quick, seed)]
+        result = experiment.run(quick, seed)
+        result, figures = result if isinstance(result, tuple) else (result, {})
+        rows = [{k: v for k, v in r.as_dict().items() if k != "verdict"} for r in result]
+        images = {key: figure_png(figure) for key, figure in figures.items()}
     except Exception as exc:  # one failing experiment must not hide the others' rows
         error = f"{type(exc).__name__}: {exc}"
         traceback.print_exc(file=sys.stderr)
-    return {"rows": rows, "seconds": time.perf_counter() - start, "error": error}
+    return {"rows": rows, "seconds": time.perf_counter() - start, "error": error, "images": images}
 
 
 def _dispatch_dask(names: list[str], quick: bool, seed: int, address: str):
@@ -134,7 +138,8 @@ def run_experiments(names: list[str] | None, quick: bool, seed: int, echo=print,
                else ((name, run_one(name, quick, seed)) for name in chosen))
     outcomes = {}
     for name, result in results:
-        outcome = Outcome(EXPERIMENTS[name], [Row(**row) for row in result["rows"]], result["seconds"], result["error"])
+        outcome = Outcome(EXPERIMENTS[name], [Row(**row) for row in result["rows"]], result["seconds"], result["error"],
+                          result.get("images", {}))
         within, compared = count_within(outcome.rows)
         echo(f"\n== {name}: {outcome.experiment.title} ({within}/{compared} within, {outcome.seconds:.1f} s)")
         echo(format_rows(outcome.rows) if outcome.rows else f"failed: {outcome.error}")
@@ -156,15 +161,16 @@ def run(args) -> int:
         if outcome.rows:
             write_csv(outcome.rows, out / f"{outcome.experiment.name}.csv")
             write_png(outcome.experiment, outcome.rows, out / f"{outcome.experiment.name}.png")
+        write_images(outcome.experiment.name, outcome.images, out)
+    ran = {o.experiment.name for o in outcomes}
+    left_out = [e.name for e in select(args.names, False) if e.name not in ran] if args.quick else []
     command = "tlsbench reproduce " + " ".join(sys.argv[2:] if sys.argv[1:2] == ["reproduce"] else [])
-    page = write_page(outcomes, out / "reproduction.html", command.strip())
+    page = write_page(outcomes, out / "reproduction.html", command.strip(), left_out)
     if not args.no_store:
         with Store(args.db) as store:
             run_id = store_outcomes(store, outcomes, args.quick, args.seed)
         print(f"stored as run {run_id} in {args.db}")
     print(f"CSV and PNG per experiment and {page} written\n")
-    ran = {o.experiment.name for o in outcomes}
-    left_out = [e.name for e in select(args.names, False) if e.name not in ran] if args.quick else []
     print(summary_table(outcomes, left_out))
     print(summary_line([r for o in outcomes for r in o.rows]))
     return 1 if any(o.error for o in outcomes) else 0

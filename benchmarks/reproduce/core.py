@@ -72,7 +72,8 @@ class Row:
 
     @property
     def verdict(self) -> str:
-        """``within`` / ``outside`` the tolerance (or the claim holds / fails); ``reported`` when nothing is compared."""
+        """``within`` / ``outside`` the tolerance (or the claim holds / fails); ``reported`` when nothing is
+        compared."""
         return verdict(self.ours, self.published, self.tolerance, self.holds)
 
     def as_dict(self) -> dict:
@@ -128,7 +129,10 @@ class Experiment:
         The table or figure reproduced, with its source.
     run : callable
         ``run(quick: bool, seed: int) -> list[Row]``; ``quick`` runs a tiny
-        version (tests, ``--quick``).
+        version (tests, ``--quick``). It may also return ``(rows, figures)``,
+        ``figures`` a dict of extra matplotlib figures by name (pictures the
+        rows cannot carry, e.g. error matrices), written as
+        ``NAME-<name>.png`` and shown on the page.
     description : str
         What is simulated and how ours is measured.
     findings : str
@@ -204,9 +208,11 @@ def select(names: list[str] | None, quick: bool = False) -> list[Experiment]:
 
 @dataclass
 class Outcome:
-    """Rows of one experiment run, with its run time in seconds and the error that stopped it, if any."""
+    """Rows of one experiment run, its run time in seconds, the error that stopped it (if any) and its extra
+    figures (base64 PNG by name, see :class:`Experiment`)."""
 
     experiment: Experiment
     rows: list[Row] = field(default_factory=list)
     seconds: float = 0.0
     error: str = ""
+    images: dict[str, str] = field(default_factory=dict)

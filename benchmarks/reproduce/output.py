@@ -10,8 +10,10 @@ tolerance is a regression), with the per-row metrics ``within_tolerance``
 
 from __future__ import annotations
 
+import base64
 import csv
 import hashlib
+import io
 import json
 import math
 from pathlib import Path
@@ -52,7 +54,8 @@ def format_rows(rows: list[Row]) -> str:
     lines = [("row", "published", "ours", "tolerance", "unit", "verdict")]
     for r in rows:
         verdict = r.verdict if r.published is not None or r.holds is None else f"{r.verdict} (claim)"
-        lines.append((r.key, format_number(r.published), format_number(r.ours), format_number(r.tolerance), r.unit, verdict))
+        lines.append((r.key, format_number(r.published), format_number(r.ours), format_number(r.tolerance), r.unit,
+                      verdict))
     widths = [max(len(line[i]) for line in lines) for i in range(6)]
     text = ["  ".join(c.ljust(w) if i in (0, 4, 5) else c.rjust(w) for i, (c, w) in enumerate(zip(line, widths)))
             for line in lines]
@@ -153,6 +156,35 @@ def plot_rows(experiment: Experiment, rows: list[Row]) -> Figure:
         axes.tick_params(labelsize=7)
         axes.legend(fontsize=6)
     return figure
+
+
+def figure_png(figure: Figure) -> str:
+    """A figure as base64-encoded PNG (90 dpi): what the experiments' extra figures travel as, also from Dask."""
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=90)
+    return base64.b64encode(buffer.getvalue()).decode("ascii")
+
+
+def write_images(name: str, images: dict[str, str], directory) -> list[Path]:
+    """Write an experiment's extra figures (base64 PNG by name) as ``NAME-<name>.png``; returns the paths.
+
+    Parameters
+    ----------
+    name : str
+        Experiment name.
+    images : dict of str
+        Base64 PNG by figure name (:func:`figure_png`).
+    directory : str or Path
+        Output directory.
+    """
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for key, data in images.items():
+        path = directory / f"{name}-{key}.png"
+        path.write_bytes(base64.b64decode(data))
+        paths.append(path)
+    return paths
 
 
 def write_png(experiment: Experiment, rows: list[Row], path) -> Path:

@@ -18,8 +18,8 @@ def _rows_table(outcome: Outcome) -> str:
     body = []
     for r in outcome.rows:
         why = r.tolerance_note if r.published is not None else r.claim
-        cells = [r.key, format_number(r.published), format_number(r.ours), format_number(r.tolerance), r.unit, r.verdict, r.source,
-                 why, r.note]
+        cells = [r.key, format_number(r.published), format_number(r.ours), format_number(r.tolerance), r.unit,
+                 r.verdict, r.source, why, r.note]
         css = {WITHIN: "within", OUTSIDE: "outside"}.get(r.verdict, "")
         body.append(f'<tr class="{css}">' + "".join(
             f'<td{"" if i in (1, 2, 3) else " class=l"}>{html.escape(str(c))}</td>' for i, c in enumerate(cells))
@@ -27,7 +27,7 @@ def _rows_table(outcome: Outcome) -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
 
 
-def page(outcomes: list[Outcome], command: str) -> str:
+def page(outcomes: list[Outcome], command: str, left_out: list[str] = ()) -> str:
     """The page's HTML.
 
     Parameters
@@ -36,6 +36,9 @@ def page(outcomes: list[Outcome], command: str) -> str:
         The experiments run, in order.
     command : str
         The command line that produced them (shown on the page).
+    left_out : list of str
+        Registered experiments not run (``--quick``'s heavy ones), named under the summary table so that the
+        total is read against them.
     """
     summary = ["<tr><th>experiment</th><th>reproduces</th><th>within</th><th>compared</th><th>run time, s</th></tr>"]
     for o in outcomes:
@@ -54,21 +57,25 @@ def page(outcomes: list[Outcome], command: str) -> str:
         if o.rows:
             parts.append(f'<img alt="{html.escape(e.name)}" src="data:image/png;base64,{_png(plot_rows(e, o.rows))}">')
             parts.append(_rows_table(o))
+        parts += [f'<p><b>{html.escape(key)}</b><br><img alt="{html.escape(e.name)} {html.escape(key)}" '
+                  f'src="data:image/png;base64,{data}"></p>' for key, data in o.images.items()]
         if e.findings:
             parts.append(f'<p class="goal"><b>Where ours departs from the source, and why.</b> '
                          f"{html.escape(e.findings)}</p>")
         sections.append("\n".join(parts))
     rows = [r for o in outcomes for r in o.rows]
+    missing = (f"<p>Not run here (heavy; <code>tlsbench reproduce NAME</code> runs one): "
+               f"{html.escape(', '.join(left_out))}.</p>" if left_out else "")
     return (f"<!doctype html><html><head><meta charset=utf-8><title>Reproduction of the sources</title>"
             f"<style>{_STYLE}{_VERDICT_STYLE}</style></head><body><h1>Reproduction of the published experiments</h1>"
             f"<p><code>{html.escape(command)}</code>: <b>{summary_line(rows)}</b>. A row is within when ours lies "
             f"within the stated tolerance of the published value or, where the source gives only a trend (or keeps "
             f"its numbers back: the ch.2 ROP values and the goniometer slopes), when the trend holds; rows that only "
-            f"report ours are not counted.</p><table>{''.join(summary)}</table>" + "\n".join(sections)
+            f"report ours are not counted.</p><table>{''.join(summary)}</table>{missing}" + "\n".join(sections)
             + "</body></html>")
 
 
-def write_page(outcomes: list[Outcome], path, command: str) -> Path:
+def write_page(outcomes: list[Outcome], path, command: str, left_out: list[str] = ()) -> Path:
     """Write :func:`page` to ``path``; returns the path.
 
     Parameters
@@ -79,8 +86,10 @@ def write_page(outcomes: list[Outcome], path, command: str) -> Path:
         Output file.
     command : str
         The command line shown on the page.
+    left_out : list of str
+        Registered experiments not run (see :func:`page`).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(page(outcomes, command))
+    path.write_text(page(outcomes, command, left_out))
     return path
