@@ -1,4 +1,5 @@
-"""Cylinder following: volume balancing moves a point only where the inclusion test would take it (strict mode)."""
+"""Cylinder following: volume balancing moves a point only where the inclusion test would take it (strict mode);
+a clamped section keeps its own circle only when its points lie on it."""
 
 import numpy as np
 
@@ -40,3 +41,16 @@ def test_the_papers_balancing_moves_it_into_the_trunk():
     assert len(child.points) < twig / 2
     assert parent.r_median > 0.1
 
+
+def test_a_clamped_section_keeps_its_own_circle_only_when_its_points_lie_on_it():
+    from woody.cylinders import _on_circle
+
+    rng = np.random.default_rng(5)
+    angle, z = rng.uniform(0, np.pi, 300), rng.uniform(0.0, 0.2, 300)  # a limb of 2 cm seen from one side
+    limb = np.column_stack([0.02 * np.cos(angle), 0.02 * np.sin(angle), z]) + rng.normal(0, 0.0005, (300, 3))
+    section = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.2), 0.02)
+    twigs = np.vstack([np.column_stack([np.full(100, d), np.zeros(100), np.linspace(0, 0.2, 100)])
+                       for d in (0.01, 0.02, 0.03)])  # three twigs 1-3 cm off the axis: a circle across them
+    assert _on_circle([section], limb) == [True]
+    assert _on_circle([section], twigs) == [False]
+    assert _on_circle([section], limb[:5]) == [False]  # too few points to tell

@@ -54,9 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-trunk", action="store_true",
                    help="cylinders: plain cylinder following (default: the trunk is followed first from the ground "
                         "up by circle fits, the ground left out)")
-    p.add_argument("--pipe-model", action="store_true",
+    p.add_argument("--pipe-model", action=argparse.BooleanOptionalAction, default=True,
                    help="cylinders: radii the points do not resolve (under one point spacing, or scattered) follow "
-                        "the pipe model from their nearest resolved ancestor")
+                        "the pipe model from their nearest resolved ancestor (default; --no-pipe-model: off)")
     p.add_argument("--resolve-radius-m", type=float, default=None,
                    help="cylinders: thinnest branch radius to resolve; denser clouds are thinned at random to a "
                         "point spacing of pi r / 6 first, 0 keeps every point (default 0.01 m)")

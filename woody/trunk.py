@@ -320,7 +320,7 @@ def follow_tree(points, ground_z: float | None = None, ground_clearance_m: float
                                     [trunk_record], progress, follow)
     stats = {**stats, "trunk": {"circles": len(trunk.radii), "base": base.tolist(), "top": top.tolist(),
                                 "ground_z_m": trunk.ground_z_m, "points": int(trunk.members.sum())}}
-    if follow.get("pipe_model") and follow.get("mode", "strict") == "strict":  # the trunk's circles anchor it
+    if follow.get("pipe_model", True) and follow.get("mode", "strict") == "strict":  # the trunk's circles anchor it
         apply_pipe_model(branches)
     return FollowResult(branches, labels, stats)
 
