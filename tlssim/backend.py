@@ -324,7 +324,8 @@ class TraceScene:
         tri = local[faces]
         cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         norm = np.linalg.norm(cross, axis=1, keepdims=True)
-        self.face_normals = np.divide(cross, norm, out=np.zeros_like(cross), where=norm > 0)
+        # Column-major, so that each component is contiguous: the truth takes them per pulse, one at a time.
+        self.face_normals = np.asfortranarray(np.divide(cross, norm, out=np.zeros_like(cross), where=norm > 0))
         self._face_normal = mi.Float(self.face_normals.astype(np.float32).ravel())
         self._face_object = mi.Int32(np.asarray(face_object, dtype=np.int32))
         self._reflectance = mi.Float(np.asarray(reflectance, dtype=np.float32))

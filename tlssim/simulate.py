@@ -284,6 +284,8 @@ def simulate_columns(job: ScanJob, c0: int, c1: int, seed: int = 0, chunk_subray
     smear_rad = model.smear_fraction * math.radians(window.step_deg[1])
     grids = {key: np.empty((rows, cols) + shape, dtype) for key, shape, dtype in _OUTPUT_LAYOUT}
     cols_per_chunk = max(1, chunk_subrays // (rows * job.beam.count))
+    # The tracer takes float32 angles: cast once per tile, not per wavefront.
+    theta32, psi32 = theta_axis.astype(np.float32), psi_axis.astype(np.float32)
     chunks = [(a, min(cols, a + cols_per_chunk)) for a in range(0, cols, cols_per_chunk)]
 
     def start(a, b):
@@ -292,7 +294,7 @@ def simulate_columns(job: ScanJob, c0: int, c1: int, seed: int = 0, chunk_subray
         draws = {key: None if value is None else np.ascontiguousarray(value.T)
                  for key, value in column_draws(seed, c0 + a, c0 + b, rows, smear_rad > 0).items()}
         return draws, job.traced.start_trace(
-            model, job.beam, pose, np.tile(theta_axis[a:b], rows), np.repeat(psi_axis, b - a),
+            model, job.beam, pose, np.tile(theta32[a:b], rows), np.repeat(psi32, b - a),
             draws["spin"].ravel(), smear_rad, None if draws["instants"] is None else draws["instants"].ravel())
 
     pending = start(*chunks[0])
