@@ -37,6 +37,13 @@ Per inner-curve point and annulus:
    Kalman update moves the end
    height and the line's plane is tilted to reach it, so that the fill and
    the next curve follow.
+
+After the propagation, :func:`noise_tails` refines the pure pulses: the
+fused surface follows the measured heights (its error on the pure pulses of
+the leafy tree at 0.018 deg scatters by 0.96 range-noise deviations, the
+measurement's own), so it is no better estimate of a pure pulse than the
+pulse; the plane of the pulse's neighbours is, where the pulse leaves it by
+more than the noise explains.
 """
 
 from __future__ import annotations
@@ -50,6 +57,14 @@ from leafsfs.slope import outward_normal
 
 #: Smallest gradient standard deviation of a measured plane (per unit), whatever its residuals say.
 GRADIENT_FLOOR = 0.02
+#: Radius of the plane fitted to a pure pulse's neighbours (:func:`noise_tails`), pixels.
+TAIL_RADIUS_PX = 5.0
+#: A pure pulse farther than this many range-noise deviations from its neighbours' plane is a noise tail.
+TAIL_SIGMA = 2.0
+#: Largest residual RMS of the neighbours' plane, in range-noise deviations, for it to stand for their surface.
+TAIL_RMS_SIGMA = 1.5
+#: Fewest neighbours the plane is fitted to (of the 81 pixels within :data:`TAIL_RADIUS_PX`).
+TAIL_MIN_COUNT = 10
 
 
 class Fusion:
@@ -195,3 +210,69 @@ class Fusion:
         lines.gradient = lines.gradient + tilt[:, None] * lines.direction
         self.stats["height_updates"] += int(accept.sum())
         self.stats["height_rejected"] += int((ok & ~accept).sum())
+
+
+def noise_tails(height: np.ndarray, pure: np.ndarray, grid: PixelGrid, sigma_m: float,
+                sigma_pulse_m: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+    """Pure pulses in the tails of the range noise, and the height of their neighbours' plane there, m.
+
+    Around every pure pulse a plane is fitted to the pure pulses within
+    :data:`TAIL_RADIUS_PX` (:func:`leafsfs.grid.local_planes`), refitted
+    without those farther than 3 of their own noise deviations
+    (``sigma_pulse_m``) from the first plane. A pulse is a tail when it lies
+    more than :data:`TAIL_SIGMA` ``sigma_m`` from that plane and the plane
+    fits its neighbours within :data:`TAIL_RMS_SIGMA` ``sigma_m`` RMS (a
+    rim, a fold or a mixed neighbour spoils it, and the pulse keeps its
+    measurement): the plane's height, averaged over dozens of pulses, is
+    then the more likely one. Measured on the leafy tree and conference pear
+    seed 7 at 0.018 deg against the truth (their 231,918 / 377,055 leaf
+    pulses that the segmentation takes for pure): pulses beyond the scored
+    3-sigma threshold 2,910 / 4,781 measured, 2,847 / 4,666 after the fused
+    surface's refine (``inliers="refine"`` before this test), 1,386 / 2,455
+    after this test, which pushes 54 / 43 good pulses beyond it (radius 3 px:
+    1,841 / 3,073 left, 36 / 39 pushed; 4 px with a 1.5-sigma test: 1,331 /
+    2,424 left, 71 / 95 pushed). In the benchmark (``fused`` at 0.018 deg,
+    mean per-leaf ROP reduction 3 sigma, before -> after): leafy tree 0.623
+    -> 0.633, pear seed 7 at 3 m 0.634 -> 0.645, seed 23 at 4 m 0.642 ->
+    0.653; not tuned on: seed 31 at 2.5 m 0.671 -> 0.680, seed 41 at 5 m
+    0.639 -> 0.651; good points lost unchanged.
+
+    Parameters
+    ----------
+    height : ndarray, 2-D
+        Measured heights, m (NaN without return).
+    pure : ndarray of bool, 2-D
+        The leaf's pure pulses (the only ones fitted and tested).
+    grid : PixelGrid
+        Pixel-to-continuous map of ``height``.
+    sigma_m : float
+        The leaf's range noise, m.
+    sigma_pulse_m : ndarray or float
+        Each pulse's range noise (:func:`leafsfs.canopy.pulse_noise`), m.
+
+    Returns
+    -------
+    tails : ndarray of bool, 2-D
+        Pure pulses that take their neighbours' plane.
+    plane : ndarray, 2-D
+        That plane's height at every pure pulse, m (NaN elsewhere and where no plane was fitted).
+    """
+    tails, plane = np.zeros(pure.shape, dtype=bool), np.full(pure.shape, np.nan)
+    pure = pure & np.isfinite(height)
+    centres = np.argwhere(pure)
+    if not len(centres) or not np.isfinite(sigma_m) or sigma_m <= 0:
+        return tails, plane
+    own = height[pure]
+    first = local_planes(height, pure, grid, centres, TAIL_RADIUS_PX, order=1)
+    noise = np.broadcast_to(sigma_pulse_m, pure.shape)[pure]
+    with np.errstate(invalid="ignore"):
+        off = np.abs(own - first.height) > 3.0 * noise
+    fitted = pure.copy()
+    fitted[tuple(centres[off].T)] = False
+    second = local_planes(height, fitted, grid, centres, TAIL_RADIUS_PX, order=1)
+    with np.errstate(invalid="ignore"):
+        tail = (np.abs(own - second.height) > TAIL_SIGMA * sigma_m) & (second.rms <= TAIL_RMS_SIGMA * sigma_m) \
+            & (second.count >= TAIL_MIN_COUNT)
+    tails[pure] = tail
+    plane[pure] = second.height
+    return tails, plane

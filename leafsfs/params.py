@@ -95,11 +95,12 @@ class SfsParams:
         pulse (one surface within the range noise of its neighbours); only
         the mixed pulses take the reconstructed distance. ``test``: the pure
         pulses within the outlier threshold of the reconstruction.
-        ``refine``: the pure pulses farther than that from it (the
-        reconstruction refines a pure pulse within its noise; farther off it
-        is the reconstruction that errs). ``replace``: none. ``auto``:
-        ``refine`` for the fused variant, whose surface fuses the measured
-        heights, ``keep`` for the thesis variants, whose surface uses them
+        ``refine``: all but the noise's tails, pure pulses farther from the
+        plane of their neighbours' measurements than the noise explains,
+        which take that plane's distance
+        (:func:`leafsfs.fusion.noise_tails`). ``replace``: none. ``auto``:
+        ``refine`` for the fused variant, ``keep`` for the thesis variants,
+        whose surface uses the measured heights
         only at the seeds (measured in the benchmark, :mod:`benchmarks.scoring`:
         ``replace`` damaged up to 13 % of the good points of 0.8 m leaves
         where the propagation went astray).

@@ -18,11 +18,12 @@ import numpy as np
 import trimesh
 from scipy import ndimage
 
-from leafsfs.canopy import rim_shares, visibility
+from leafsfs.canopy import pulse_noise, rim_shares, visibility
 from leafsfs.edges import bracketed
 from leafsfs.engine import HeightResult, reconstruct_heights
 from leafsfs.errors import SfsError
 from leafsfs.frame import MARGIN_PX, LocalFrame, local_frame
+from leafsfs.fusion import noise_tails
 from leafsfs.leaves import range_noise, segment_scan
 from leafsfs.params import VARIANTS, SfsParams
 from leafsfs.preprocess import resolve_calibration, scan_alpha
@@ -422,6 +423,10 @@ class _LeafFit:
         Pixels of the box that belong to the region and have a height.
     moved : ndarray of bool
         Pixels of the box that take the corrected distance (where ``done``).
+    target : ndarray
+        The height each pixel takes when moved, m: the engine's, or on the
+        pure pulses that ``inliers="refine"`` moves, their neighbours' plane
+        (:func:`leafsfs.fusion.noise_tails`).
     """
 
     frame: LocalFrame
@@ -429,6 +434,7 @@ class _LeafFit:
     threshold: float
     done: np.ndarray
     moved: np.ndarray
+    target: np.ndarray
 
 
 class _Skipped(Exception):
@@ -619,13 +625,23 @@ def _fit_leaf(scan: Scan, alpha: np.ndarray, region: np.ndarray, share: np.ndarr
         raise _Skipped(str(exc)) from None
     if not heights.count.any():
         raise _Skipped("no seed curve could be initialised (seed regions too small or unmeasured)")
-    heights.height[~plausible(heights.height, measured, inside & ~unreliable[box], frame)] = np.nan
+    pure = inside & ~unreliable[box]
+    heights.height[~plausible(heights.height, measured, pure, frame)] = np.nan
     done = inside & np.isfinite(heights.height)
-    threshold = params.outlier_threshold_m or outlier_threshold(scan.range[box], inside & ~unreliable[box])
+    threshold = params.outlier_threshold_m or outlier_threshold(scan.range[box], pure)
     with np.errstate(invalid="ignore"):
         disagree = np.abs(measured - heights.height) > threshold
-    moved = unreliable[box] | {"keep": False, "test": disagree, "refine": ~disagree, "replace": True}[inliers]
-    return _LeafFit(frame, heights, float(threshold), done, moved)
+    # "refine": the pure pulses in the noise's tails take their neighbours' plane (the fused surface follows the
+    # measured heights, so it is no better estimate of a pure pulse than the pulse itself).
+    tails, target = np.zeros(inside.shape, dtype=bool), heights.height
+    if inliers == "refine":
+        sigma = range_noise(np.where(pure, scan.range[box], np.nan))
+        noise = pulse_noise(sigma, scan.intensity[box], float(scan.scanner.assumed_model.log_gain_dn))
+        tails, plane = noise_tails(measured, pure, frame.grid, sigma, noise)
+        target = np.where(tails, plane, heights.height)
+        done = done | tails
+    moved = unreliable[box] | {"keep": False, "test": disagree, "refine": tails, "replace": True}[inliers]
+    return _LeafFit(frame, heights, float(threshold), done, moved, target)
 
 
 def _paste_leaf(grids: _Grids, fit: _LeafFit, inside: np.ndarray) -> None:
@@ -642,7 +658,7 @@ def _paste_leaf(grids: _Grids, fit: _LeafFit, inside: np.ndarray) -> None:
     """
     box, heights = fit.frame.box, fit.heights
     sub = grids.range[box]
-    sub[fit.done & fit.moved] = fit.frame.range(heights.height[fit.done & fit.moved])
+    sub[fit.done & fit.moved] = fit.frame.range(fit.target[fit.done & fit.moved])
     grids.corrected[box] |= fit.done
     grids.candidates[box] = np.where(inside, heights.count, grids.candidates[box])
     r_hi = fit.frame.range(heights.height + 0.5 * heights.spread)
