@@ -215,7 +215,8 @@ def _fit(range_m, cores, owner, rows, cols, dr, dc, step_rad, noise_m):
     zl = np.where(w > 0, np.nan_to_num(z) - zbar[:, None], 0.0)
     with np.errstate(invalid="ignore"):
         depth = np.sqrt(np.clip(radius[:, None] ** 2 - (x - x0[:, None]) ** 2, 0, None))
-    # z = D - s depth + g y: the axis' depth D and the slope g along the branch; the ellipse's stretch s = sqrt(1 + g^2).
+    # z = D - s depth + g y: the axis' depth D and the slope g along the branch; the ellipse's stretch
+    # s = sqrt(1 + g^2).
     g = _solve(w, [np.ones_like(x), -depth, y], zl)[:, 2]
     s = np.sqrt(1 + np.nan_to_num(g) ** 2)
     d, g = _solve(w, [np.ones_like(x), y], zl + s[:, None] * depth).T
