@@ -28,6 +28,7 @@ from leafsfs.leaves import range_noise, segment_scan
 from leafsfs.params import VARIANTS, SfsParams
 from leafsfs.preprocess import resolve_calibration, scan_alpha
 from leafsfs.traits import leaf_traits
+from leafsfs.woodfit import wood_owner_range
 from tlssim.scan import Scan, grid_to_xyz
 
 #: Smallest leaf region reconstructed, pixels (smaller regions are skipped and listed).
@@ -534,7 +535,9 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
             shares.add(k, whole, np.where(paired, with_thin.share_of(main, gain), own))
             background |= unreliable & (labels == k) & (mixed.owner > 0) & (mixed.owner != main)
         labels = np.where(background, 0, labels)
-    owner_range = np.where(unreliable & (mixed.owner > 0), mixed.owner_range(), np.nan)
+    owner_range = np.where(unreliable & (mixed.owner > 0),
+                           wood_owner_range(mixed, scan.range, scan.theta, scan.psi, alpha, segmentation.leaf_surfaces,
+                                            segmentation.band_px, segmentation.noise_m), np.nan)
     out_range[background] = owner_range[background]
     labels = np.where(valid, labels, 0)
     if not labels.any():
