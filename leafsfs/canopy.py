@@ -254,6 +254,65 @@ def edge_pulses(range_m: np.ndarray, radius_px: float, noise_m: np.ndarray | flo
     return np.isfinite(range_m) & ~plausible
 
 
+#: Fewest core pulses of a surface that :func:`rim_mixed` fits its smooth surface to (two planes' worth).
+MIN_CORE_PULSES = 6
+
+
+def rim_mixed(range_m: np.ndarray, surfaces: np.ndarray, noise_m: np.ndarray | float, margin_px: float,
+              factor: float = 3.0) -> np.ndarray:
+    """Pulses linked into a surface, near its outline, whose range lies off the surface's own smooth surface.
+
+    :func:`edge_pulses` judges a pulse by the planes of the half discs
+    through it, before any surface exists; a mixed pulse at a surface's
+    outline passes it when one half disc (the ramp of mixed ranges across
+    the edge, or a disc reaching both sides) is a plausible plane within
+    the noise. After the linking the surface itself says where it lies:
+    the Gaussian-weighted local plane of its pulses more than
+    ``margin_px`` inside its outline (:func:`leafsfs.grid.gaussian_planes`,
+    sigma ``1.5 margin_px``), extrapolated to its outermost pulses. An
+    outermost pulse more than ``factor`` noise standard deviations off it
+    mixes in another surface (a leaf over a branch, a branch over a leaf,
+    a leaf over a leaf a few centimetres behind).
+
+    Parameters
+    ----------
+    range_m : ndarray, 2-D
+        Ranges, m (NaN: no return).
+    surfaces : ndarray of int, 2-D
+        Surface label of every linked pulse (0: none).
+    noise_m : ndarray or float
+        Range noise standard deviation (per pulse or one for all), m.
+    margin_px : float
+        How far inside its outline a surface's pulses may still mix in
+        another one, pixels (about a footprint radius; at least 1).
+    factor : float
+        Tolerance, in noise standard deviations.
+
+    Returns
+    -------
+    ndarray of bool, 2-D
+        Pulses within ``margin_px`` of their surface's outline off its core's plane (surfaces with fewer than
+        :data:`MIN_CORE_PULSES` core pulses are not judged).
+    """
+    margin = max(1.0, float(margin_px))
+    noise = np.broadcast_to(np.asarray(noise_m, dtype=float), range_m.shape)
+    out = np.zeros(range_m.shape, dtype=bool)
+    for k, box in enumerate(ndimage.find_objects(surfaces), start=1):
+        if box is None:
+            continue
+        box = tuple(slice(max(s.start - 1, 0), min(s.stop + 1, n)) for s, n in zip(box, range_m.shape))
+        inside = surfaces[box] == k
+        depth = ndimage.distance_transform_edt(np.pad(inside, 1))[1:-1, 1:-1]
+        core = depth > margin
+        if core.sum() < MIN_CORE_PULSES:
+            continue
+        height, _, fitted = gaussian_planes(np.where(core, range_m[box], 0.0), core, 1.5 * margin)
+        rim = inside & ~core & fitted
+        with np.errstate(invalid="ignore"):
+            out[box] |= rim & (np.abs(range_m[box] - height) > factor * noise[box])
+    return out
+
+
 #: Rows of the scan whose local planes :func:`crease_pulses` fits at once (memory: about 1 kB per pixel).
 CREASE_STRIP_ROWS = 256
 
