@@ -747,7 +747,7 @@ def _range_plane(rows: np.ndarray, cols: np.ndarray, range_m: np.ndarray) -> np.
 
 
 def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndarray, gap_px: float,
-                  tolerance_m: float, local_px: float = 0.0) -> np.ndarray:
+                  tolerance_m: float, local_px: float = 0.0, fragments: np.ndarray | None = None) -> np.ndarray:
     """Surfaces cut apart by an occluder in front of them joined into one (the label of the first).
 
     Two candidate surfaces are the parts of one leaf when they come within
@@ -760,6 +760,13 @@ def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndar
     the planes of the whole parts, or (a curved or curled leaf, whose whole
     parts are on no common plane) those of the pulses of each part within
     ``local_px`` of the other.
+
+    A ``fragments`` surface (one judged no leaf on its own: a leaf's tip or
+    lobe cut off by a twig is too narrow, too elongated or too dark for a
+    leaf) joins a candidate by the same tests when it holds fewer pulses than
+    the candidate (the leaf's main part holds most of the leaf; a larger
+    surface on the leaf's plane behind a twig is the branch the leaf lies
+    against), and joins one candidate at most (it never links two leaves).
 
     Parameters
     ----------
@@ -775,11 +782,14 @@ def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndar
         Range tolerance of the plane tests, m.
     local_px : float
         Reach of the planes fitted near the cut, pixels (0: whole parts' planes only).
+    fragments : ndarray of bool, optional
+        Surfaces that may join one candidate (index = label), e.g. the
+        surfaces that are no leaves and do not touch the window's border.
 
     Returns
     -------
     ndarray of int, 2-D
-        Surface labels, each joined group under its smallest label (the others no longer used).
+        Surface labels, each joined group under its smallest candidate label (the others no longer used).
     """
     if not gap_px > 0 or not tolerance_m > 0:
         raise SfsError(f"gap_px and tolerance_m must be positive, got {gap_px!r} and {tolerance_m!r}")
@@ -793,8 +803,13 @@ def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndar
 
     boxes = ndimage.find_objects(surfaces)
     reach = int(math.ceil(gap_px))
+    leaf = np.zeros(len(parent), dtype=bool)
+    leaf[:len(candidates)] = candidates[:len(parent)]
+    joinable = leaf.copy()
+    if fragments is not None:
+        joinable[:len(fragments)] |= fragments[:len(parent)]
     planes = {}
-    for k in np.nonzero(candidates[:len(boxes) + 1])[0]:
+    for k in np.nonzero(joinable)[0]:
         if k > 0 and boxes[k - 1] is not None:
             rows, cols = np.nonzero(surfaces[boxes[k - 1]] == k)
             rows, cols = rows + boxes[k - 1][0].start, cols + boxes[k - 1][1].start
@@ -806,8 +821,13 @@ def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndar
         inside = sub == k
         grown = _dilated(inside, gap_px)
         for m in np.unique(sub[grown & ~inside]):
-            if m <= k or m not in planes or root(m) == root(k):
+            if m <= k or m not in planes or root(m) == root(k) or not (leaf[k] or leaf[m]):
                 continue
+            if not (leaf[k] and leaf[m]):
+                # A fragment joins one leaf, and only one larger than itself.
+                piece, whole = (k, m) if leaf[m] else (m, k)
+                if root(piece) != piece or len(planes[piece][0]) >= len(planes[whole][0]):
+                    continue
             other = sub == m
             gap = grown & _dilated(other, gap_px) & ~inside & ~other
             rows, cols = np.nonzero(gap)
@@ -823,7 +843,10 @@ def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndar
                 off_m = np.median(np.abs(range_m[rm, cm] - pk[0] - pk[1] * rm - pk[2] * cm))
                 off_k = np.median(np.abs(range_m[rk, ck] - pm[0] - pm[1] * rk - pm[2] * ck))
                 if len(rows) and nearer >= 0.5 and max(off_m, off_k) <= tolerance_m:
-                    parent[root(m)] = root(k)
+                    if leaf[k] and leaf[m]:
+                        parent[root(m)] = root(k)
+                    else:
+                        parent[piece] = root(whole)
                     break
     roots = np.array([root(k) for k in range(len(parent))])
     return roots[surfaces]

@@ -257,7 +257,8 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     occluder_gap_m : float
         Leaf surfaces up to this far apart (at the scan's median range),
         separated by something nearer than both and on one range plane
-        within 3 sigma, are one leaf cut by an occluder
+        within 3 sigma, are one leaf cut by an occluder, and so is a smaller
+        surface that is no leaf on its own with a leaf surface
         (:func:`leafsfs.canopy.join_occluded`; assumption: 1 cm, twigs and
         petioles in front of a leaf; 0: not joined). The common plane is that
         of the whole parts or, for curved leaves, that of each part's pulses
@@ -328,7 +329,10 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
             leaf = leaves_of(surfaces)
     if occluder_gap_m > 0:
         gap = occluder_gap_m / (float(np.nanmedian(range_m)) * step)
-        surfaces = join_occluded(surfaces, range_m, leaf, gap, 3 * sigma, 1.5 * gap)
+        # Surfaces no leaf on their own (a tip or lobe cut off by a twig) may join the leaf they were cut from.
+        fragments = ~leaf & ~_border_labels(surfaces)
+        fragments[0] = False
+        surfaces = join_occluded(surfaces, range_m, leaf, gap, 3 * sigma, 1.5 * gap, fragments)
         leaf &= np.bincount(surfaces.ravel(), minlength=len(leaf)) > 0  # the labels joined into another
     band = band_pixels(band_m, range_m, surfaces, step)
     reach = band_pixels(reach_m, range_m, surfaces, step) if reach_m > 0 else 0

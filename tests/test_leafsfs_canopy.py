@@ -262,6 +262,31 @@ def test_join_occluded_joins_the_parts_of_a_leaf_behind_a_twig_only():
         join_occluded(labels, range_m, candidates, 0.0, 0.005)
 
 
+def test_join_occluded_gives_a_fragment_cut_off_by_a_twig_back_to_its_leaf_only():
+    rows, cols = np.mgrid[0:40, 0:60]
+    plane = 3.0 + 0.0005 * rows + 0.001 * cols
+    labels = np.zeros(rows.shape, int)
+    labels[5:35, 5:40], labels[15:25, 44:52] = 1, 2  # a leaf and its tip (no leaf on its own) beyond a 4-pixel twig
+    labels[15:25, 56:60] = 3  # a second leaf beyond the tip, as far from it
+    gap = ((cols >= 40) & (cols < 44)) | ((cols >= 52) & (cols < 56))
+    leaf, tip = np.array([False, True, False, True]), np.array([False, False, True, False])
+    for between, behind, joined in ((plane - 0.03, 0.0, True),  # a twig in front: the tip is the leaf's
+                                    (np.nan, 0.0, False),  # nothing returns between them
+                                    (plane + 0.05, 0.0, False),  # what lies behind shows between them
+                                    (plane - 0.03, 0.03, False)):  # the tip 3 cm behind the leaf: another surface
+        range_m = np.where(gap, between, plane + np.where(labels == 2, behind, 0.0))
+        out = join_occluded(labels, range_m, leaf, 6.0, 0.005, 9.0, tip)
+        assert (out[labels == 2] == 1).all() == joined
+        assert (out[labels == 1] == 1).all() and (out[labels == 3] == 3).all()  # the two leaves stay two
+        assert (join_occluded(labels, range_m, leaf, 6.0, 0.005, 9.0)[labels == 2] == 2).all()  # without fragments
+    # a surface that is no leaf and larger than the leaf part it meets behind a twig (the branch the leaf lies on)
+    range_m = np.where(gap, plane - 0.03, plane)
+    big = labels.copy()
+    big[5:35, 44:52] = 2
+    big[labels == 1] = np.where(cols[labels == 1] >= 32, 1, 0)
+    assert (join_occluded(big, range_m, leaf, 6.0, 0.005, 9.0, tip)[big == 2] == 2).all()
+
+
 def test_join_occluded_joins_a_curved_leaf_behind_a_twig_on_the_planes_near_the_cut():
     rows, cols = np.mgrid[0:40, 0:60]
     curved = 3.0 + 0.001 * rows + 4e-5 * cols ** 2  # a leaf curving away: 14 cm deeper over 60 pixels
