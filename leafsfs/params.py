@@ -89,7 +89,10 @@ class SfsParams:
         this from its corrected distance, m; None (default): ``max(3 sigma,
         2 mm)`` with sigma the leaf's range noise estimated from its pure
         pulses (:func:`leafsfs.reconstruct.outlier_threshold`, the issue's
-        outlier rule). Mixed pulses are always outliers.
+        outlier rule). Mixed pulses are always outliers. It decides the pure
+        pulses' flags under ``inliers="test"``; under ``"refine"`` the pure
+        pulses flagged are the noise tails moved onto their neighbours'
+        plane.
     inliers : {"auto", "keep", "test", "refine", "replace"}
         Which leaf points keep their measured distance. ``keep``: every pure
         pulse (one surface within the range noise of its neighbours); only
