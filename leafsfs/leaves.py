@@ -125,6 +125,8 @@ class Segmentation:
         How far from a surface its mixed pulses may lie, pixels (``band_m``).
     noise_m : float
         Range noise the pairing allowed (a third of its tolerance), m.
+    reach_m : float
+        How far from a surface a thin part's mixed pulses were paired with it, m (``segment_scan``'s ``reach_m``).
     """
 
     leaves: np.ndarray
@@ -133,6 +135,7 @@ class Segmentation:
     footprint_px: float = 1.0
     band_px: int = 2
     noise_m: float = NOISE_FLOOR_M
+    reach_m: float = 0.05
 
     def region_surface(self, label: int) -> int:
         """Surface label of leaf region ``label``."""
@@ -348,7 +351,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     relabel = np.zeros(len(leaf), dtype=int)
     relabel[leaf_surfaces] = np.arange(1, len(leaf_surfaces) + 1)
     return Segmentation(np.where(mixed.thin, 0, relabel[mixed.owner]), leaf_surfaces, mixed, max(1.0, 2 * footprint),
-                        band, sigma)
+                        band, sigma, reach_m)
 
 
 def _border_labels(surfaces: np.ndarray) -> np.ndarray:

@@ -578,8 +578,8 @@ def _rim_unlinked(scan: Scan, segmentation: Segmentation, gain_dn: float) -> Seg
     if not rim.any():
         return segmentation
     surfaces = np.where(rim, 0, mixed.surfaces)
-    reach = band_pixels(segment_scan.__kwdefaults__["reach_m"], scan.range, surfaces,
-                        angular_step(scan.theta, scan.psi))
+    reach = band_pixels(segmentation.reach_m, scan.range, surfaces, angular_step(scan.theta, scan.psi)) \
+        if segmentation.reach_m > 0 else 0
     mixed = attribute_mixed(scan.range, surfaces, segmentation.band_px, scan.intensity,
                             tolerance_m=3 * segmentation.noise_m, reach_px=reach)
     relabel = np.zeros(int(segmentation.mixed.surfaces.max()) + 1, dtype=int)
