@@ -254,6 +254,9 @@ def edge_pulses(range_m: np.ndarray, radius_px: float, noise_m: np.ndarray | flo
     return np.isfinite(range_m) & ~plausible
 
 
+#: Narrowest leaf, m, for :func:`narrow_surfaces` (assumption: pear, apple and vine leaves are 3-10 cm wide; a
+#: surface narrower than 1.6 cm is a leaf or twig piece).
+MIN_LEAF_WIDTH_M = 0.016
 #: Fewest core pulses of a surface that :func:`rim_mixed` fits its smooth surface to (two planes' worth).
 MIN_CORE_PULSES = 6
 

@@ -28,8 +28,8 @@ import numpy as np
 from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 
-from leafsfs.canopy import (dark_surfaces, edge_pulses, join_occluded, narrow_surfaces, pulse_noise, shifted,
-                            split_creases, split_necks, wood_surfaces)
+from leafsfs.canopy import (MIN_LEAF_WIDTH_M, dark_surfaces, edge_pulses, join_occluded, narrow_surfaces, pulse_noise,
+                            shifted, split_creases, split_necks, wood_surfaces)
 from leafsfs.edges import MixedPulses, attribute_mixed, band_pixels
 from leafsfs.errors import SfsError
 from tlssim.pattern import beam_frame
@@ -189,7 +189,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
                  intensity: np.ndarray | None = None, edge_radius_m: float = 0.0025, edge_factor: float = 2.5,
                  neck_ratio: float = 0.3, gain_dn: float | None = None, max_aspect: float = 4.0,
                  min_fill: float = 0.5, occluder_gap_m: float = 0.01, crease_angle_deg: float = 40.0,
-                 min_piece_px: int = 3, min_leaf_width_m: float = 0.016) -> Segmentation:
+                 min_piece_px: int = 3, min_leaf_width_m: float = MIN_LEAF_WIDTH_M) -> Segmentation:
     """Surfaces, mixed pulses and leaf regions of a scan.
 
     Parameters
@@ -281,8 +281,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     min_leaf_width_m : float
         Surfaces narrower in 3-D (four second principal spreads,
         :func:`leafsfs.canopy.narrow_surfaces`) are no leaves: leaf pieces and
-        twig pieces (assumption: 1.6 cm; pear, apple and vine leaves are
-        3-10 cm wide; 0: none).
+        twig pieces (:data:`leafsfs.canopy.MIN_LEAF_WIDTH_M`; 0: none).
     """
     valid = np.isfinite(range_m)
     if not valid.any():

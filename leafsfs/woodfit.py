@@ -36,7 +36,7 @@ import math
 
 import numpy as np
 
-from leafsfs.canopy import narrow_surfaces, wood_surfaces
+from leafsfs.canopy import MIN_LEAF_WIDTH_M, narrow_surfaces, wood_surfaces
 from leafsfs.edges import MixedPulses
 from leafsfs.leaves import angular_step
 
@@ -102,7 +102,7 @@ def wood_owner_range(mixed: MixedPulses, range_m: np.ndarray, theta: np.ndarray,
 
 
 def wood_labels(surfaces: np.ndarray, range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, step_rad: float,
-                alpha: np.ndarray | None, min_leaf_width_m: float = 0.016) -> np.ndarray:
+                alpha: np.ndarray | None, min_leaf_width_m: float = MIN_LEAF_WIDTH_M) -> np.ndarray:
     """Which surfaces are wood-shaped: elongated, sparse or narrower than a leaf (index = label; False for 0).
 
     :func:`leafsfs.canopy.wood_surfaces` and
