@@ -48,7 +48,8 @@ def test_seen_completeness_leaves_out_the_truth_no_point_lies_on():
     branch = np.array([0, 0, 1]) + t * np.array([0.6, 0, 0.8]) + np.array([0, 0.02, 0])
     s = score(TRUTH, copy.deepcopy(TRUTH[:2]), points=np.vstack([stem, branch]))
     assert s["completeness"] == pytest.approx(2.0 / 3.0, abs=0.005)
-    assert s["seen_completeness"] == pytest.approx(1.0, abs=0.015) and s["seen_length_m"] == pytest.approx(2.0, abs=0.02)
+    assert s["seen_completeness"] == pytest.approx(1.0, abs=0.015)
+    assert s["seen_length_m"] == pytest.approx(2.0, abs=0.02)
     assert "seen_completeness" not in score(TRUTH, copy.deepcopy(TRUTH[:2]))
 
 
