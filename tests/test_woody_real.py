@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from benchmarks.experiments.woody_real import CLOUDS, DATA, treeqsm_reference
+from benchmarks.experiments.woody_real import CLOUDS, DATA, cloud_dbh_reference, treeqsm_reference
 from tlssim.formats.points import read_points
 from woody.cloud import read_cloud
 from woody.dbh import measure_dbh
@@ -44,3 +44,16 @@ def test_dbh_of_the_rtwig_tree_is_within_5_percent_of_its_treeqsm_model():
     assert stem.ground_z_m == pytest.approx(points[:, 2].min(), abs=0.05)
     assert stem.dbh_m == pytest.approx(treeqsm_reference(DATA / "rtwig_treeqsm.mat")["dbh_m"], rel=0.05)
     assert stem.flag == "ok"
+
+
+def test_cloud_dbh_reference_fits_the_stem_and_trims_a_branch_beside_it():
+    # a 30 cm vertical stem (one half seen, 2 mm noise) and a branch's points 5-10 cm outside it at breast height
+    rng = np.random.default_rng(3)
+    angle, z = rng.uniform(0, np.pi, 3000), rng.uniform(0.5, 2.0, 3000)
+    radius = 0.15 + rng.normal(0, 0.002, 3000)
+    stem = np.column_stack([2 + radius * np.cos(angle), 1 + radius * np.sin(angle), 0.3 + z])
+    branch = np.column_stack([2.2 + rng.uniform(0, 0.05, 30), 1 + rng.uniform(-0.02, 0.02, 30),
+                              1.6 + rng.uniform(-0.05, 0.05, 30)])
+    ref = cloud_dbh_reference(np.vstack([stem, branch]), ground_z=0.3)
+    assert ref["dbh_m"] == pytest.approx(0.30, abs=0.004) and ref["residual_m"] < 0.004
+    assert ref["n_points"] <= ((np.abs(stem[:, 2] - 1.6) <= 0.05).sum())  # the branch is left out

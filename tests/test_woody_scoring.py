@@ -41,6 +41,18 @@ def test_missed_branch_lowers_completeness_detection_recall_and_volume():
     assert s["precision"] == pytest.approx(1.0)
 
 
+def test_seen_completeness_leaves_out_the_truth_no_point_lies_on():
+    # points on the stem's and the first branch's surfaces only: the second branch was not seen by the scan
+    t = np.linspace(0, 1, 200)[:, None]
+    stem = np.column_stack([0.05 + 0 * t, 0 * t, t])
+    branch = np.array([0, 0, 1]) + t * np.array([0.6, 0, 0.8]) + np.array([0, 0.02, 0])
+    s = score(TRUTH, copy.deepcopy(TRUTH[:2]), points=np.vstack([stem, branch]))
+    assert s["completeness"] == pytest.approx(2.0 / 3.0, abs=0.005)
+    assert s["seen_completeness"] == pytest.approx(1.0, abs=0.015)
+    assert s["seen_length_m"] == pytest.approx(2.0, abs=0.02)
+    assert "seen_completeness" not in score(TRUTH, copy.deepcopy(TRUTH[:2]))
+
+
 def test_false_positive_is_counted_as_unmatched_reconstructed_length():
     extra = _cyl(3, -1, 1, 3, (5, 5, 0), (5, 5, 1), 0.02)
     s = score(TRUTH, copy.deepcopy(TRUTH) + [extra])

@@ -12,7 +12,11 @@ Both the truth (``docs/contracts.md``: a woody object's ``truth`` has
   ``max_angle_deg``; the reconstructed radius there (frusta interpolate) gives
   the radius error ``r_rec - r_true`` (and twice it, the diameter error);
 - completeness is the matched share of the visible truth length; a truth
-  branch is detected when at least half of it is matched;
+  branch is detected when at least half of it is matched; given the scan's
+  points, ``seen_completeness`` is the matched share of the visible length
+  with a point within ``r_true + min_tolerance_m`` of its axis (a branch the
+  scan did not see — hidden behind another, or seen end-on along the line
+  of sight — is not the method's miss);
 - reconstructed centrelines are sampled and matched back the same way
   (tolerance from the truth radius; samples inside another reconstructed
   cylinder are left out as above); unmatched reconstructed length is false
@@ -36,6 +40,7 @@ Both the truth (``docs/contracts.md``: a woody object's ``truth`` has
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from woody.errors import WoodyError
 from woody.geometry import cylinder_arrays, cylinders_volume
@@ -178,7 +183,7 @@ def error_summary(errors: np.ndarray) -> dict:
 
 def score(truth, reconstruction, *, step_m: float = 0.01, min_tolerance_m: float = 0.02,
           max_angle_deg: float = 30.0, height_bin_m: float = 0.10, taper_tolerance_m: float = 0.01,
-          diameter_classes_m=DIAMETER_CLASSES_M) -> dict:
+          diameter_classes_m=DIAMETER_CLASSES_M, points=None) -> dict:
     """Score a reconstructed cylinder list against the truth.
 
     Parameters
@@ -197,6 +202,9 @@ def score(truth, reconstruction, *, step_m: float = 0.01, min_tolerance_m: float
         Taper bins and the diameter tolerance of ``taper_ok_height_m``, m.
     diameter_classes_m : sequence of float
         Upper bounds of the diameter classes, m.
+    points : array_like, (n, 3), optional
+        The scanned points the reconstruction came from, m: adds ``seen_length_m`` (visible truth length with
+        a point within its radius + ``min_tolerance_m``) and ``seen_completeness`` (its matched share).
 
     Returns
     -------
@@ -231,6 +239,12 @@ def score(truth, reconstruction, *, step_m: float = 0.01, min_tolerance_m: float
     visible_length = float(gt["length"][visible].sum())
     out["truth_length_m"] = visible_length
     out["completeness"] = float(gt["length"][hit].sum() / visible_length) if visible_length else float("nan")
+    if points is not None:
+        near = cKDTree(np.asarray(points, float).reshape(-1, 3)).query(gt["xyz"])[0]
+        seen = visible & (near <= gt["radius"] + min_tolerance_m)
+        out["seen_length_m"] = float(gt["length"][seen].sum())
+        out["seen_completeness"] = (float(gt["length"][seen & hit].sum() / out["seen_length_m"])
+                                    if out["seen_length_m"] else float("nan"))
     diameter = 2 * gt["radius"]
     bounds = [0.0, *diameter_classes_m, np.inf]
     classes = []
