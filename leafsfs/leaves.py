@@ -189,7 +189,8 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
                  intensity: np.ndarray | None = None, edge_radius_m: float = 0.0025, edge_factor: float = 2.5,
                  neck_ratio: float = 0.3, gain_dn: float | None = None, max_aspect: float = 4.0,
                  min_fill: float = 0.5, occluder_gap_m: float = 0.01, crease_angle_deg: float = 40.0,
-                 min_piece_px: int = 3, min_leaf_width_m: float = MIN_LEAF_WIDTH_M) -> Segmentation:
+                 min_piece_px: int = 3, min_leaf_width_m: float = MIN_LEAF_WIDTH_M,
+                 lobe_ratio: float = 0.15) -> Segmentation:
     """Surfaces, mixed pulses and leaf regions of a scan.
 
     Parameters
@@ -282,6 +283,13 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         Surfaces narrower in 3-D (four second principal spreads,
         :func:`leafsfs.canopy.narrow_surfaces`) are no leaves: leaf pieces and
         twig pieces (:data:`leafsfs.canopy.MIN_LEAF_WIDTH_M`; 0: none).
+    lobe_ratio : float
+        A surface that is no leaf on its own, touches a leaf surface, holds at
+        most this share of its pulses and lies on its plane near the cut
+        (median absolute residual at most 1.5 sigma) is a lobe or tip of that
+        leaf the neck cut took off, and joins it
+        (:func:`leafsfs.canopy.join_occluded`'s ``lobe_ratio``; needs
+        ``occluder_gap_m`` > 0; 0: not joined).
     """
     valid = np.isfinite(range_m)
     if not valid.any():
@@ -334,7 +342,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         # Surfaces no leaf on their own (a tip or lobe cut off by a twig) may join the leaf they were cut from.
         fragments = ~leaf & ~_border_labels(surfaces)
         fragments[0] = False
-        surfaces = join_occluded(surfaces, range_m, leaf, gap, 3 * sigma, 1.5 * gap, fragments)
+        surfaces = join_occluded(surfaces, range_m, leaf, gap, 3 * sigma, 1.5 * gap, fragments, lobe_ratio)
         leaf &= np.bincount(surfaces.ravel(), minlength=len(leaf)) > 0  # the labels joined into another
     band = band_pixels(band_m, range_m, surfaces, step)
     reach = band_pixels(reach_m, range_m, surfaces, step) if reach_m > 0 else 0
@@ -342,8 +350,9 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         # Pieces too small to be surfaces (a leaf mostly hidden, a twig) still pair the mixed pulses around them.
         piece = (component > 0) & ~large[component] & (sizes[component] >= min_piece_px) & (surfaces == 0)
         _, index = np.unique(np.where(piece, component, 0), return_inverse=True)
-        surfaces = np.where(piece, index.reshape(surfaces.shape) + surfaces.max(), surfaces)
-        leaf = np.concatenate([leaf, np.zeros(int(surfaces.max()) + 1 - len(leaf), dtype=bool)])
+        # numbered after every label used so far (a joined top label leaves its number unused)
+        surfaces = np.where(piece, index.reshape(surfaces.shape) + len(leaf) - 1, surfaces)
+        leaf = np.concatenate([leaf, np.zeros(max(int(surfaces.max()) + 1 - len(leaf), 0), dtype=bool)])
     mixed = attribute_mixed(range_m, surfaces, band, intensity, tolerance_m=3 * sigma,
                             reach_px=reach)
     leaf_surfaces = np.nonzero(leaf)[0]

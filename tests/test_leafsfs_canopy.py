@@ -306,6 +306,33 @@ def test_join_occluded_joins_a_curved_leaf_behind_a_twig_on_the_planes_near_the_
     assert (join_occluded(labels, range_m, candidates, 6.0, 0.005, 9.0)[labels == 2] == 2).all()
 
 
+
+def test_join_occluded_gives_a_lobe_cut_at_a_neck_back_to_its_leaf_when_it_continues_the_leaf_plane():
+    rows, cols = np.mgrid[0:40, 0:60]
+    plane = 3.0 + 0.0005 * rows + 0.001 * cols + np.random.default_rng(0).normal(0.0, 0.001, rows.shape)
+    labels = np.zeros(rows.shape, int)
+    labels[5:35, 5:40] = 1  # the blade: 1,050 pulses
+    labels[18:24, 40:48] = 2  # a lobe touching it, no leaf on its own: 48 pulses (4.6 %)
+    leaf, lobe = np.array([False, True, False]), np.array([False, False, True])
+    range_m = np.where(labels > 0, plane, np.nan)  # nothing returns around them: the gap test cannot join them
+    out = join_occluded(labels, range_m, leaf, 6.0, 0.003, 9.0, lobe, 0.15)
+    assert (out[labels == 2] == 1).all() and (out[labels == 1] == 1).all()
+    assert (join_occluded(labels, range_m, leaf, 6.0, 0.003, 9.0, lobe)[labels == 2] == 2).all()  # lobe_ratio 0
+    # a piece of twig at the blade's base: its round front bulges 8 mm out of the blade's plane
+    bulge = 0.008 * np.sqrt(np.clip(1 - ((rows - 20.5) / 3.5) ** 2, 0, 1))
+    twig = np.where(labels == 2, range_m - bulge, range_m)
+    assert (join_occluded(labels, twig, leaf, 6.0, 0.003, 9.0, lobe, 0.15)[labels == 2] == 2).all()
+    # a piece on the plane but holding 34 % of the blade's pulses (a branch the leaf lies against)
+    big = labels.copy()
+    big[5:35, 40:52] = 2
+    range_m = np.where(big > 0, plane, np.nan)
+    assert (join_occluded(big, range_m, leaf, 6.0, 0.003, 9.0, lobe, 0.15)[big == 2] == 2).all()
+    # a lobe on the plane that does not touch the blade (background between them) is left to the gap test
+    apart = labels.copy()
+    apart[18:24, 40:42] = 0
+    range_m = np.where(apart > 0, plane, np.nan)
+    assert (join_occluded(apart, range_m, leaf, 6.0, 0.003, 9.0, lobe, 0.15)[apart == 2] == 2).all()
+
 # --- small simulated canopies (0.036 deg, 2 m: a 9 cm leaf spans about 70 pulses) ------------------------------
 
 LEAF = {"type": "leaf", "preset": "pear", "seed": 7, "length": 0.09, "material": "pear-leaf"}
