@@ -12,7 +12,8 @@ the targets' points, and returns its own leaf regions with their traits. Familie
 - ``filter``: the outlier-removal baselines of :mod:`leafsfs.baselines`;
 - ``prop-sfs``: the PROP-SFS variants of :func:`leafsfs.reconstruct`
   (``simple``, ``sps``, ``buffer``, ``fused`` with the shell-rule set T3, and
-  ``buffer-T1``, ``buffer-T2``, ``buffer-T3*``), calibrated by simulating the
+  ``buffer-T1``, ``buffer-T2``, ``buffer-T3*``; ``fused-stray``, ``fused`` without the pulses it moved that the
+  stray-point rule flags, :mod:`leafsfs.strays`), calibrated by simulating the
   scan's scanner model; they run once on the whole scan, as a user runs
   them, segment it into leaves themselves and return their regions with
   the traits of each (:mod:`benchmarks.scoring` matches the regions to the
@@ -241,6 +242,7 @@ def _register_prop_sfs() -> None:
         register_variant(_prop_sfs_variant(engine, engine, defaults))
     for shell in ("T1", "T2", "T3*"):
         register_variant(_prop_sfs_variant(f"buffer-{shell}", "buffer", {**defaults, "shell_set": shell}))
+    register_variant(_prop_sfs_variant("fused-stray", "fused", {**defaults, **STRAY_DEFAULTS}))
 
 
 def _calibration(scan):
@@ -255,13 +257,20 @@ def _calibration(scan):
 #: such as the knife edge's plate, which reaches the window's border).
 SEGMENTATIONS = ("auto", "mask")
 
+#: Settings of the stray-point rule that ``fused-stray`` applies after PROP-SFS (:func:`leafsfs.strays.remove_strays`):
+#: to the pulses PROP-SFS moved, with the rule's settings of the ``stray-point`` variant.
+STRAY_DEFAULTS = {"stray_scope": "moved", "stray_window_px": 3, "stray_max_range_diff_m": 0.02, "stray_min_share": 0.5}
+
 
 def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
     def run(scan, labels, segmentation, **params):
         """PROP-SFS once on the whole scan: its corrected points, outlier flags, and the regions it reconstructed
-        with their traits and candidate counts (regions it skipped keep their measured points and are not leaves)."""
+        with their traits and candidate counts (regions it skipped keep their measured points and are not leaves);
+        with the ``stray_*`` parameters, the stray-point rule's outliers among its moved pulses removed."""
         import leafsfs
+        from leafsfs.strays import remove_strays
 
+        stray = {key[len("stray_"):]: params.pop(key) for key in STRAY_DEFAULTS if key in params}
         if segmentation not in SEGMENTATIONS:
             raise BenchError(f"PROP-SFS segmentation must be one of {SEGMENTATIONS}, got {segmentation!r}")
         params = leafsfs.SfsParams(**params)
@@ -272,6 +281,8 @@ def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
             return VariantOutput(scan.xyz, stats={"skipped": 0}, flags=np.zeros(scan.shape, bool),
                                  labels=np.zeros(scan.shape, int), regions={},
                                  candidates=np.zeros(scan.shape, int))
+        if stray:
+            result = remove_strays(result, **stray)
         regions = {t["leaf"]: t for t in result.traits()}
         labels = np.where(np.isin(result.labels, list(regions)), result.labels, 0)
         return VariantOutput(result.corrected_scan().xyz, stats={"skipped": len(result.skipped)},
@@ -280,12 +291,15 @@ def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
     def heights(sample, segmentation, **params):
         import leafsfs
 
+        params = {key: value for key, value in params.items() if key not in STRAY_DEFAULTS}
         return leafsfs.reconstruct_heights(sample.alpha, sample.height, sample.mask, sample.grid, engine,
                                            leafsfs.SfsParams(**params))
 
     shell = params["shell_set"]
+    extra = ", moved pulses the stray-point rule flags removed" if "stray_window_px" in params else ""
     return Variant(name, "prop-sfs", run, params,
-                   f"PROP-SFS {engine} propagation, shell-rule set {shell} (leafsfs.reconstruct, model calibration)",
+                   f"PROP-SFS {engine} propagation, shell-rule set {shell} (leafsfs.reconstruct, model calibration)"
+                   f"{extra}",
                    prepare=_calibration, heights=heights, scope="scan")
 
 

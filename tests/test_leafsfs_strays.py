@@ -1,0 +1,68 @@
+"""The stray-point rule after PROP-SFS (leafsfs.strays): only pulses PROP-SFS moved, or left outside its leaves."""
+
+import types
+
+import numpy as np
+import pytest
+
+from leafsfs.errors import SfsError
+from leafsfs.params import SfsParams
+from leafsfs.reconstruct import SfsResult
+from leafsfs.strays import remove_strays, stray_scope
+from tlssim.pattern import ScannerPose
+from tlssim.scan import Scan, grid_to_xyz
+
+ROWS, COLS, STEP_DEG = 20, 30, 0.08
+
+
+def _result(measured, corrected_range, labels, leaves=(1,)):
+    theta, psi = np.meshgrid(np.radians(STEP_DEG * (np.arange(COLS) - COLS / 2)),
+                             np.radians(90.0 + STEP_DEG * (np.arange(ROWS) - ROWS / 2)))
+    scan = Scan(measured, np.where(np.isfinite(measured), 1600.0, np.nan).astype(np.float32), theta, psi,
+                grid_to_xyz(measured, theta, psi, ScannerPose()))
+    zeros = np.zeros(measured.shape, bool)
+    corrected = (labels > 0) | ~(corrected_range == measured)
+    return SfsResult(scan, "fused", SfsParams(), labels, corrected_range, corrected, np.zeros(measured.shape, int),
+                     np.full(measured.shape, np.nan), zeros.copy(), np.zeros(measured.shape), zeros.copy(),
+                     zeros.copy(), [types.SimpleNamespace(label=label) for label in leaves])
+
+
+@pytest.fixture
+def plate():
+    """A plate at 2 m with four stray pulses 30 cm behind it: one moved by PROP-SFS inside a leaf region, one
+    moved outside every region, one kept inside a region, one kept outside (in a skipped region, label 2)."""
+    measured = np.full((ROWS, COLS), 2.0)
+    measured[:, 25:] = np.nan                    # no return beyond column 25
+    for r, c in ((12, 8), (5, 20), (10, 6), (3, 17)):
+        measured[r, c] = 2.3
+    corrected = measured.copy()
+    corrected[12, 8] = 2.1                       # moved within the leaf
+    corrected[5, 20] = 2.25                      # moved onto some other surface
+    labels = np.zeros((ROWS, COLS), int)
+    labels[8:16, 4:12] = 1
+    labels[0:8, 13:19] = 2
+    return _result(measured, corrected, labels)
+
+
+def test_moved_scope_removes_only_moved_strays(plate):
+    scope = stray_scope(plate, "moved")
+    assert scope[12, 8] and scope[5, 20] and scope.sum() == 2
+    out = remove_strays(plate)
+    gone = out.removed & ~np.isfinite(out.range)
+    assert set(zip(*np.nonzero(gone))) == {(12, 8), (5, 20)}
+    assert (out.outlier == gone).all() and (out.corrected == (plate.corrected | gone)).all()
+    assert np.isfinite(plate.range[12, 8]) and not plate.removed.any()   # the input is unchanged
+
+
+def test_unclaimed_scope_adds_pulses_outside_the_leaves(plate):
+    out = remove_strays(plate, scope="unclaimed")
+    gone = set(zip(*np.nonzero(out.removed)))
+    # the kept stray inside the reconstructed leaf stays; the one in the skipped region goes
+    assert gone == {(12, 8), (5, 20), (3, 17)}
+    # plate pulses beside the edge of the returns keep most neighbours at their range: none removed
+    assert not out.removed[:, 24].any()
+
+
+def test_unknown_scope_is_refused(plate):
+    with pytest.raises(SfsError, match="stray scope"):
+        remove_strays(plate, scope="all")
