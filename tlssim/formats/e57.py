@@ -10,7 +10,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from tlssim.errors import ScanError
-from tlssim.formats.grid import angles_of, complete_angles, grid_indices, local_points, scan_from_local
+from tlssim.formats.grid import (angles_of, complete_angles, grid_indices, local_points, scan_from_local,
+                                 unwrap_columns)
 from tlssim.pattern import ScannerPose
 from tlssim.scan import Scan
 from tlssim.tiled import TiledScan, scan_tiles
@@ -292,13 +293,11 @@ def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: i
         If the file is unreadable, not structured, or has grid cells without a direction (read it whole
         with :func:`read`, which fills them from the grid's rows and columns).
     """
-    import hashlib
-    import json
     import shutil
 
     import pye57
 
-    from tlssim.tiled import open_tiled
+    from tlssim.tiled import file_fingerprint, open_tiled
 
     outdir = Path(outdir)
     scratch = outdir.parent / f".{outdir.name}.import-grids"
@@ -320,8 +319,7 @@ def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: i
         rows, cols = shape
         limit = _intensity_limit(header)
         rotation, translation = header.rotation, header.translation
-        fingerprint = hashlib.sha256(json.dumps([str(Path(path).resolve()), Path(path).stat().st_size,
-                                                 Path(path).stat().st_mtime_ns]).encode()).hexdigest()
+        fingerprint = file_fingerprint(path)
         try:
             pose = ScannerPose(translation, Rotation.from_quat(np.roll(rotation, -1)).as_matrix())
         except (ScanError, ValueError) as exc:
@@ -351,7 +349,7 @@ def _write_tiles(outdir: Path, grids: dict, pose: ScannerPose, tile_cols: int, f
     rows, cols = grids["psi"].shape
     column_theta, carry = np.empty(cols), None
     for c0 in range(0, cols, tile_cols):  # the columns' azimuths for the index, one tile at a time
-        theta, carry = _unwrap_columns(np.asarray(grids["theta"][:, c0:c0 + tile_cols]), carry)
+        theta, carry = unwrap_columns(np.asarray(grids["theta"][:, c0:c0 + tile_cols]), carry)
         column_theta[c0:c0 + tile_cols] = np.median(theta, axis=0)
     first = {"shape": [rows, cols], "scanner": ScannerDescription().to_dict(),
              "scanner_position": np.asarray(pose.position, float).tolist(),
@@ -363,7 +361,7 @@ def _write_tiles(outdir: Path, grids: dict, pose: ScannerPose, tile_cols: int, f
     carry = None
     for c0 in range(0, cols, tile_cols):
         c1 = min(cols, c0 + tile_cols)
-        theta, carry = _unwrap_columns(np.asarray(grids["theta"][:, c0:c1]), carry)
+        theta, carry = unwrap_columns(np.asarray(grids["theta"][:, c0:c1]), carry)
         if (c0, c1) in todo:
             window = (slice(None), slice(c0, c1))
             tile = scan_from_local(np.asarray(grids["local"][window]), np.asarray(grids["valid"][window]),
@@ -418,29 +416,3 @@ def _scatter_grids(path, e57, header, fields, shape, low, limit, scratch: Path, 
         grids["theta"][band] = np.arctan2(local[..., 1], local[..., 0])
         grids["psi"][band] = np.arccos(np.clip(local[..., 2] / np.linalg.norm(local, axis=-1), -1.0, 1.0))
     return grids
-
-
-def _unwrap_columns(theta: np.ndarray, carry) -> tuple[np.ndarray, tuple]:
-    """``numpy.unwrap`` along each row of a tile of columns, continued from the previous tile's ``carry``.
-
-    The same arithmetic as ``numpy.unwrap`` on the whole rows: the corrections are summed in column
-    order, the sum carried from tile to tile. Returns the unwrapped tile and the carry (last raw azimuth,
-    summed correction) for the next.
-    """
-    period = 2.0 * np.pi
-    if carry is None:
-        previous, total = theta[:, :1], np.zeros((len(theta), 1))
-        steps = theta[:, 1:]
-    else:
-        (previous, total), steps = carry, theta
-    dd = np.diff(np.concatenate([previous, steps], axis=1), axis=1)
-    ddmod = np.mod(dd + period / 2, period) - period / 2
-    np.copyto(ddmod, period / 2, where=(ddmod == -period / 2) & (dd > 0))
-    correct = ddmod - dd
-    np.copyto(correct, 0, where=np.abs(dd) < period / 2)
-    summed = np.cumsum(np.concatenate([total, correct], axis=1), axis=1)[:, 1:]
-    unwrapped = steps + summed
-    if carry is None:
-        unwrapped = np.concatenate([theta[:, :1], unwrapped], axis=1)
-    last = summed[:, -1:] if summed.shape[1] else total
-    return unwrapped, (theta[:, -1:], last)
