@@ -274,3 +274,18 @@ def test_import_command_streams_ptx_and_las(scan, tmp_path, capsys):
         assert main(["import", str(path), str(tmp_path / ext), "--tile-cols", "40"]) == 0
         out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
         assert out["tiles"] == 3 and out["truth"] == (ext == "las")
+
+
+def test_las_metadata_longer_than_one_vlr(scan, tmp_path, monkeypatch):
+    import laspy
+
+    from tlssim.formats import las
+    from tlssim.formats.points import read_points
+
+    whole = import_scan(export_scan(scan, tmp_path / "one.las"))
+    monkeypatch.setattr(las, "VLR_MAX_BYTES", 1000)  # a large grid's axes: the JSON spans several VLRs
+    path = export_scan(scan, tmp_path / "many.las")
+    assert len(las.metadata_records(laspy.read(str(path)).header.vlrs)) > 3
+    _same_scans(import_scan(path), whole)
+    _same_scans(las.read_tiled(path, tmp_path / "tiles", tile_cols=40).load(), whole)
+    assert np.array_equal(read_points(path).viewpoints, scan.pose.position)

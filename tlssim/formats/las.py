@@ -16,8 +16,11 @@ from tlssim.tiled import TiledScan, scan_tiles
 SCALE_M = 1e-5
 #: Bits of an extra-bytes descriptor's ``options`` that say its min and max statistics are set (LAS 1.4).
 _STATS_OPTIONS = 0b110
-#: VLR that carries the scan's metadata as JSON.
+#: VLR that carries the scan's metadata as JSON (continued in the VLRs of the next record ids when longer than
+#: :data:`VLR_MAX_BYTES`).
 VLR_USER_ID, VLR_RECORD_ID = "tlslab", 1
+#: Largest payload of one VLR, bytes (its length is a 16-bit field in the LAS specification).
+VLR_MAX_BYTES = 65535
 #: Extra dimensions: grid position and angles, then the truth arrays (normals split per axis).
 _GRID_DIMS = (("row", np.int32), ("col", np.int32), ("theta", np.float64), ("psi", np.float64))
 _TRUTH_DIMS = (("truth_range", np.float64), ("truth_id", np.int32), ("mixed_fraction", np.float32),
@@ -58,8 +61,10 @@ def write(scan: Scan | TiledScan, path: Path) -> None:
             "psi_rows": psi_rows.tolist(), "scanner_position": scan.pose.position.tolist(),
             "scanner_rotation": scan.pose.rotation.tolist(), "scanner": scan.scanner.to_dict(),
             "meta": scan.meta, "object_names": scan.object_names}
-    header.vlrs.append(laspy.VLR(user_id=VLR_USER_ID, record_id=VLR_RECORD_ID, description="tlssim scan",
-                                 record_data=json.dumps(meta).encode()))
+    data = json.dumps(meta).encode()
+    for part, start in enumerate(range(0, len(data), VLR_MAX_BYTES)):  # a large grid's axes span several VLRs
+        header.vlrs.append(laspy.VLR(user_id=VLR_USER_ID, record_id=VLR_RECORD_ID + part, description="tlssim scan",
+                                     record_data=data[start:start + VLR_MAX_BYTES]))
     with laspy.open(str(path), mode="w", header=header) as writer:
         for col0, tile in scan_tiles(scan):
             writer.write_points(_tile_points(tile, col0, header, dims))
@@ -113,6 +118,12 @@ _TRUTH_FILL = (("truth_range", np.nan, np.float64), ("truth_id", -1, np.int32),
 CHUNK_POINTS = 1 << 20
 
 
+def metadata_records(vlrs) -> list:
+    """The VLRs that carry a tlssim scan's JSON metadata, in order (join their ``record_data``); empty if none."""
+    return sorted((v for v in vlrs if v.user_id == VLR_USER_ID and v.record_id >= VLR_RECORD_ID),
+                  key=lambda v: v.record_id)
+
+
 def _metadata(path: Path, header) -> dict:
     """The scan's grid and metadata from a LAS header written by :func:`write`.
 
@@ -121,14 +132,14 @@ def _metadata(path: Path, header) -> dict:
     ``has_truth``; a file without the grid raises a one-line ScanError
     saying which files are allowed.
     """
-    records = [v for v in header.vlrs if v.user_id == VLR_USER_ID and v.record_id == VLR_RECORD_ID]
+    records = metadata_records(header.vlrs)
     names = set(header.point_format.extra_dimension_names)
     if not records or not {n for n, _ in _GRID_DIMS} <= names:
         raise ScanError(f"{path}: LAS/LAZ without tlssim grid metadata (only files written by tlssim, with the "
                         "row, col, theta and psi extra dimensions and the tlslab VLR, can be imported as scans; "
                         "point clouds have no scan grid)")
     try:
-        meta = json.loads(records[0].record_data)
+        meta = json.loads(b"".join(bytes(v.record_data) for v in records))
         rows, cols = (int(n) for n in meta["shape"])
         pose = ScannerPose(meta["scanner_position"], meta["scanner_rotation"])
         scan_meta = dict(meta.get("meta") or {})
