@@ -10,8 +10,8 @@
 - **LAS/LAZ** (ASPRS LAS 1.4, point format 6, via ``laspy``): the returned
   points in the world frame (10 µm), intensity in DN, the grid position and
   angles and every truth array as extra dimensions, and the scan's metadata
-  (grid shape and axes, pose, scanner model, object names) as JSON in a
-  ``tlslab`` VLR.
+  (grid shape and axes, pose, scanner model, object names) as JSON in
+  ``tlslab`` VLRs (one, or several in a row when longer than 65,535 bytes).
 
 :func:`import_tiled` streams a scan larger than memory (a structured E57, a
 PTX, or a LAS/LAZ written by tlssim) into a tiled scan directory.
