@@ -182,8 +182,21 @@ def unwrap_columns(theta: np.ndarray, carry) -> tuple[np.ndarray, tuple]:
     """``numpy.unwrap`` along each row of a tile of columns, continued from the previous tile's ``carry``.
 
     The same arithmetic as ``numpy.unwrap`` on the whole rows: the corrections are summed in column
-    order, the sum carried from tile to tile. Returns the unwrapped tile and the carry (last raw azimuth,
-    summed correction) for the next.
+    order, the sum carried from tile to tile.
+
+    Parameters
+    ----------
+    theta : ndarray
+        Azimuths of the tile's columns, rad, shape ``(rows, cols)``.
+    carry : tuple or None
+        What the previous tile returned; ``None`` for the first tile.
+
+    Returns
+    -------
+    unwrapped : ndarray
+        The tile's azimuths unwrapped along the rows, rad.
+    carry : tuple
+        The last raw azimuths and summed corrections, for the next tile.
     """
     period = 2.0 * np.pi
     if carry is None:
