@@ -256,6 +256,20 @@ def test_las_streamed_into_tiles_holds_the_arrays_of_the_whole_import(scan, tmp_
     assert {t.file: t.sha256 for t in las.read_tiled(path, tmp_path / "t64", chunk_points=500).tiles} == before
 
 
+def test_streamed_las_import_needs_points_in_column_order(scan, tmp_path):
+    import laspy
+
+    from tlssim.formats import import_tiled
+
+    data = laspy.read(str(export_scan(scan, tmp_path / "scan.las")))
+    data.points = data.points[np.arange(len(data.points))[::-1]]  # last column first
+    path = tmp_path / "reversed.las"
+    data.write(str(path))
+    _same_scans(import_scan(path), import_scan(tmp_path / "scan.las"))  # the whole import takes any order
+    with pytest.raises(ScanError, match="not in column order .* import the file whole"):
+        import_tiled(path, tmp_path / "tiles", tile_cols=23)
+
+
 def test_streamed_las_import_needs_the_grid_index(tmp_path, capsys):
     import laspy
 

@@ -8,7 +8,7 @@ import json
 def add_parser(sub) -> None:
     p = sub.add_parser("export", help="write a scan as E57, PTX, LAS or LAZ",
                        description="Convert an NPZ scan or a tiled scan directory to the format of OUTPUT's extension (.e57, .ptx, .las, .laz).")
-    p.add_argument("scan", help="scan file (.npz) or tiled scan directory (streamed to PTX and LAS/LAZ)")
+    p.add_argument("scan", help="scan file (.npz) or tiled scan directory (streamed to every format)")
     p.add_argument("output", help="output file (.e57, .ptx, .las or .laz)")
     p.set_defaults(func=run_export)
     p = sub.add_parser("import", help="read an E57, PTX, LAS or LAZ scan into NPZ or a tiled scan",
