@@ -214,6 +214,7 @@ def test_ptx_streamed_into_tiles_holds_the_bytes_of_the_whole_import(scan, tmp_p
         _blank_ptx(path, scan.shape[0], {0, 1, 60}, {0, 50, scan.shape[1] - 1})
     whole = import_scan(path)
     monkeypatch.setattr(grid, "MEDIAN_SORT_VALUES", 50)  # the median azimuth found by narrowing passes
+    monkeypatch.setattr(ptx, "_BAND_CELLS", 500)  # the rows' zeniths read in bands of 4 rows
     for tile_cols in (23, 64):  # blocks of 1,000 lines cut the 121-row columns
         tiled = ptx.read_tiled(path, tmp_path / f"t{tile_cols}", tile_cols=tile_cols, block_lines=1000)
         assert len(tiled.tiles) == -(-scan.shape[1] // tile_cols)

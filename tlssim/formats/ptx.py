@@ -141,8 +141,8 @@ def _numbers(path: Path, line: list[str], count: int, number: int) -> list[float
 
 #: Point lines parsed per block of a streamed import.
 BLOCK_LINES = 1 << 18
-#: Rows of the on-disk zenith grid read at once by a streamed import.
-_BAND_ROWS = 256
+#: Cells of the on-disk zenith grid read at once (a band of whole rows) by a streamed import.
+_BAND_CELLS = 1 << 20
 
 
 def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: int = 2 * 1024**3,
@@ -155,7 +155,7 @@ def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: i
     azimuth that stands in for cells without a return while the rows are
     unwrapped, each row's median zenith, the straight-line fill of empty
     rows and columns) are done in passes over that table with one tile or
-    one band of rows in memory, so the tiles hold the bytes of :func:`read`
+    one band of about a million cells in memory, so the tiles hold the bytes of :func:`read`
     on the same file whatever the tile size. An interrupted import resumes
     with the tiles that check.
 
@@ -285,13 +285,15 @@ def _fill_values(table: _Table, median: float, psi_file: Path) -> dict:
             psi_grid[:, c0:c1] = psi
             del psi_grid
         row_median, psi_rows = np.empty(rows), np.empty(rows)
-        for r0 in range(0, rows, _BAND_ROWS):
+        band_rows = max(1, _BAND_CELLS // cols)
+        for r0 in range(0, rows, band_rows):
+            band_slice = slice(r0, r0 + band_rows)
             psi_grid = np.memmap(psi_file, np.float64, "r", shape=(rows, cols))
-            band = np.array(psi_grid[r0:r0 + _BAND_ROWS])
+            band = np.array(psi_grid[band_slice])
             del psi_grid
-            row_median[r0:r0 + _BAND_ROWS] = np.nanmedian(band, axis=1)
-            filled = np.where(np.isnan(band), row_median[r0:r0 + _BAND_ROWS, None], band)
-            psi_rows[r0:r0 + _BAND_ROWS] = np.median(filled, axis=1)
+            row_median[band_slice] = np.nanmedian(band, axis=1)
+            filled = np.where(np.isnan(band), row_median[band_slice, None], band)
+            psi_rows[band_slice] = np.median(filled, axis=1)
     column_theta, row_psi = fill_line(column_median), fill_line(row_median)
     # an empty column or row takes its fitted value everywhere: that is its median
     theta_columns = np.where(np.isnan(column_median), column_theta, theta_columns)
