@@ -11,6 +11,7 @@ cell without a return is ``0 0 0 0``.
 from __future__ import annotations
 
 import dataclasses
+import os
 import warnings
 from pathlib import Path
 
@@ -274,23 +275,21 @@ def _fill_values(table: _Table, median: float, psi_file: Path) -> dict:
     """
     rows, cols = table.rows, table.cols
     column_median, theta_columns = np.empty(cols), np.empty(cols)
-    psi_grid = np.memmap(psi_file, np.float64, "w+", shape=(rows, cols))
-    del psi_grid
-    with np.errstate(all="ignore"), warnings.catch_warnings():
+    with open(psi_file, "wb") as handle:  # the zeniths, row by row (file reads and writes: no mapped pages)
+        handle.truncate(rows * cols * 8)
+    with np.errstate(all="ignore"), warnings.catch_warnings(), open(psi_file, "r+b") as handle:
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns or rows
         for c0, c1, _, _, theta, psi in _tiles(table, median):
             column_median[c0:c1] = np.nanmedian(theta, axis=0)
             theta_columns[c0:c1] = np.median(np.where(np.isnan(theta), column_median[None, c0:c1], theta), axis=0)
-            psi_grid = np.memmap(psi_file, np.float64, "r+", shape=(rows, cols))
-            psi_grid[:, c0:c1] = psi
-            del psi_grid
+            for row in range(rows):
+                os.pwrite(handle.fileno(), psi[row].tobytes(), (row * cols + c0) * 8)
         row_median, psi_rows = np.empty(rows), np.empty(rows)
         band_rows = max(1, _BAND_CELLS // cols)
         for r0 in range(0, rows, band_rows):
             band_slice = slice(r0, r0 + band_rows)
-            psi_grid = np.memmap(psi_file, np.float64, "r", shape=(rows, cols))
-            band = np.array(psi_grid[band_slice])
-            del psi_grid
+            count = min(rows, r0 + band_rows) - r0
+            band = np.fromfile(psi_file, np.float64, count * cols, offset=r0 * cols * 8).reshape(count, cols)
             row_median[band_slice] = np.nanmedian(band, axis=1)
             filled = np.where(np.isnan(band), row_median[band_slice, None], band)
             psi_rows[band_slice] = np.median(filled, axis=1)
