@@ -169,8 +169,11 @@ def test_libe57_samples_give_one_line_errors(name, message, tmp_path, capsys):
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "out.npz").exists()
 
 
-def test_e57_streamed_into_tiles_holds_the_arrays_of_the_whole_import(scan, tmp_path, capsys):
+def test_e57_streamed_into_tiles_holds_the_arrays_of_the_whole_import(scan, tmp_path, capsys, monkeypatch):
+    from tlssim.formats import e57
     from tlssim.formats.e57 import read_tiled
+
+    monkeypatch.setattr(e57, "_BAND_CELLS", 500)  # the on-disk grids filled and read in bands of 4 rows
 
     path = export_scan(scan, tmp_path / "scan.e57")
     whole = import_scan(path)
