@@ -169,8 +169,11 @@ def test_libe57_samples_give_one_line_errors(name, message, tmp_path, capsys):
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "out.npz").exists()
 
 
-def test_e57_streamed_into_tiles_holds_the_arrays_of_the_whole_import(scan, tmp_path, capsys):
+def test_e57_streamed_into_tiles_holds_the_arrays_of_the_whole_import(scan, tmp_path, capsys, monkeypatch):
+    from tlssim.formats import e57
     from tlssim.formats.e57 import read_tiled
+
+    monkeypatch.setattr(e57, "_BAND_CELLS", 500)  # the on-disk grids filled and read in bands of 4 rows
 
     path = export_scan(scan, tmp_path / "scan.e57")
     whole = import_scan(path)
@@ -186,3 +189,121 @@ def test_e57_streamed_into_tiles_holds_the_arrays_of_the_whole_import(scan, tmp_
     assert {t.file: t.sha256 for t in read_tiled(path, tmp_path / "tiles", chunk_points=1000).tiles} == before
     assert main(["import", str(path), "-o", str(tmp_path / "cmd"), "--tile-cols", "40"]) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["tiles"] == 3
+
+
+def _same_scans(back, whole, keys=("range", "intensity", "theta", "psi", "xyz")):
+    for key in keys:
+        assert np.array_equal(getattr(back, key), getattr(whole, key), equal_nan=True), key
+    assert np.array_equal(back.pose.rotation, whole.pose.rotation)
+    assert np.array_equal(back.pose.position, whole.pose.position)
+
+
+def _blank_ptx(path, rows, empty_rows, empty_cols):
+    """Rewrite a PTX file with the given rows and columns without a return (``0 0 0 0`` lines)."""
+    lines = path.read_text().splitlines()
+    for i in range(10, len(lines)):
+        col, row = divmod(i - 10, rows)
+        if row in empty_rows or col in empty_cols:
+            lines[i] = "0 0 0 0"
+    path.write_text("\n".join(lines) + "\n")
+
+
+@pytest.mark.parametrize("blank", [False, True])
+def test_ptx_streamed_into_tiles_holds_the_bytes_of_the_whole_import(scan, tmp_path, monkeypatch, blank):
+    from tlssim.formats import grid, import_tiled, ptx
+
+    path = export_scan(scan, tmp_path / "scan.ptx")
+    if blank:  # empty rows and columns: filled from the grid-wide straight lines, as the whole import fills them
+        _blank_ptx(path, scan.shape[0], {0, 1, 60}, {0, 50, scan.shape[1] - 1})
+    whole = import_scan(path)
+    monkeypatch.setattr(grid, "MEDIAN_SORT_VALUES", 50)  # the median azimuth found by narrowing passes
+    monkeypatch.setattr(ptx, "_BAND_CELLS", 500)  # the rows' zeniths read in bands of 4 rows
+    for tile_cols in (23, 64):  # blocks of 1,000 lines cut the 121-row columns
+        tiled = ptx.read_tiled(path, tmp_path / f"t{tile_cols}", tile_cols=tile_cols, block_lines=1000)
+        assert len(tiled.tiles) == -(-scan.shape[1] // tile_cols)
+        assert not (tmp_path / f".t{tile_cols}.import-grids").exists()
+        back = tiled.load()
+        _same_scans(back, whole)
+        assert back.meta["format"] == "ptx" and not tiled.has_truth
+    before = {t.file: t.sha256 for t in tiled.tiles}
+    (tiled.path / tiled.tiles[0].file).unlink()  # an interrupted import resumes with the tiles that check
+    assert {t.file: t.sha256 for t in import_tiled(path, tmp_path / "t64").tiles} == before
+
+
+def test_ptx_streamed_import_refuses_a_truncated_file(scan, tmp_path):
+    from tlssim.formats import import_tiled
+
+    path = export_scan(scan, tmp_path / "scan.ptx")
+    path.write_text("\n".join(path.read_text().splitlines()[:-5]) + "\n")
+    with pytest.raises(ScanError, match="truncated PTX file"):
+        import_tiled(path, tmp_path / "tiles")
+    assert not (tmp_path / ".tiles.import-grids").exists()
+
+
+@pytest.mark.parametrize("ext", ["las", "laz"])
+def test_las_streamed_into_tiles_holds_the_arrays_of_the_whole_import(scan, tmp_path, ext):
+    from tlssim.formats import las
+
+    path = export_scan(scan, tmp_path / f"scan.{ext}")
+    whole = import_scan(path)
+    keys = ("range", "intensity", "theta", "psi", "xyz", "truth_range", "truth_id", "mixed_fraction", "incidence",
+            "truth_normal")
+    for tile_cols in (23, 64):  # chunks of 500 points cut the tiles
+        tiled = las.read_tiled(path, tmp_path / f"t{tile_cols}", tile_cols=tile_cols, chunk_points=500)
+        assert len(tiled.tiles) == -(-scan.shape[1] // tile_cols) and tiled.has_truth
+        back = tiled.load()
+        _same_scans(back, whole, keys)
+        assert back.object_names == whole.object_names and back.scanner == whole.scanner
+        assert {k: v for k, v in back.meta.items() if k != "columns"} == whole.meta
+    before = {t.file: t.sha256 for t in tiled.tiles}
+    (tiled.path / tiled.tiles[1].file).unlink()
+    assert {t.file: t.sha256 for t in las.read_tiled(path, tmp_path / "t64", chunk_points=500).tiles} == before
+
+
+def test_streamed_las_import_needs_points_in_column_order(scan, tmp_path):
+    import laspy
+
+    from tlssim.formats import import_tiled
+
+    data = laspy.read(str(export_scan(scan, tmp_path / "scan.las")))
+    data.points = data.points[np.arange(len(data.points))[::-1]]  # last column first
+    path = tmp_path / "reversed.las"
+    data.write(str(path))
+    _same_scans(import_scan(path), import_scan(tmp_path / "scan.las"))  # the whole import takes any order
+    with pytest.raises(ScanError, match="not in column order .* import the file whole"):
+        import_tiled(path, tmp_path / "tiles", tile_cols=23)
+
+
+def test_streamed_las_import_needs_the_grid_index(tmp_path, capsys):
+    import laspy
+
+    cloud = laspy.LasData(laspy.LasHeader(point_format=6, version="1.4"))
+    cloud.x, cloud.y, cloud.z = np.arange(3.0), np.ones(3), np.zeros(3)
+    path = tmp_path / "cloud.las"
+    cloud.write(str(path))
+    assert main(["import", str(path), "-o", str(tmp_path / "tiles")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "only files written by tlssim, with the row, col, theta and psi" in err
+
+
+def test_import_command_streams_ptx_and_las(scan, tmp_path, capsys):
+    for ext in ("ptx", "las"):
+        path = export_scan(scan, tmp_path / f"scan.{ext}")
+        assert main(["import", str(path), str(tmp_path / ext), "--tile-cols", "40"]) == 0
+        out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+        assert out["tiles"] == 3 and out["truth"] == (ext == "las")
+
+
+def test_las_metadata_longer_than_one_vlr(scan, tmp_path, monkeypatch):
+    import laspy
+
+    from tlssim.formats import las
+    from tlssim.formats.points import read_points
+
+    whole = import_scan(export_scan(scan, tmp_path / "one.las"))
+    monkeypatch.setattr(las, "VLR_MAX_BYTES", 1000)  # a large grid's axes: the JSON spans several VLRs
+    path = export_scan(scan, tmp_path / "many.las")
+    assert len(las.metadata_records(laspy.read(str(path)).header.vlrs)) > 3
+    _same_scans(import_scan(path), whole)
+    _same_scans(las.read_tiled(path, tmp_path / "tiles", tile_cols=40).load(), whole)
+    assert np.array_equal(read_points(path).viewpoints, scan.pose.position)

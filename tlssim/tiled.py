@@ -272,6 +272,13 @@ def file_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
+def file_fingerprint(path) -> str:
+    """Identity of an input file for a resumed import: SHA-256 of its resolved path, size and modification time."""
+    path = Path(path)
+    stat = path.stat()
+    return hashlib.sha256(json.dumps([str(path.resolve()), stat.st_size, stat.st_mtime_ns]).encode()).hexdigest()
+
+
 def _write_index(path: Path, index: dict) -> None:
     """Write the index atomically (temporary file, then rename)."""
     tmp = path / (INDEX + ".partial")

@@ -3,19 +3,26 @@
 Both are measured in the same process on the same sub-rays: the raw rate is
 ``ray_intersect_preliminary`` on pre-built sub-rays (distance and primitive
 evaluated, nothing else), with the simulator's own flags
-(:meth:`tlssim.backend.TraceScene.first_hits`: coherent rays); the simulator rate is :func:`tlssim.simulate` end
-to end (ray generation, tracing, radiometry, phasor sums, truth, detector).
-``efficiency = pulses/s x sub-rays / raw rays/s``. On a shared machine the
-wall-clock rates of the two measurements see different loads, so the report
-also gives ``efficiency_cpu``, the same ratio on the process's CPU time (all
-threads), which other jobs do not inflate; ``--profile`` prints where the
-simulator's time goes (cProfile of one scan, the Dr.Jit kernels show up in
-``numpy.asarray``, where their results are read).
+(:meth:`tlssim.backend.TraceScene.first_hits`: coherent rays), after the
+simulator's own one-time scene set-up (:func:`tlssim.simulate.trace_scene`,
+timed with it, since the simulator's time holds it too); the simulator rate
+is :func:`tlssim.simulate` end to end (ray generation, tracing, radiometry,
+phasor sums, truth, detector). ``efficiency = pulses/s x sub-rays / raw
+rays/s``. On a shared machine the wall-clock rates of the two measurements
+see different loads, so the report also gives ``efficiency_cpu``, the same
+ratio on the process's CPU time (all threads), which other jobs do not
+inflate. Memory: the process's peak resident memory during each scan
+(Linux: the peak is reset before it), and that peak less the scan's output
+arrays, which is what must not grow with the window; ``peak_rss_mb`` is the
+whole run's (the raw measurement included). ``--profile``
+prints where the simulator's time goes (cProfile of one scan, the Dr.Jit
+kernels show up in ``numpy.asarray``, where their results are read).
 """
 
 from __future__ import annotations
 
 import cProfile
+import gc
 import json
 import platform
 import pstats
@@ -27,10 +34,11 @@ import numpy as np
 
 import scenes
 from benchmarks.errors import BenchError
-from tlssim.backend import BACKENDS, TraceScene, select_backend
+from tlssim.backend import BACKENDS, select_backend
 from tlssim.beam import sample_beam
 from tlssim.pattern import ScanWindow
-from tlssim.simulate import CHUNK_SUBRAYS, ScanSetup, setup_from_section, simulate
+from tlssim.scan import GRID_KEYS, TRUTH_KEYS
+from tlssim.simulate import CHUNK_SUBRAYS, ScanSetup, setup_from_section, simulate, trace_scene
 
 PERF_SCENE = "wavy-sheet"
 
@@ -44,8 +52,13 @@ def perf_setup(size: int) -> tuple[scenes.Scene, ScanSetup]:
     return scene, ScanSetup(setup.model, setup.pose, window)
 
 
-def raw_first_hit_rate(scene: scenes.Scene, setup: ScanSetup) -> tuple[float, float]:
-    """Rays/s of ``ray_intersect_preliminary`` on the simulator's own sub-rays (same chunks).
+def raw_first_hit_rate(scene: scenes.Scene, setup: ScanSetup) -> tuple[float, float, float]:
+    """Rays/s of ``ray_intersect_preliminary`` on the simulator's own sub-rays (same chunks), scene set-up included.
+
+    The scene is prepared as the simulator prepares it (:func:`tlssim.simulate.trace_scene`: BVH build and
+    upload) and that one-time set-up is timed with the tracing, as it is in the simulator's own time, so the
+    two rates count the same work around the simulator's extra per-pulse work. The sub-rays' random
+    spins and instants are drawn per chunk, so this measurement holds one chunk, whatever the window.
 
     Parameters
     ----------
@@ -60,25 +73,29 @@ def raw_first_hit_rate(scene: scenes.Scene, setup: ScanSetup) -> tuple[float, fl
         Ray-intersection rate, rays per wall-clock second.
     cpu : float
         The same per second of the process's CPU time (all threads).
+    setup_s : float
+        Wall-clock seconds of the scene set-up (part of ``wall``'s time).
     """
     import drjit as dr
 
     model, pose, window = setup.model, setup.pose, setup.window
-    vertices, faces, face_object = scene.merged_mesh()
-    traced = TraceScene(vertices, faces, face_object, np.ones(len(scene.objects)), pose.position)
+    start, start_cpu = time.perf_counter(), time.process_time()
+    traced = trace_scene(scene, model, pose)
+    dr.sync_thread()
+    setup_s = time.perf_counter() - start
+    elapsed, cpu = setup_s, time.process_time() - start_cpu
     beam = sample_beam(model.n_subrays, model.beam_profile)
     theta_axis, psi_axis = window.angles()
     rows = len(psi_axis)
     cols_per_chunk = max(1, CHUNK_SUBRAYS // (rows * beam.count))
     rng = np.random.default_rng(0)
-    spin = rng.uniform(0, 2 * np.pi, rows * len(theta_axis))
-    instants = rng.uniform(0, 1, rows * len(theta_axis))
     smear_rad = model.smear_fraction * np.radians(window.step_deg[1])
-    elapsed, cpu, count = 0.0, 0.0, 0
+    count = 0
     for c0 in range(0, len(theta_axis), cols_per_chunk):
         theta = np.repeat(theta_axis[c0:c0 + cols_per_chunk], rows)
         psi = np.tile(psi_axis, len(theta) // rows)
-        ray, _ = traced.subrays(model, beam, pose, theta, psi, spin[:len(theta)], smear_rad, instants[:len(theta)])
+        spin, instants = rng.uniform(0, 2 * np.pi, len(theta)), rng.uniform(0, 1, len(theta))
+        ray, _ = traced.subrays(model, beam, pose, theta, psi, spin, smear_rad, instants)
         dr.eval(ray)
         start, start_cpu = time.perf_counter(), time.process_time()
         dr.eval(*traced.first_hits(ray))
@@ -86,7 +103,68 @@ def raw_first_hit_rate(scene: scenes.Scene, setup: ScanSetup) -> tuple[float, fl
         elapsed += time.perf_counter() - start
         cpu += time.process_time() - start_cpu
         count += len(theta) * beam.count
-    return count / elapsed, count / cpu
+    return count / elapsed, count / cpu, setup_s
+
+
+def _memory_kb(key: str) -> int | None:
+    """A ``/proc/self/status`` memory figure (``VmRSS``, ``VmHWM``), kB; ``None`` where unavailable."""
+    try:
+        for line in open("/proc/self/status", encoding="ascii"):
+            if line.startswith(key + ":"):
+                return int(line.split()[1])
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def _reset_peak() -> bool:
+    """Reset the process's peak resident memory (Linux ``clear_refs`` 5); whether it could."""
+    try:
+        with open("/proc/self/clear_refs", "w", encoding="ascii") as handle:
+            handle.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def _output_bytes(scan) -> int:
+    """Bytes of a scan's per-pulse arrays (grid, truth and layers): the output that must be in memory."""
+    arrays = [getattr(scan, key) for key in GRID_KEYS + TRUTH_KEYS] + list(scan.layers.values())
+    return int(sum(a.nbytes for a in arrays if a is not None))
+
+
+def simulate_measured(scene: scenes.Scene, setup: ScanSetup, seed: int, backend: str) -> dict:
+    """One timed scan with the peak memory during that scan alone.
+
+    Parameters
+    ----------
+    scene : scenes.Scene
+        The scene.
+    setup : ScanSetup
+        Scanner model, pose (m) and window.
+    seed : int
+        Noise seed.
+    backend : str
+        Ray-tracing backend.
+
+    Returns
+    -------
+    dict
+        ``wall_s`` and ``cpu_s`` (s); ``output_mb`` (the scan's arrays), ``peak_mb`` (the process's peak
+        resident memory during this scan: the peak is reset before it) and ``beyond_output_mb`` (``peak_mb``
+        less the output), MB of 2**20 bytes (as ``peak_rss_mb``); the memory figures are ``None`` where the
+        peak cannot be reset (not Linux).
+    """
+    gc.collect()
+    reset = _reset_peak()
+    start, start_cpu = time.perf_counter(), time.process_time()
+    scan = simulate(scene, setup, seed=seed, progress=False, backend=backend)
+    wall, cpu = time.perf_counter() - start, time.process_time() - start_cpu
+    peak = _memory_kb("VmHWM") if reset else None
+    output_mb = _output_bytes(scan) / 2**20
+    peak_mb = None if peak is None else peak / 1024
+    return {"wall_s": wall, "cpu_s": cpu, "output_mb": output_mb, "peak_mb": peak_mb,
+            "beyond_output_mb": None if peak is None else peak_mb - output_mb}
 
 
 def run_perf(size: int = 500, repeat: int = 3, backend: str = "auto") -> dict:
@@ -108,18 +186,21 @@ def run_perf(size: int = 500, repeat: int = 3, backend: str = "auto") -> dict:
     warm_scene, warm_setup = perf_setup(32)
     simulate(warm_scene, warm_setup, progress=False, backend=used)  # JIT compilation, not timed
     pulses = size * size
-    sim_rates, sim_cpu, raw_rates, raw_cpu = [], [], [], []
+    runs, raw_rates, raw_cpu, setups = [], [], [], []
     for i in range(repeat):
-        start, start_cpu = time.perf_counter(), time.process_time()
-        simulate(scene, setup, seed=i, progress=False, backend=used)
-        sim_rates.append(pulses / (time.perf_counter() - start))
-        sim_cpu.append(pulses / (time.process_time() - start_cpu))
-        wall, cpu = raw_first_hit_rate(scene, setup)
+        runs.append(simulate_measured(scene, setup, i, used))
+        wall, cpu, setup_s = raw_first_hit_rate(scene, setup)
         raw_rates.append(wall)
         raw_cpu.append(cpu)
+        setups.append(setup_s)
     subrays = setup.model.n_subrays
-    pulses_per_s = statistics.median(sim_rates)
+    pulses_per_s = statistics.median(pulses / r["wall_s"] for r in runs)
     raw = statistics.median(raw_rates)
+
+    def median_mb(key):
+        values = [r[key] for r in runs if r[key] is not None]
+        return statistics.median(values) if values else None
+
     return {
         "scene": PERF_SCENE,
         "triangles": int(sum(len(o.faces) for o in scene.objects)),
@@ -130,10 +211,14 @@ def run_perf(size: int = 500, repeat: int = 3, backend: str = "auto") -> dict:
         "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
         "repeat": repeat,
         "raw_rays_per_s": raw,
+        "scene_setup_s": statistics.median(setups),
         "pulses_per_s": pulses_per_s,
         "subrays_per_s": pulses_per_s * subrays,
         "efficiency": pulses_per_s * subrays / raw,
-        "efficiency_cpu": statistics.median(sim_cpu) * subrays / statistics.median(raw_cpu),
+        "efficiency_cpu": statistics.median(pulses / r["cpu_s"] for r in runs) * subrays / statistics.median(raw_cpu),
+        "scan_output_mb": median_mb("output_mb"),
+        "scan_peak_mb": median_mb("peak_mb"),
+        "scan_peak_beyond_output_mb": median_mb("beyond_output_mb"),
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
     }
 
@@ -188,9 +273,13 @@ def profile_scan(size: int, backend: str = "auto", top: int = 15) -> None:
 def _print_report(report: dict, size: int) -> None:
     print(f"scene {report['scene']} ({report['triangles']} triangles), {size}x{size} pulses, "
           f"{report['subrays']} sub-rays, backend {report['backend']}, medians of {report['repeat']}")
-    print(f"  raw first-hit rate   {report['raw_rays_per_s'] / 1e6:8.2f} Mrays/s")
+    print(f"  raw first-hit rate   {report['raw_rays_per_s'] / 1e6:8.2f} Mrays/s "
+          f"(scene set-up {report['scene_setup_s']:.2f} s included, as in the simulator's time)")
     print(f"  simulator            {report['pulses_per_s'] / 1e3:8.1f} kpulses/s "
           f"({report['subrays_per_s'] / 1e6:.2f} Msub-rays/s)")
     print(f"  efficiency           {report['efficiency']:8.2f}  (goal >= 0.85)")
     print(f"  efficiency, CPU time {report['efficiency_cpu']:8.2f}  (the same on the process's CPU time)")
-    print(f"  peak memory (RSS)    {report['peak_rss_mb']:8.0f} MB")
+    if report["scan_peak_mb"] is not None:
+        print(f"  one scan's peak RSS  {report['scan_peak_mb']:8.0f} MB: output {report['scan_output_mb']:.0f} MB "
+              f"+ {report['scan_peak_beyond_output_mb']:.0f} MB beyond it")
+    print(f"  peak memory (RSS)    {report['peak_rss_mb']:8.0f} MB  (the process, the raw measurement included)")

@@ -10,11 +10,12 @@
 - **LAS/LAZ** (ASPRS LAS 1.4, point format 6, via ``laspy``): the returned
   points in the world frame (10 µm), intensity in DN, the grid position and
   angles and every truth array as extra dimensions, and the scan's metadata
-  (grid shape and axes, pose, scanner model, object names) as JSON in a
-  ``tlslab`` VLR.
+  (grid shape and axes, pose, scanner model, object names) as JSON in
+  ``tlslab`` VLRs (one, or several in a row when longer than 65,535 bytes).
 
-:func:`import_tiled` streams a structured E57 scan larger than memory into a
-tiled scan directory. :func:`import_scan` of an E57 or PTX file gives a :class:`~tlssim.scan.Scan`
+:func:`import_tiled` streams a scan larger than memory (a structured E57, a
+PTX, or a LAS/LAZ written by tlssim) into a tiled scan directory.
+:func:`import_scan` of an E57 or PTX file gives a :class:`~tlssim.scan.Scan`
 without truth, ready for reconstruction; a LAS/LAZ file written by
 :func:`export_scan` comes back with the truth of its returned points.
 Unreadable, truncated or malformed files raise :class:`~tlssim.errors.ScanError`
@@ -73,12 +74,17 @@ def export_scan(scan: Scan | TiledScan, path) -> Path:
 
 
 def import_tiled(path, outdir, tile_cols: int | None = None) -> TiledScan:
-    """Stream a structured E57 scan into a tiled scan directory (:func:`tlssim.formats.e57.read_tiled`).
+    """Stream a scan file into a tiled scan directory, tile by tile (resumable).
+
+    A structured E57 scan (:func:`tlssim.formats.e57.read_tiled`), a PTX
+    file (:func:`tlssim.formats.ptx.read_tiled`) or a LAS/LAZ file written by
+    tlssim (:func:`tlssim.formats.las.read_tiled`); the tiles hold the arrays
+    of :func:`import_scan` on the same file.
 
     Parameters
     ----------
     path : str or Path
-        Input ``.e57`` file.
+        Input ``.e57``, ``.ptx``, ``.las`` or ``.laz`` file.
     outdir : str or Path
         Output directory (an interrupted import into it resumes).
     tile_cols : int, optional
@@ -87,15 +93,15 @@ def import_tiled(path, outdir, tile_cols: int | None = None) -> TiledScan:
     Returns
     -------
     TiledScan
-        The imported scan, without truth.
+        The imported scan (with the truth of its returned points for a LAS/LAZ written with truth).
     """
     path = Path(path)
-    if path.suffix.lower() != ".e57":
-        raise ScanError(f"{path}: only E57 scans are imported into tiles; import {path.suffix} files whole "
-                        "(-o FILE.npz)")
+    readers = {".e57": e57.read_tiled, ".ptx": ptx.read_tiled, ".las": las.read_tiled, ".laz": las.read_tiled}
+    if path.suffix.lower() not in readers:
+        raise ScanError(f"{path}: unknown scan format {path.suffix.lower()!r}; supported: {', '.join(sorted(readers))}")
     if not path.is_file():
         raise ScanError(f"{path}: no such scan file")
-    return e57.read_tiled(path, outdir, tile_cols)
+    return readers[path.suffix.lower()](path, outdir, tile_cols)
 
 
 def import_scan(path) -> Scan:

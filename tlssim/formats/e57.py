@@ -10,7 +10,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from tlssim.errors import ScanError
-from tlssim.formats.grid import angles_of, complete_angles, grid_indices, local_points, scan_from_local
+from tlssim.formats.grid import (angles_of, complete_angles, grid_indices, local_points, scan_from_local,
+                                 unwrap_columns)
 from tlssim.pattern import ScannerPose
 from tlssim.scan import Scan
 from tlssim.tiled import TiledScan, scan_tiles
@@ -292,13 +293,11 @@ def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: i
         If the file is unreadable, not structured, or has grid cells without a direction (read it whole
         with :func:`read`, which fills them from the grid's rows and columns).
     """
-    import hashlib
-    import json
     import shutil
 
     import pye57
 
-    from tlssim.tiled import open_tiled
+    from tlssim.tiled import file_fingerprint, open_tiled
 
     outdir = Path(outdir)
     scratch = outdir.parent / f".{outdir.name}.import-grids"
@@ -320,8 +319,7 @@ def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: i
         rows, cols = shape
         limit = _intensity_limit(header)
         rotation, translation = header.rotation, header.translation
-        fingerprint = hashlib.sha256(json.dumps([str(Path(path).resolve()), Path(path).stat().st_size,
-                                                 Path(path).stat().st_mtime_ns]).encode()).hexdigest()
+        fingerprint = file_fingerprint(path)
         try:
             pose = ScannerPose(translation, Rotation.from_quat(np.roll(rotation, -1)).as_matrix())
         except (ScanError, ValueError) as exc:
@@ -338,7 +336,6 @@ def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: i
     try:
         return _write_tiles(outdir, grids, pose, tile_cols, fingerprint, {"source": str(path), "format": "e57"})
     finally:
-        del grids
         shutil.rmtree(scratch, ignore_errors=True)
 
 
@@ -348,29 +345,54 @@ def _write_tiles(outdir: Path, grids: dict, pose: ScannerPose, tile_cols: int, f
     from tlssim.scan import ScannerDescription
     from tlssim.tiled import add_tile, open_tiled, start_tiled
 
-    rows, cols = grids["psi"].shape
+    rows, cols = _part(grids, "psi", ()).shape
     column_theta, carry = np.empty(cols), None
     for c0 in range(0, cols, tile_cols):  # the columns' azimuths for the index, one tile at a time
-        theta, carry = _unwrap_columns(np.asarray(grids["theta"][:, c0:c0 + tile_cols]), carry)
+        theta, carry = unwrap_columns(_part(grids, "theta", (slice(None), slice(c0, c0 + tile_cols))), carry)
         column_theta[c0:c0 + tile_cols] = np.median(theta, axis=0)
+    band_rows = max(1, _BAND_CELLS // cols)
+    psi_rows = [float(np.median(row)) for r0 in range(0, rows, band_rows)
+                for row in _part(grids, "psi", slice(r0, r0 + band_rows))]
     first = {"shape": [rows, cols], "scanner": ScannerDescription().to_dict(),
              "scanner_position": np.asarray(pose.position, float).tolist(),
              "scanner_rotation": np.asarray(pose.rotation, float).tolist(), "object_names": None,
-             "theta_columns": column_theta.tolist(),
-             "psi_rows": [float(np.median(row)) for row in grids["psi"]],
-             "has_truth": False, "meta": meta}
+             "theta_columns": column_theta.tolist(), "psi_rows": psi_rows, "has_truth": False, "meta": meta}
     index, todo = start_tiled(outdir, first, fingerprint, tile_cols)
     carry = None
     for c0 in range(0, cols, tile_cols):
         c1 = min(cols, c0 + tile_cols)
-        theta, carry = _unwrap_columns(np.asarray(grids["theta"][:, c0:c1]), carry)
+        window = (slice(None), slice(c0, c1))
+        theta, carry = unwrap_columns(_part(grids, "theta", window), carry)
         if (c0, c1) in todo:
-            window = (slice(None), slice(c0, c1))
-            tile = scan_from_local(np.asarray(grids["local"][window]), np.asarray(grids["valid"][window]),
-                                   np.asarray(grids["intensity"][window]), pose, theta,
-                                   np.asarray(grids["psi"][window]), dict(meta))
+            tile = scan_from_local(_part(grids, "local", window), _part(grids, "valid", window),
+                                   _part(grids, "intensity", window), pose, theta, _part(grids, "psi", window),
+                                   dict(meta))
             add_tile(outdir, index, c0, tile)
     return open_tiled(outdir)
+
+
+#: Cells of an on-disk grid handled at once (a band of whole rows) by a streamed import.
+_BAND_CELLS = 1 << 20
+
+
+def _part(grids: dict, key: str, index) -> np.ndarray:
+    """A copy of ``grids[key][index]`` from its ``.npy`` file, mapped only for the read.
+
+    The grids are mapped for each read or write and unmapped after it, so that their pages do not stay in
+    the process's resident memory.
+    """
+    mapped = np.load(grids[key], mmap_mode="r")
+    try:
+        return np.array(mapped[index])
+    finally:
+        del mapped
+
+
+def _store(grids: dict, key: str, index, values) -> None:
+    """Write ``values`` into ``grids[key][index]`` (its ``.npy`` file mapped only for the write)."""
+    mapped = np.load(grids[key], mmap_mode="r+")
+    mapped[index] = values
+    del mapped
 
 
 def _chunks(e57, header, fields: list[str], chunk_points: int):
@@ -388,59 +410,40 @@ def _chunks(e57, header, fields: list[str], chunk_points: int):
 
 
 def _scatter_grids(path, e57, header, fields, shape, low, limit, scratch: Path, chunk_points: int) -> dict:
-    """Scatter the points into on-disk grids: scanner-frame points, validity, intensity (DN) and the angles."""
+    """Scatter the points into on-disk grids: scanner-frame points, validity, intensity (DN) and the angles.
+
+    Returns the ``.npy`` file of each grid (``local``, ``valid``, ``direction``, ``intensity``, ``theta``,
+    ``psi``); each is mapped only for one chunk's or one band's read or write.
+    """
     scratch.mkdir(parents=True, exist_ok=True)
     grids = {}
+    band_rows = max(1, _BAND_CELLS // shape[1])
     for key, trailing, dtype, fill in (("local", (3,), np.float64, np.nan), ("valid", (), bool, False),
-                                       ("direction", (), bool, False), ("intensity", (), np.float64, np.nan)):
-        grids[key] = np.lib.format.open_memmap(scratch / f"{key}.npy", "w+", dtype, shape + trailing)
-        grids[key][...] = fill
+                                       ("direction", (), bool, False), ("intensity", (), np.float64, np.nan),
+                                       ("theta", (), np.float64, 0.0), ("psi", (), np.float64, 0.0)):
+        grids[key] = scratch / f"{key}.npy"
+        created = np.lib.format.open_memmap(grids[key], "w+", dtype, shape + trailing)
+        del created
+        for r0 in range(0, shape[0], band_rows):
+            _store(grids, key, slice(r0, r0 + band_rows), fill)
     scale = 1.0
     for chunk in _chunks(e57, header, fields, chunk_points):
         local, invalid = _coordinates(path, chunk)
-        row, col = chunk["rowIndex"].astype(np.int64) - low[0], chunk["columnIndex"].astype(np.int64) - low[1]
-        grids["local"][row, col] = local
-        grids["valid"][row, col] = invalid == 0
-        grids["direction"][row, col] = invalid < 2
+        cells = (chunk["rowIndex"].astype(np.int64) - low[0], chunk["columnIndex"].astype(np.int64) - low[1])
+        _store(grids, "local", cells, local)
+        _store(grids, "valid", cells, invalid == 0)
+        _store(grids, "direction", cells, invalid < 2)
         if "intensity" in chunk:
             scale = 2047.0 if limit is not None and limit <= 1.0 else 1.0
-            grids["intensity"][row, col] = chunk["intensity"] * scale
-    for r0 in range(0, shape[0], 256):  # band by band: the angles, and every cell must have a direction
-        band = slice(r0, r0 + 256)
-        if not grids["direction"][band].all():
+            _store(grids, "intensity", cells, chunk["intensity"] * scale)
+    for r0 in range(0, shape[0], band_rows):  # band by band: the angles, and every cell must have a direction
+        band = slice(r0, r0 + band_rows)
+        if not _part(grids, "direction", band).all():
             raise ScanError(f"{path}: grid cells without a point or a direction; a streamed import cannot fill "
                             "them from the whole grid: import it whole (-o FILE.npz)")
-    for key in ("theta", "psi"):
-        grids[key] = np.lib.format.open_memmap(scratch / f"{key}.npy", "w+", np.float64, shape)
-    for r0 in range(0, shape[0], 256):
-        band = slice(r0, r0 + 256)
-        local = np.asarray(grids["local"][band])
-        grids["theta"][band] = np.arctan2(local[..., 1], local[..., 0])
-        grids["psi"][band] = np.arccos(np.clip(local[..., 2] / np.linalg.norm(local, axis=-1), -1.0, 1.0))
+        local = _part(grids, "local", band)
+        _store(grids, "theta", band, np.arctan2(local[..., 1], local[..., 0]))
+        _store(grids, "psi", band, np.arccos(np.clip(local[..., 2] / np.linalg.norm(local, axis=-1), -1.0, 1.0)))
     return grids
 
 
-def _unwrap_columns(theta: np.ndarray, carry) -> tuple[np.ndarray, tuple]:
-    """``numpy.unwrap`` along each row of a tile of columns, continued from the previous tile's ``carry``.
-
-    The same arithmetic as ``numpy.unwrap`` on the whole rows: the corrections are summed in column
-    order, the sum carried from tile to tile. Returns the unwrapped tile and the carry (last raw azimuth,
-    summed correction) for the next.
-    """
-    period = 2.0 * np.pi
-    if carry is None:
-        previous, total = theta[:, :1], np.zeros((len(theta), 1))
-        steps = theta[:, 1:]
-    else:
-        (previous, total), steps = carry, theta
-    dd = np.diff(np.concatenate([previous, steps], axis=1), axis=1)
-    ddmod = np.mod(dd + period / 2, period) - period / 2
-    np.copyto(ddmod, period / 2, where=(ddmod == -period / 2) & (dd > 0))
-    correct = ddmod - dd
-    np.copyto(correct, 0, where=np.abs(dd) < period / 2)
-    summed = np.cumsum(np.concatenate([total, correct], axis=1), axis=1)[:, 1:]
-    unwrapped = steps + summed
-    if carry is None:
-        unwrapped = np.concatenate([theta[:, :1], unwrapped], axis=1)
-    last = summed[:, -1:] if summed.shape[1] else total
-    return unwrapped, (theta[:, -1:], last)

@@ -48,8 +48,8 @@ def complete_angles(theta: np.ndarray, psi: np.ndarray) -> tuple[np.ndarray, np.
         return theta, psi
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns or rows
-        column_theta = _fill_line(np.nanmedian(theta, axis=0))
-        row_psi = _fill_line(np.nanmedian(psi, axis=1))
+        column_theta = fill_line(np.nanmedian(theta, axis=0))
+        row_psi = fill_line(np.nanmedian(psi, axis=1))
     return (np.where(np.isnan(theta), column_theta[None, :], theta),
             np.where(np.isnan(psi), row_psi[:, None], psi))
 
@@ -155,7 +155,19 @@ def _unwrap_rows(theta: np.ndarray) -> np.ndarray:
     return np.where(np.isnan(theta), np.nan, np.unwrap(known, axis=-1))
 
 
-def _fill_line(values: np.ndarray) -> np.ndarray:
+def fill_line(values: np.ndarray) -> np.ndarray:
+    """Fill the NaN entries of a row's or column's values from a straight-line fit of the known ones on their index.
+
+    Parameters
+    ----------
+    values : ndarray
+        One value per row or column (e.g. zenith or azimuth medians, rad); NaN where unknown.
+
+    Returns
+    -------
+    ndarray
+        ``values`` with the NaN entries filled (a single known value is repeated; none known: unchanged).
+    """
     known = np.isfinite(values)
     if known.all() or not known.any():
         return values
@@ -164,3 +176,95 @@ def _fill_line(values: np.ndarray) -> np.ndarray:
         return np.where(known, values, values[known][0])
     slope, intercept = np.polyfit(index[known], values[known], 1)
     return np.where(known, values, intercept + slope * index)
+
+
+def unwrap_columns(theta: np.ndarray, carry) -> tuple[np.ndarray, tuple]:
+    """``numpy.unwrap`` along each row of a tile of columns, continued from the previous tile's ``carry``.
+
+    The same arithmetic as ``numpy.unwrap`` on the whole rows: the corrections are summed in column
+    order, the sum carried from tile to tile.
+
+    Parameters
+    ----------
+    theta : ndarray
+        Azimuths of the tile's columns, rad, shape ``(rows, cols)``.
+    carry : tuple or None
+        What the previous tile returned; ``None`` for the first tile.
+
+    Returns
+    -------
+    unwrapped : ndarray
+        The tile's azimuths unwrapped along the rows, rad.
+    carry : tuple
+        The last raw azimuths and summed corrections, for the next tile.
+    """
+    period = 2.0 * np.pi
+    if carry is None:
+        previous, total = theta[:, :1], np.zeros((len(theta), 1))
+        steps = theta[:, 1:]
+    else:
+        (previous, total), steps = carry, theta
+    dd = np.diff(np.concatenate([previous, steps], axis=1), axis=1)
+    ddmod = np.mod(dd + period / 2, period) - period / 2
+    np.copyto(ddmod, period / 2, where=(ddmod == -period / 2) & (dd > 0))
+    correct = ddmod - dd
+    np.copyto(correct, 0, where=np.abs(dd) < period / 2)
+    summed = np.cumsum(np.concatenate([total, correct], axis=1), axis=1)[:, 1:]
+    unwrapped = steps + summed
+    if carry is None:
+        unwrapped = np.concatenate([theta[:, :1], unwrapped], axis=1)
+    last = summed[:, -1:] if summed.shape[1] else total
+    return unwrapped, (theta[:, -1:], last)
+
+
+#: Values a streamed median sorts at once; above it the candidates' interval is narrowed by another pass.
+MEDIAN_SORT_VALUES = 1 << 22
+#: Bins of each counting pass of a streamed median.
+_MEDIAN_BINS = 4096
+
+
+def streamed_median(passes) -> float:
+    """The median of values too many for memory, exactly as ``numpy.median`` of all of them gives it.
+
+    Each pass counts the values in bins of the interval that holds the two
+    middle ones (one chunk in memory at a time), until the values of the
+    bins holding them are few enough to sort; the result is the mean of
+    the two middle values as ``numpy.median`` computes it.
+
+    Parameters
+    ----------
+    passes : callable
+        Returns a fresh iterator over the chunks (1-D float arrays, no NaN) of the values.
+
+    Returns
+    -------
+    float
+        The median; NaN when there are no values.
+    """
+    total, low, high = 0, np.inf, -np.inf
+    for chunk in passes():
+        if len(chunk):
+            total, low, high = total + len(chunk), min(low, float(chunk.min())), max(high, float(chunk.max()))
+    if total == 0:
+        return float("nan")
+    ranks, below = [(total - 1) // 2, total // 2], 0  # below: values under ``low``
+    while True:
+        if low == high:
+            picked = [low, low]
+            break
+        edges = np.linspace(low, high, _MEDIAN_BINS + 1)
+        counts = np.zeros(_MEDIAN_BINS, np.int64)
+        for chunk in passes():
+            inside = chunk[(chunk >= low) & (chunk <= high)]
+            counts += np.bincount(np.searchsorted(edges[1:-1], inside, "right"), minlength=_MEDIAN_BINS)
+        ends = below + np.cumsum(counts)
+        first, last = (int(np.searchsorted(ends, rank, "right")) for rank in ranks)
+        start = below + (ends[first - 1] - below if first else 0)
+        if ends[last] - start <= MEDIAN_SORT_VALUES:
+            top = edges[last + 1] if last + 1 < _MEDIAN_BINS else np.inf
+            values = np.sort(np.concatenate([c[(c >= edges[first]) & (c < top) & (c <= high)] for c in passes()]))
+            picked = [values[rank - start] for rank in ranks]
+            break
+        below, low = int(start), float(edges[first])
+        high = float(np.nextafter(edges[last + 1], -np.inf)) if last + 1 < _MEDIAN_BINS else high
+    return float(np.mean(np.array(picked, dtype=np.float64)))

@@ -16,8 +16,11 @@ from tlssim.tiled import TiledScan, scan_tiles
 SCALE_M = 1e-5
 #: Bits of an extra-bytes descriptor's ``options`` that say its min and max statistics are set (LAS 1.4).
 _STATS_OPTIONS = 0b110
-#: VLR that carries the scan's metadata as JSON.
+#: VLR that carries the scan's metadata as JSON (continued in the VLRs of the next record ids when longer than
+#: :data:`VLR_MAX_BYTES`).
 VLR_USER_ID, VLR_RECORD_ID = "tlslab", 1
+#: Largest payload of one VLR, bytes (its length is a 16-bit field in the LAS specification).
+VLR_MAX_BYTES = 65535
 #: Extra dimensions: grid position and angles, then the truth arrays (normals split per axis).
 _GRID_DIMS = (("row", np.int32), ("col", np.int32), ("theta", np.float64), ("psi", np.float64))
 _TRUTH_DIMS = (("truth_range", np.float64), ("truth_id", np.int32), ("mixed_fraction", np.float32),
@@ -58,8 +61,10 @@ def write(scan: Scan | TiledScan, path: Path) -> None:
             "psi_rows": psi_rows.tolist(), "scanner_position": scan.pose.position.tolist(),
             "scanner_rotation": scan.pose.rotation.tolist(), "scanner": scan.scanner.to_dict(),
             "meta": scan.meta, "object_names": scan.object_names}
-    header.vlrs.append(laspy.VLR(user_id=VLR_USER_ID, record_id=VLR_RECORD_ID, description="tlssim scan",
-                                 record_data=json.dumps(meta).encode()))
+    data = json.dumps(meta).encode()
+    for part, start in enumerate(range(0, len(data), VLR_MAX_BYTES)):  # a large grid's axes span several VLRs
+        header.vlrs.append(laspy.VLR(user_id=VLR_USER_ID, record_id=VLR_RECORD_ID + part, description="tlssim scan",
+                                     record_data=data[start:start + VLR_MAX_BYTES]))
     with laspy.open(str(path), mode="w", header=header) as writer:
         for col0, tile in scan_tiles(scan):
             writer.write_points(_tile_points(tile, col0, header, dims))
@@ -106,6 +111,88 @@ def _check_header(path: Path) -> None:
                         f"and {n_evlrs} extended ones announced, {size} bytes in the file)")
 
 
+#: Truth arrays of a file written with truth: fill value of the cells without a return and dtype.
+_TRUTH_FILL = (("truth_range", np.nan, np.float64), ("truth_id", -1, np.int32),
+               ("mixed_fraction", np.nan, np.float32), ("incidence", np.nan, np.float32))
+#: Points read per chunk by a streamed import.
+CHUNK_POINTS = 1 << 20
+
+
+def metadata_records(vlrs) -> list:
+    """The VLRs that carry a tlssim scan's JSON metadata, in order (join their ``record_data``); empty if none."""
+    return sorted((v for v in vlrs if v.user_id == VLR_USER_ID and v.record_id >= VLR_RECORD_ID),
+                  key=lambda v: v.record_id)
+
+
+def _metadata(path: Path, header) -> dict:
+    """The scan's grid and metadata from a LAS header written by :func:`write`.
+
+    Returns a dict of ``rows``, ``cols``, ``pose``, ``theta_columns`` and
+    ``psi_rows`` (rad), ``scanner``, ``object_names``, ``meta`` and
+    ``has_truth``; a file without the grid raises a one-line ScanError
+    saying which files are allowed.
+    """
+    records = metadata_records(header.vlrs)
+    names = set(header.point_format.extra_dimension_names)
+    if not records or not {n for n, _ in _GRID_DIMS} <= names:
+        raise ScanError(f"{path}: LAS/LAZ without tlssim grid metadata (only files written by tlssim, with the "
+                        "row, col, theta and psi extra dimensions and the tlslab VLR, can be imported as scans; "
+                        "point clouds have no scan grid)")
+    try:
+        meta = json.loads(b"".join(bytes(v.record_data) for v in records))
+        rows, cols = (int(n) for n in meta["shape"])
+        pose = ScannerPose(meta["scanner_position"], meta["scanner_rotation"])
+        scan_meta = dict(meta.get("meta") or {})
+        if "scanner" in meta:
+            scanner = ScannerDescription.from_dict(meta["scanner"])
+        else:  # files written before the description: the model's parameters, the window in the scan's meta
+            scanner = ScannerDescription.from_dict({"model": meta.get("scanner_model"),
+                                                    "window": scan_meta.pop("window", None)})
+        theta_columns = np.asarray(meta["theta_columns"], float).reshape(cols)
+        psi_rows = np.asarray(meta["psi_rows"], float).reshape(rows)
+    except (KeyError, TypeError, ValueError, json.JSONDecodeError) as exc:
+        raise ScanError(f"{path}: malformed tlssim metadata in the LAS/LAZ file ({exc!r})") from None
+    return {"rows": rows, "cols": cols, "pose": pose, "theta_columns": theta_columns, "psi_rows": psi_rows,
+            "scanner": scanner, "object_names": meta.get("object_names"),
+            "meta": {**scan_meta, "source": str(path), "format": "las"},
+            "has_truth": {n for n, _ in _TRUTH_DIMS} <= names}
+
+
+def _empty_grid(grid: dict, cols: int) -> dict:
+    """The arrays of ``cols`` columns before any point is placed: axes from the metadata, no return, no truth."""
+    rows = grid["rows"]
+    arrays = {"theta": np.broadcast_to(grid["theta_columns"][None, :cols], (rows, cols)).copy(),
+              "psi": np.broadcast_to(grid["psi_rows"][:, None], (rows, cols)).copy(),
+              "xyz": np.full((rows, cols, 3), np.nan), "intensity": np.full((rows, cols), np.nan, np.float32)}
+    if grid["has_truth"]:
+        for key, fill, dtype in _TRUTH_FILL:
+            arrays[key] = np.full((rows, cols), fill, dtype)
+        arrays["truth_normal"] = np.full((rows, cols, 3), np.nan, np.float32)
+    return arrays
+
+
+def _place(path: Path, grid: dict, arrays: dict, points, col0: int = 0) -> None:
+    """Put LAS points (columns from ``col0`` of the scan) into their cells of ``arrays``."""
+    row, col = np.asarray(points["row"], np.int64), np.asarray(points["col"], np.int64) - col0
+    cols = arrays["psi"].shape[1]
+    if len(row) and (row.min() < 0 or col.min() < 0 or row.max() >= grid["rows"] or col.max() >= cols):
+        raise ScanError(f"{path}: point grid positions lie outside the {grid['rows']} x {grid['cols']} grid")
+    arrays["theta"][row, col], arrays["psi"][row, col] = points["theta"], points["psi"]
+    arrays["xyz"][row, col] = np.stack([points.x, points.y, points.z], axis=1)
+    arrays["intensity"][row, col] = points.intensity
+    if grid["has_truth"]:
+        for key, _, _ in _TRUTH_FILL:
+            arrays[key][row, col] = points[key]
+        arrays["truth_normal"][row, col] = np.stack([points[f"truth_normal_{a}"] for a in "xyz"], axis=1)
+
+
+def _scan(grid: dict, arrays: dict, meta: dict) -> Scan:
+    """The :class:`Scan` of placed arrays (range from the points and the scanner position)."""
+    range_m = np.linalg.norm(arrays["xyz"] - grid["pose"].position, axis=-1)
+    return Scan(range=range_m, pose=grid["pose"], scanner=grid["scanner"], object_names=grid["object_names"],
+                meta=meta, **arrays)
+
+
 def read(path: Path) -> Scan:
     """Read a LAS/LAZ file written by :func:`write` back into a :class:`Scan`.
 
@@ -119,42 +206,112 @@ def read(path: Path) -> Scan:
         points = laspy.read(str(path))
     except Exception as exc:  # laspy raises LaspyException, ValueError, OSError...
         raise ScanError(f"{path}: not a readable LAS/LAZ file ({exc})") from None
-    records = [v for v in points.header.vlrs if v.user_id == VLR_USER_ID and v.record_id == VLR_RECORD_ID]
-    names = set(points.point_format.extra_dimension_names)
-    if not records or not {n for n, _ in _GRID_DIMS} <= names:
-        raise ScanError(f"{path}: LAS/LAZ without tlssim grid metadata (only files written by tlssim can be "
-                        "imported as scans; point clouds have no scan grid)")
+    grid = _metadata(path, points.header)
+    arrays = _empty_grid(grid, grid["cols"])
+    _place(path, grid, arrays, points)
+    return _scan(grid, arrays, dict(grid["meta"]))
+
+
+def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: int = 2 * 1024**3,
+               chunk_points: int = CHUNK_POINTS) -> TiledScan:
+    """Stream a LAS/LAZ file written by :func:`write` into a tiled scan directory (:mod:`tlssim.tiled`).
+
+    The points are read ``chunk_points`` at a time (``laspy``'s chunk
+    iterator) and placed into the tile of their ``col`` extra dimension;
+    :func:`write` stores them column by column, so one tile is in memory at
+    a time and a tile is written when the points move past it. The tiles
+    hold the arrays of :func:`read` on the same file, with the truth of the
+    returned points. An interrupted import resumes with the tiles that check.
+
+    Parameters
+    ----------
+    path : Path
+        Input ``.las`` or ``.laz`` file written by tlssim (grid index in its extra dimensions).
+    outdir : str or Path
+        Output directory of the tiled scan.
+    tile_cols : int, optional
+        Columns per tile (default: from ``budget_bytes``).
+    budget_bytes : int
+        Memory for one tile when ``tile_cols`` is not given, bytes (about :data:`tlssim.tiled.LOADED_BYTES_PER_PULSE`
+        per pulse).
+    chunk_points : int
+        Points read at once.
+
+    Returns
+    -------
+    TiledScan
+        The imported scan, opened lazily.
+
+    Raises
+    ------
+    ScanError
+        If the file is unreadable, has no tlssim grid, or its points are not in column order (read it whole
+        with :func:`read`).
+    """
+    import laspy
+
+    from tlssim.tiled import LOADED_BYTES_PER_PULSE, add_tile, file_fingerprint, open_tiled, start_tiled
+
+    outdir = Path(outdir)
+    _check_header(path)
+    fingerprint = file_fingerprint(path)
+    resumed = open_tiled(outdir) if (outdir / "index.json").is_file() else None
+    if resumed is not None and resumed.complete and resumed.index.get("fingerprint") == fingerprint:
+        return resumed
     try:
-        meta = json.loads(records[0].record_data)
-        rows, cols = meta["shape"]
-        pose = ScannerPose(meta["scanner_position"], meta["scanner_rotation"])
-        theta = np.broadcast_to(np.asarray(meta["theta_columns"], float)[None, :], (rows, cols)).copy()
-        psi = np.broadcast_to(np.asarray(meta["psi_rows"], float)[:, None], (rows, cols)).copy()
-        scan_meta = dict(meta.get("meta") or {})
-        if "scanner" in meta:
-            scanner = ScannerDescription.from_dict(meta["scanner"])
-        else:  # files written before the description: the model's parameters, the window in the scan's meta
-            scanner = ScannerDescription.from_dict({"model": meta.get("scanner_model"),
-                                                    "window": scan_meta.pop("window", None)})
-    except (KeyError, TypeError, ValueError, json.JSONDecodeError) as exc:
-        raise ScanError(f"{path}: malformed tlssim metadata in the LAS/LAZ file ({exc!r})") from None
-    row, col = np.asarray(points["row"], np.int64), np.asarray(points["col"], np.int64)
-    if len(row) and (row.min() < 0 or col.min() < 0 or row.max() >= rows or col.max() >= cols):
-        raise ScanError(f"{path}: point grid positions lie outside the {rows} x {cols} grid")
-    theta[row, col], psi[row, col] = points["theta"], points["psi"]
-    xyz = np.full((rows, cols, 3), np.nan)
-    xyz[row, col] = np.stack([points.x, points.y, points.z], axis=1)
-    intensity = np.full((rows, cols), np.nan, np.float32)
-    intensity[row, col] = points.intensity
-    truth = {}
-    if {n for n, _ in _TRUTH_DIMS} <= names:
-        for key, fill, dtype in (("truth_range", np.nan, np.float64), ("truth_id", -1, np.int32),
-                                 ("mixed_fraction", np.nan, np.float32), ("incidence", np.nan, np.float32)):
-            truth[key] = np.full((rows, cols), fill, dtype)
-            truth[key][row, col] = points[key]
-        truth["truth_normal"] = np.full((rows, cols, 3), np.nan, np.float32)
-        truth["truth_normal"][row, col] = np.stack([points[f"truth_normal_{a}"] for a in "xyz"], axis=1)
-    range_m = np.linalg.norm(xyz - pose.position, axis=-1)
-    return Scan(range=range_m, intensity=intensity, theta=theta, psi=psi, xyz=xyz, pose=pose,
-                scanner=scanner, object_names=meta.get("object_names"),
-                meta={**scan_meta, "source": str(path), "format": "las"}, **truth)
+        reader = laspy.open(str(path))
+    except Exception as exc:  # laspy raises LaspyException, ValueError, OSError...
+        raise ScanError(f"{path}: not a readable LAS/LAZ file ({exc})") from None
+    with reader:
+        grid = _metadata(path, reader.header)
+        rows, cols = grid["rows"], grid["cols"]
+        tile_cols = tile_cols or (resumed.tile_cols if resumed else
+                                  max(1, min(cols, budget_bytes // (LOADED_BYTES_PER_PULSE * rows))))
+        header = {"shape": [rows, cols], "scanner": grid["scanner"].to_dict(),
+                  "scanner_position": np.asarray(grid["pose"].position, float).tolist(),
+                  "scanner_rotation": np.asarray(grid["pose"].rotation, float).tolist(),
+                  "object_names": grid["object_names"], "theta_columns": grid["theta_columns"].tolist(),
+                  "psi_rows": grid["psi_rows"].tolist(), "has_truth": grid["has_truth"], "meta": grid["meta"]}
+        index, todo = start_tiled(outdir, header, fingerprint, tile_cols)
+        tile_cols = int(index["tile_cols"])
+        todo = set(todo)
+        current, arrays = 0, None
+
+        def finish(number: int) -> None:
+            c0 = number * tile_cols
+            c1 = min(cols, c0 + tile_cols)
+            if (c0, c1) in todo:
+                tile_arrays = arrays if arrays is not None else _empty_grid(_shifted(grid, c0), c1 - c0)
+                add_tile(outdir, index, c0, _scan(grid, tile_arrays, dict(grid["meta"])))
+
+        try:
+            for points in reader.chunk_iterator(chunk_points):
+                col = np.asarray(points["col"], np.int64)
+                if len(col) and (col.min() < 0 or col.max() >= cols):
+                    raise ScanError(f"{path}: point grid positions lie outside the {rows} x {cols} grid")
+                tile_of = col // tile_cols
+                if len(tile_of) and (tile_of[0] < current or np.any(np.diff(tile_of) < 0)):
+                    raise ScanError(f"{path}: the points are not in column order (as tlssim writes them); "
+                                    "import the file whole (-o FILE.npz)")
+                for number in np.unique(tile_of):
+                    while current < number:
+                        finish(current)
+                        current, arrays = current + 1, None
+                    c0 = int(number) * tile_cols
+                    if (c0, min(cols, c0 + tile_cols)) in todo:
+                        if arrays is None:
+                            arrays = _empty_grid(_shifted(grid, c0), min(cols, c0 + tile_cols) - c0)
+                        _place(path, grid, arrays, points[tile_of == number], c0)
+        except ScanError:
+            raise
+        except Exception as exc:  # laspy raises LaspyException, ValueError, OSError...
+            raise ScanError(f"{path}: malformed or truncated LAS/LAZ points ({exc})") from None
+        while current * tile_cols < cols:
+            finish(current)
+            current, arrays = current + 1, None
+    return open_tiled(outdir)
+
+
+def _shifted(grid: dict, col0: int) -> dict:
+    """``grid`` with its column azimuths starting at column ``col0``."""
+    return {**grid, "theta_columns": grid["theta_columns"][col0:]}

@@ -133,7 +133,7 @@ def _read_ply(path: Path) -> PointCloud:
 def _read_las(path: Path) -> PointCloud:
     import laspy
 
-    from tlssim.formats.las import VLR_RECORD_ID, VLR_USER_ID, _check_header
+    from tlssim.formats.las import _check_header, metadata_records
 
     _check_header(path)
     try:
@@ -142,7 +142,7 @@ def _read_las(path: Path) -> PointCloud:
         extra = set(las.point_format.extra_dimension_names)
         normals = np.column_stack([np.asarray(las[f"truth_normal_{a}"], float) for a in "xyz"]) \
             if {f"truth_normal_{a}" for a in "xyz"} <= extra else None
-        records = [v for v in las.header.vlrs if v.user_id == VLR_USER_ID and v.record_id == VLR_RECORD_ID]
+        records = metadata_records(las.header.vlrs)
     except Exception as exc:  # laspy raises LaspyException, ValueError, OSError...
         raise ScanError(f"{path}: not a readable LAS/LAZ file ({exc})") from None
     viewpoint = None
@@ -150,7 +150,8 @@ def _read_las(path: Path) -> PointCloud:
         import json
 
         try:
-            viewpoint = np.asarray(json.loads(records[0].record_data)["scanner_position"], float)
+            meta = json.loads(b"".join(bytes(v.record_data) for v in records))
+            viewpoint = np.asarray(meta["scanner_position"], float)
         except (KeyError, TypeError, ValueError):
             viewpoint = None
     if normals is not None and not np.isfinite(normals).all():
