@@ -391,7 +391,7 @@ def _attribute(images: _Images, targets: np.ndarray, *, reach_px: int, band_px: 
         values = _extrapolate([image for _, image in present], cores, int(label[sel[0]]), source[sel], pixel[sel],
                               radius_px)
         for (column, image), value in zip(present, values):
-            extrapolated[sel, column] = np.where(gap[sel] <= band_px, value, image.ravel()[source[sel]])
+            extrapolated[sel, column] = np.where(gap[sel] <= band_px, value, image.flat[source[sel]])
     keep = np.isfinite(extrapolated[:, 0])
     order = np.lexsort((gap[keep], pixel[keep]))
     pixel, label, gap, extrapolated = (a[keep][order] for a in (pixel, label, gap, extrapolated))
@@ -461,7 +461,7 @@ def _extrapolate(images: list, cores: np.ndarray, label: int, source: np.ndarray
                                                      PixelGrid(), centres - low, radius_px)):
         value = planes.height[inverse] + np.sum(planes.gradient[inverse] * offset, axis=1)
         # Too few pixels for a plane (a sliver): the nearest pixel's value.
-        values.append(np.where(np.isfinite(value), value, image.ravel()[source]))
+        values.append(np.where(np.isfinite(value), value, image.flat[source]))
     return values
 
 

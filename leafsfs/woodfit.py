@@ -210,6 +210,12 @@ def _fit(range_m, cores, owner, rows, cols, dr, dc, step_rad, noise_m):
     (far, far_ok), (near, near_ok) = ends
     radius = 0.5 * (far + near) * spacing
     x0 = 0.5 * (far - near) * spacing  # the branch's axis, m from the pulse towards the surface
+    out = np.full(len(rows), np.nan)
+    # Only pulses that can pass the tests below are fitted (the fits are per row: the same values for them).
+    fit = (n >= MIN_PULSES) & (norm > 0) & far_ok & near_ok & (radius <= MAX_RADIUS_M)
+    if not fit.any():
+        return out
+    nr, nc, spacing, radius, x0, zbar, n, w, z = (a[fit] for a in (nr, nc, spacing, radius, x0, zbar, n, w, z))
     x = (dr * nr[:, None] + dc * nc[:, None]) * spacing[:, None]
     y = (-dr * nc[:, None] + dc * nr[:, None]) * spacing[:, None]
     zl = np.where(w > 0, np.nan_to_num(z) - zbar[:, None], 0.0)
@@ -223,8 +229,7 @@ def _fit(range_m, cores, owner, rows, cols, dr, dc, step_rad, noise_m):
     with np.errstate(invalid="ignore"):
         residual = zl - (d[:, None] - s[:, None] * depth + g[:, None] * y)
         rms = np.sqrt((w * residual ** 2).sum(axis=1) / n)
-        ok = (n >= MIN_PULSES) & (norm > 0) & far_ok & near_ok & (radius <= MAX_RADIUS_M) \
-            & (rms <= MAX_RESIDUAL_SIGMA * noise_m)
+        ok = rms <= MAX_RESIDUAL_SIGMA * noise_m
     # A flat surface (a leaf, several leaves joined) fits a plane better than the circle of its width: plane kept
     # (judged on at least MIN_FLAT_TEST pulses).
     plane = _solve(w, [np.ones_like(x), x, y], zl)
@@ -232,7 +237,8 @@ def _fit(range_m, cores, owner, rows, cols, dr, dc, step_rad, noise_m):
         flat = plane[:, 0, None] + plane[:, 1, None] * x + plane[:, 2, None] * y
         ok &= (rms < np.sqrt((w * (zl - flat) ** 2).sum(axis=1) / n)) | (n < MIN_FLAT_TEST)
         at = d - s * np.sqrt(np.clip(radius ** 2 - x0 ** 2, 0, None))
-    return np.where(ok, zbar + at, np.nan)
+    out[fit] = np.where(ok, zbar + at, np.nan)
+    return out
 
 
 def _solve(w: np.ndarray, columns: list, rhs: np.ndarray) -> np.ndarray:
