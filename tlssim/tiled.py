@@ -279,6 +279,61 @@ def file_fingerprint(path) -> str:
     return hashlib.sha256(json.dumps([str(path.resolve()), stat.st_size, stat.st_mtime_ns]).encode()).hexdigest()
 
 
+def earlier_import(path, outdir) -> tuple[str, TiledScan | None, bool]:
+    """What an earlier streamed import of ``path`` left in ``outdir``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The input scan file.
+    outdir : str or Path
+        Output directory of the tiled scan.
+
+    Returns
+    -------
+    fingerprint : str
+        :func:`file_fingerprint` of ``path``.
+    earlier : TiledScan or None
+        The tiled scan in ``outdir`` (None if there is none).
+    done : bool
+        Whether ``earlier`` is complete and imported from this very file (nothing left to do).
+    """
+    fingerprint = file_fingerprint(path)
+    earlier = open_tiled(outdir) if (Path(outdir) / INDEX).is_file() else None
+    done = earlier is not None and earlier.complete and earlier.index.get("fingerprint") == fingerprint
+    return fingerprint, earlier, done
+
+
+def import_tile_cols(tile_cols: int | None, earlier: TiledScan | None, rows: int, cols: int, budget_bytes: float,
+                     bytes_per_pulse: float) -> int:
+    """Columns per tile of a streamed import.
+
+    Parameters
+    ----------
+    tile_cols : int, optional
+        Columns asked for (used if given).
+    earlier : TiledScan, optional
+        The tiled scan an earlier import left (a resumed import keeps its tiles).
+    rows, cols : int
+        Shape of the scan.
+    budget_bytes : float
+        Memory for one tile, bytes.
+    bytes_per_pulse : float
+        Memory of the import per pulse of a tile, bytes.
+
+    Returns
+    -------
+    int
+        ``tile_cols``, else the earlier import's, else as many as ``budget_bytes`` holds (at least one, at most
+        ``cols``).
+    """
+    if tile_cols:
+        return tile_cols
+    if earlier is not None:
+        return earlier.tile_cols
+    return max(1, min(cols, int(budget_bytes // (bytes_per_pulse * rows))))
+
+
 def _write_index(path: Path, index: dict) -> None:
     """Write the index atomically (temporary file, then rename)."""
     tmp = path / (INDEX + ".partial")

@@ -297,7 +297,7 @@ def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: i
 
     import pye57
 
-    from tlssim.tiled import file_fingerprint, open_tiled
+    from tlssim.tiled import earlier_import, import_tile_cols
 
     outdir = Path(outdir)
     scratch = outdir.parent / f".{outdir.name}.import-grids"
@@ -319,15 +319,14 @@ def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: i
         rows, cols = shape
         limit = _intensity_limit(header)
         rotation, translation = header.rotation, header.translation
-        fingerprint = file_fingerprint(path)
         try:
             pose = ScannerPose(translation, Rotation.from_quat(np.roll(rotation, -1)).as_matrix())
         except (ScanError, ValueError) as exc:
             raise ScanError(f"{path}: invalid scanner pose ({exc})") from None
-        resumed = open_tiled(outdir) if (outdir / "index.json").is_file() else None
-        if resumed is not None and resumed.complete and resumed.index.get("fingerprint") == fingerprint:
-            return resumed
-        tile_cols = tile_cols or (resumed.tile_cols if resumed else max(1, min(cols, budget_bytes // (150 * rows))))
+        fingerprint, earlier, done = earlier_import(path, outdir)
+        if done:
+            return earlier
+        tile_cols = import_tile_cols(tile_cols, earlier, rows, cols, budget_bytes, 150)
         try:
             grids = _scatter_grids(path, e57, header, fields, shape, low, limit, scratch, chunk_points)
         except BaseException:

@@ -250,14 +250,14 @@ def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: i
     """
     import laspy
 
-    from tlssim.tiled import LOADED_BYTES_PER_PULSE, add_tile, file_fingerprint, open_tiled, start_tiled
+    from tlssim.tiled import (LOADED_BYTES_PER_PULSE, add_tile, earlier_import, import_tile_cols, open_tiled,
+                              start_tiled)
 
     outdir = Path(outdir)
     _check_header(path)
-    fingerprint = file_fingerprint(path)
-    resumed = open_tiled(outdir) if (outdir / "index.json").is_file() else None
-    if resumed is not None and resumed.complete and resumed.index.get("fingerprint") == fingerprint:
-        return resumed
+    fingerprint, earlier, done = earlier_import(path, outdir)
+    if done:
+        return earlier
     try:
         reader = laspy.open(str(path))
     except Exception as exc:  # laspy raises LaspyException, ValueError, OSError...
@@ -265,8 +265,7 @@ def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: i
     with reader:
         grid = _metadata(path, reader.header)
         rows, cols = grid["rows"], grid["cols"]
-        tile_cols = tile_cols or (resumed.tile_cols if resumed else
-                                  max(1, min(cols, budget_bytes // (LOADED_BYTES_PER_PULSE * rows))))
+        tile_cols = import_tile_cols(tile_cols, earlier, rows, cols, budget_bytes, LOADED_BYTES_PER_PULSE)
         header = {"shape": [rows, cols], "scanner": grid["scanner"].to_dict(),
                   "scanner_position": np.asarray(grid["pose"].position, float).tolist(),
                   "scanner_rotation": np.asarray(grid["pose"].rotation, float).tolist(),

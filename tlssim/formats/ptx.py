@@ -182,13 +182,12 @@ def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: i
     """
     import shutil
 
-    from tlssim.tiled import file_fingerprint, open_tiled
+    from tlssim.tiled import earlier_import, import_tile_cols
 
     outdir = Path(outdir)
-    fingerprint = file_fingerprint(path)
-    resumed = open_tiled(outdir) if (outdir / "index.json").is_file() else None
-    if resumed is not None and resumed.complete and resumed.index.get("fingerprint") == fingerprint:
-        return resumed
+    fingerprint, earlier, done = earlier_import(path, outdir)
+    if done:
+        return earlier
     scratch = outdir.parent / f".{outdir.name}.import-grids"
     scratch.mkdir(parents=True, exist_ok=True)
     try:
@@ -196,7 +195,7 @@ def read_tiled(path: Path, outdir, tile_cols: int | None = None, budget_bytes: i
             cols, rows, matrix = _header(path, handle)
             _parse_table(path, handle, rows, cols, scratch / "table.f8", block_lines)
         pose = _pose(path, matrix)
-        tile_cols = tile_cols or (resumed.tile_cols if resumed else max(1, min(cols, budget_bytes // (150 * rows))))
+        tile_cols = import_tile_cols(tile_cols, earlier, rows, cols, budget_bytes, 150)
         table = _Table(scratch / "table.f8", rows, cols, tile_cols)
         median = streamed_median(lambda: (theta[np.isfinite(theta)] for *_, theta, _ in _tiles(table, None)))
         median = 0.0 if np.isnan(median) else median  # no return at all: as read's unwrapping
