@@ -119,9 +119,14 @@ CHUNK_POINTS = 1 << 20
 
 
 def metadata_records(vlrs) -> list:
-    """The VLRs that carry a tlssim scan's JSON metadata, in order (join their ``record_data``); empty if none."""
+    """The VLRs that carry a tlssim scan's JSON metadata, in order; empty if none."""
     return sorted((v for v in vlrs if v.user_id == VLR_USER_ID and v.record_id >= VLR_RECORD_ID),
                   key=lambda v: v.record_id)
+
+
+def metadata_json(records: list) -> dict:
+    """The JSON metadata joined from the VLRs of :func:`metadata_records` (raises ValueError if malformed)."""
+    return json.loads(b"".join(bytes(v.record_data) for v in records))
 
 
 def _metadata(path: Path, header) -> dict:
@@ -139,7 +144,7 @@ def _metadata(path: Path, header) -> dict:
                         "row, col, theta and psi extra dimensions and the tlslab VLR, can be imported as scans; "
                         "point clouds have no scan grid)")
     try:
-        meta = json.loads(b"".join(bytes(v.record_data) for v in records))
+        meta = metadata_json(records)
         rows, cols = (int(n) for n in meta["shape"])
         pose = ScannerPose(meta["scanner_position"], meta["scanner_rotation"])
         scan_meta = dict(meta.get("meta") or {})

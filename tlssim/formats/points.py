@@ -133,7 +133,7 @@ def _read_ply(path: Path) -> PointCloud:
 def _read_las(path: Path) -> PointCloud:
     import laspy
 
-    from tlssim.formats.las import _check_header, metadata_records
+    from tlssim.formats.las import _check_header, metadata_json, metadata_records
 
     _check_header(path)
     try:
@@ -147,10 +147,8 @@ def _read_las(path: Path) -> PointCloud:
         raise ScanError(f"{path}: not a readable LAS/LAZ file ({exc})") from None
     viewpoint = None
     if records:
-        import json
-
         try:
-            meta = json.loads(b"".join(bytes(v.record_data) for v in records))
+            meta = metadata_json(records)
             viewpoint = np.asarray(meta["scanner_position"], float)
         except (KeyError, TypeError, ValueError):
             viewpoint = None
