@@ -489,8 +489,7 @@ def shifted(image: np.ndarray, di: int, dj: int, fill) -> np.ndarray:
     return out
 
 
-def split_necks(surfaces: np.ndarray, ratio: float = 0.3, min_pixels: int = 30,
-                keep: np.ndarray | None = None) -> np.ndarray:
+def split_necks(surfaces: np.ndarray, ratio: float = 0.3, min_pixels: int = 30) -> np.ndarray:
     """Surfaces cut where they narrow below ``ratio`` of their widest part.
 
     The opening of a surface by a disc of radius ``ratio`` times its largest
@@ -510,10 +509,6 @@ def split_necks(surfaces: np.ndarray, ratio: float = 0.3, min_pixels: int = 30,
         Neck width relative to the widest part, in ]0, 1[.
     min_pixels : int
         Smallest piece split off, pixels.
-    keep : ndarray of bool, optional
-        Surfaces not to cut (index = label), e.g. the background touching
-        the window's border, whose pieces between the leaves in front of it
-        are no leaves.
     """
     if not 0 < ratio < 1:
         raise SfsError(f"ratio must lie in ]0, 1[, got {ratio!r}")
@@ -526,7 +521,7 @@ def split_necks(surfaces: np.ndarray, ratio: float = 0.3, min_pixels: int = 30,
         inside = surfaces[box] == k
         depth = ndimage.distance_transform_edt(np.pad(inside, 1))[1:-1, 1:-1]
         radius = ratio * float(depth.max())
-        if radius < 1.5 or (keep is not None and keep[k]):
+        if radius < 1.5:
             count += 1
             out[box][inside] = count
             continue

@@ -319,8 +319,11 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     # Pieces split off are surfaces when they hold min_area_m2 at the scan's median range.
     piece_px = max(min_pixels, int(round(min_area_m2 / (float(np.nanmedian(range_m)) * step) ** 2)))
     surfaces = split_thin_parts(surfaces, range_m, step, min_width_m, piece_px)
+    border = _border_labels(surfaces) if drop_border else np.zeros(int(surfaces.max()) + 1, dtype=bool)
+    origin = surfaces
     if neck_ratio > 0:
-        surfaces = split_necks(surfaces, neck_ratio, piece_px, keep=_border_labels(surfaces) if drop_border else None)
+        surfaces = split_necks(surfaces, neck_ratio, piece_px)
+
     def leaves_of(surfaces):
         leaf = (surface_widths(surfaces, range_m, step) >= min_width_m) & \
             ~wood_surfaces(surfaces, range_m, theta, psi, step, alpha, max_aspect=max_aspect, min_fill=min_fill) \
@@ -331,6 +334,8 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         return leaf & ~_border_labels(surfaces) if drop_border else leaf
 
     leaf = leaves_of(surfaces)
+    if neck_ratio > 0 and border.any():
+        surfaces = _rejoin_background(surfaces, origin, border, leaf)
     if crease_angle_deg > 0:
         # A leaf surface that creases cut into parts is two leaves touching, or a leaf and a branch: judged again.
         surfaces, cut = split_creases(surfaces, range_m, leaf, range_m * step, pulse_noise(sigma, intensity, gain_dn),
@@ -360,6 +365,43 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     relabel[leaf_surfaces] = np.arange(1, len(leaf_surfaces) + 1)
     return Segmentation(np.where(mixed.thin, 0, relabel[mixed.owner]), leaf_surfaces, mixed, max(1.0, 2 * footprint),
                         band, sigma, reach_m)
+
+
+def _rejoin_background(cut: np.ndarray, surfaces: np.ndarray, border: np.ndarray, leaf: np.ndarray) -> np.ndarray:
+    """Pieces cut at necks from a surface that reaches the window's border joined again, except its leaves.
+
+    A leaf whose petiole links it to a twig, and the twig through the tree to
+    the ground, is cut from that surface at its neck; the pieces that are no
+    leaves (the ground, the wall behind the leaves, the wood) stay one
+    surface, as the background of a leaf's mixed pulses.
+
+    Parameters
+    ----------
+    cut : ndarray of int, 2-D
+        Surface labels after :func:`leafsfs.canopy.split_necks`.
+    surfaces : ndarray of int, 2-D
+        The labels before the cut.
+    border : ndarray of bool
+        Which labels of ``surfaces`` reach the window's border.
+    leaf : ndarray of bool
+        Which labels of ``cut`` are leaves.
+
+    Returns
+    -------
+    ndarray of int, 2-D
+        ``cut`` with each border surface's pieces that are no leaves under the
+        smallest of their labels (the others left unused).
+    """
+    count = int(cut.max()) + 1
+    origin = np.zeros(count, dtype=int)
+    origin[cut.ravel()] = surfaces.ravel()
+    rejoin = border[origin] & ~leaf[:count]
+    rejoin[0] = False
+    first = np.full(len(border), count, dtype=int)
+    np.minimum.at(first, origin[rejoin], np.nonzero(rejoin)[0])
+    lookup = np.arange(count)
+    lookup[rejoin] = first[origin[rejoin]]
+    return lookup[cut]
 
 
 def _border_labels(surfaces: np.ndarray) -> np.ndarray:

@@ -138,6 +138,24 @@ def test_split_necks_cuts_an_appendage_off_a_blade_and_keeps_a_leaf_whole():
     assert np.array_equal(alone, blade.astype(int))
 
 
+def test_a_leaf_whose_petiole_joins_a_twig_across_the_window_is_cut_from_it_at_the_neck():
+    # the twig reaches the window's border (in a tree: through the branches, the trunk and the ground), the petiole
+    # is wider than a thin part (9 mm at 2 m) and continuous in range with the blade: one surface until the neck cut
+    rows, cols = 160, 200
+    theta, psi = _grid(rows, cols)
+    i, j = np.mgrid[:rows, :cols]
+    blade = np.hypot((i - 95) / 35, (j - 100) / 25) <= 1
+    petiole = (np.abs(j - 100) <= 3) & (i >= 20) & (i <= 62)
+    twig = (i >= 12) & (i <= 24)
+    range_m = np.where(twig | petiole, 2.0, np.nan)
+    range_m[blade] = 2.0 + 0.0006 * (i[blade] - 60)
+    range_m += np.random.default_rng(0).normal(0, 0.0005, range_m.shape)
+    labels = segment_scan(range_m, theta, psi, noise_m=0.0005).leaves
+    region, cover = _best_region(labels, blade)
+    assert region > 0 and cover > 0.95
+    assert not (labels[twig] > 0).any() and labels.max() == 1
+
+
 def test_wood_surfaces_are_elongated_or_sparse_whatever_their_scale():
     for distance in (1.0, 4.0):
         rows, cols = np.mgrid[0:150, 0:150]
