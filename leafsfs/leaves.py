@@ -266,7 +266,10 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         (:func:`leafsfs.canopy.join_occluded`; assumption: 1 cm, twigs and
         petioles in front of a leaf; 0: not joined). The common plane is that
         of the whole parts or, for curved leaves, that of each part's pulses
-        within 1.5 times this of the other part.
+        within 1.5 times this of the other part. A joined group the leaf tests
+        (width, wood shape, darkness) refuse as a whole is parted again; when
+        it joined two or more leaf surfaces they are the pieces of one branch
+        and none is a leaf.
     crease_angle_deg : float
         Surfaces meeting with no range step but normals this far apart are
         cut there (:func:`leafsfs.canopy.split_creases`: two leaves touching
@@ -342,7 +345,18 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         # Surfaces no leaf on their own (a tip or lobe cut off by a twig) may join the leaf they were cut from.
         fragments = ~leaf & ~_border_labels(surfaces)
         fragments[0] = False
-        surfaces = join_occluded(surfaces, range_m, leaf, gap, 3 * sigma, 1.5 * gap, fragments, lobe_ratio)
+        joined = join_occluded(surfaces, range_m, leaf, gap, 3 * sigma, 1.5 * gap, fragments, lobe_ratio)
+        # A joined group the leaf tests refuse as a whole is not joined: a leaf and the branch piece behind its
+        # twig part again (each keeps its own judgement); a group of two or more leaf surfaces is the pieces of one
+        # branch cut by what lies in front of it (a leaf's parts joined are leaf-shaped), and none is a leaf.
+        grown = np.bincount(joined.ravel(), minlength=len(leaf)) > np.bincount(surfaces.ravel(), minlength=len(leaf))
+        judged = leaves_of(joined)  # as long as the labels still used
+        refused = grown & ~np.pad(judged, (0, len(leaf) - len(judged)))
+        group = np.zeros(len(leaf), dtype=int)
+        group[surfaces.ravel()] = joined.ravel()
+        pieces = np.bincount(group[np.nonzero(leaf)[0]], minlength=len(leaf))
+        leaf &= ~(refused & (pieces >= 2))[group]
+        surfaces = np.where(refused[joined], surfaces, joined)
         leaf &= np.bincount(surfaces.ravel(), minlength=len(leaf)) > 0  # the labels joined into another
     band = band_pixels(band_m, range_m, surfaces, step)
     reach = band_pixels(reach_m, range_m, surfaces, step) if reach_m > 0 else 0
