@@ -28,8 +28,8 @@ import numpy as np
 from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 
-from leafsfs.canopy import (MIN_LEAF_WIDTH_M, dark_surfaces, edge_pulses, join_occluded, narrow_surfaces, pulse_noise,
-                            shifted, split_creases, split_necks, wood_surfaces)
+from leafsfs.canopy import (MIN_LEAF_WIDTH_M, dark_surfaces, edge_pulses, join_occluded, narrow_surfaces,
+                            principal_spreads, pulse_noise, shifted, split_creases, split_necks, wood_surfaces)
 from leafsfs.edges import MixedPulses, attribute_mixed, band_pixels
 from leafsfs.errors import SfsError
 from tlssim.pattern import beam_frame
@@ -266,7 +266,10 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         (:func:`leafsfs.canopy.join_occluded`; assumption: 1 cm, twigs and
         petioles in front of a leaf; 0: not joined). The common plane is that
         of the whole parts or, for curved leaves, that of each part's pulses
-        within 1.5 times this of the other part.
+        within 1.5 times this of the other part. A joined group the leaf tests
+        (width, wood shape, darkness) refuse as a whole is parted again; when
+        it joined two or more leaf surfaces they are the pieces of one branch
+        and none is a leaf when it is more elongated than a leaf (``max_aspect``).
     crease_angle_deg : float
         Surfaces meeting with no range step but normals this far apart are
         cut there (:func:`leafsfs.canopy.split_creases`: two leaves touching
@@ -347,7 +350,22 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         # Surfaces no leaf on their own (a tip or lobe cut off by a twig) may join the leaf they were cut from.
         fragments = ~leaf & ~_border_labels(surfaces)
         fragments[0] = False
-        surfaces = join_occluded(surfaces, range_m, leaf, gap, 3 * sigma, 1.5 * gap, fragments, lobe_ratio)
+        joined = join_occluded(surfaces, range_m, leaf, gap, 3 * sigma, 1.5 * gap, fragments, lobe_ratio)
+        # A joined group the leaf tests refuse as a whole is not joined: a leaf and the branch piece behind its
+        # twig part again (each keeps its own judgement); a group of two or more leaf surfaces more elongated than a
+        # leaf is the pieces of one branch cut by what lies in front of it, and none is a leaf (two leaves joined
+        # side by side, refused as sparse, part again).
+        grown = np.bincount(joined.ravel(), minlength=len(leaf)) > np.bincount(surfaces.ravel(), minlength=len(leaf))
+        judged = leaves_of(joined)  # as long as the labels still used
+        refused = grown & ~np.pad(judged, (0, len(leaf) - len(judged)))
+        group = np.zeros(len(leaf), dtype=int)
+        group[surfaces.ravel()] = joined.ravel()
+        pieces = np.bincount(group[np.nonzero(leaf)[0]], minlength=len(leaf))
+        spread = principal_spreads(joined, range_m, theta, psi)
+        with np.errstate(invalid="ignore"):
+            elongated = np.pad(spread[:, 0] > max_aspect * spread[:, 1], (0, len(leaf) - len(spread)))
+        leaf &= ~(refused & (pieces >= 2) & elongated)[group]
+        surfaces = np.where(refused[joined], surfaces, joined)
         leaf &= np.bincount(surfaces.ravel(), minlength=len(leaf)) > 0  # the labels joined into another
     band = band_pixels(band_m, range_m, surfaces, step)
     reach = band_pixels(reach_m, range_m, surfaces, step) if reach_m > 0 else 0

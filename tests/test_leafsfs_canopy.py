@@ -351,6 +351,36 @@ def test_join_occluded_gives_a_lobe_cut_at_a_neck_back_to_its_leaf_when_it_conti
     range_m = np.where(apart > 0, plane, np.nan)
     assert (join_occluded(apart, range_m, leaf, 6.0, 0.003, 9.0, lobe, 0.15)[apart == 2] == 2).all()
 
+
+def _leaf_and_branch(twig_cols, leaf=True):
+    """Ranges at 2 m of a leaf (7 x 9.6 cm) and a branch 2.1 cm across on its plane beside it, cut by 7.5 mm twigs
+    3 cm in front (starting at ``twig_cols``), and the leaf's and branch's pixels."""
+    rows, cols = np.mgrid[0:120, 0:330]
+    plane = 2.0 + 0.0002 * rows + 0.0003 * cols
+    blade = (((rows - 60) / 28.0) ** 2 + ((cols - 50) / 38.0) ** 2 <= 1) & leaf
+    branch = (np.abs(rows - 60) <= 8) & (cols >= 95) & (cols < 320)
+    twig = np.zeros(rows.shape, bool)
+    for start in twig_cols:
+        twig |= (cols >= start) & (cols < start + 6) & (np.abs(rows - 60) <= 40)
+    noise = np.random.default_rng(1).normal(0, 0.0007, rows.shape)
+    range_m = np.where(twig, plane - 0.03, np.where(blade | branch, plane, np.nan)) + noise
+    return range_m, blade & ~twig, branch & ~twig
+
+
+def test_a_leaf_joined_to_the_branch_piece_behind_its_twig_is_parted_again_and_branch_pieces_are_no_leaf():
+    theta, psi = _grid(120, 330)
+    # a twig between the leaf and a 15 cm piece of the branch (elongated: no leaf, smaller than the leaf): the
+    # occluder join takes it into the leaf, whose group is then as elongated as wood; the leaf comes out alone
+    range_m, blade, branch = _leaf_and_branch((89, 215))
+    labels = segment_scan(range_m, theta, psi).leaves
+    region, cover = _best_region(labels, blade)
+    assert region > 0 and cover > 0.99 and not (labels[branch] > 0).any()
+    # the branch alone, cut by four twigs into pieces 7 cm long (3 : 1, each leaf-shaped): joined they are
+    # 13 : 1, pieces of one branch, none a leaf
+    range_m, _, branch = _leaf_and_branch((89, 150, 211, 272), leaf=False)
+    assert not (segment_scan(range_m, theta, psi).leaves[branch] > 0).any()
+
+
 # --- small simulated canopies (0.036 deg, 2 m: a 9 cm leaf spans about 70 pulses) ------------------------------
 
 LEAF = {"type": "leaf", "preset": "pear", "seed": 7, "length": 0.09, "material": "pear-leaf"}
