@@ -13,7 +13,8 @@ the targets' points, and returns its own leaf regions with their traits. Familie
 - ``prop-sfs``: the PROP-SFS variants of :func:`leafsfs.reconstruct`
   (``simple``, ``sps``, ``buffer``, ``fused`` with the shell-rule set T3, and
   ``buffer-T1``, ``buffer-T2``, ``buffer-T3*``; ``fused-stray``, ``fused`` without the pulses it moved that the
-  stray-point rule flags, :mod:`leafsfs.strays`), calibrated by simulating the
+  stray-point rule flags, :mod:`leafsfs.strays`; ``fused-stray5``, for coarse steps, the rule in a 5 px
+  window and pulses outside its leaves with no neighbour at their range), calibrated by simulating the
   scan's scanner model; they run once on the whole scan, as a user runs
   them, segment it into leaves themselves and return their regions with
   the traits of each (:mod:`benchmarks.scoring` matches the regions to the
@@ -222,9 +223,11 @@ def _register_builtins() -> None:
     register_variant(_removal_variant("shadow", "filter", baselines.shadow_filter,
                                       "veiling/shadow angle filter on the range image (ROS/PCL), 10 deg",
                                       min_angle_deg=10.0))
+    rule = baselines.STRAY_POINT_RULE
     register_variant(_removal_variant("stray-point", "filter", baselines.stray_point_filter,
-                                      "FARO SCENE stray-point rule: 3x3 cell, 2 cm, 50 %",
-                                      window_px=3, max_range_diff_m=0.02, min_share=0.5))
+                                      f"FARO SCENE stray-point rule: {rule['window_px']}x{rule['window_px']} cell, "
+                                      f"{100 * rule['max_range_diff_m']:g} cm, {100 * rule['min_share']:g} %",
+                                      **rule))
     register_variant(_removal_variant("intensity", "filter", baselines.intensity_filter,
                                       "dark-point removal: 100 DN below the leaf's median intensity",
                                       below_median_dn=100.0, min_dn=None))
@@ -236,13 +239,22 @@ def _register_prop_sfs() -> None:
     """PROP-SFS: the four propagation variants with the thesis' leaf parameter set T3 (shell rule), and
     ``buffer`` (the thesis' reference variant) with the other shell-rule sets T1, T2, T3* of thesis ch.7."""
     import leafsfs
+    from leafsfs import baselines
 
     defaults = {"segmentation": "auto", **leafsfs.SfsParams().to_dict()}
     for engine in leafsfs.VARIANTS:
         register_variant(_prop_sfs_variant(engine, engine, defaults))
     for shell in ("T1", "T2", "T3*"):
         register_variant(_prop_sfs_variant(f"buffer-{shell}", "buffer", {**defaults, "shell_set": shell}))
-    register_variant(_prop_sfs_variant("fused-stray", "fused", {**defaults, **STRAY_DEFAULTS}))
+    # ``fused-stray``: the rule on the pulses PROP-SFS moved, with the ``stray-point`` variant's settings
+    stray = {"scope": "moved", **baselines.STRAY_POINT_RULE}
+    register_variant(_prop_sfs_variant("fused-stray", "fused",
+                                       {**defaults, **{STRAY_PREFIX + key: value for key, value in stray.items()}}))
+    # ``fused-stray5``, for coarse steps: the rule in a 5 px window on the moved pulses, and the pulses in no leaf
+    # region with no neighbour at their range removed (:func:`leafsfs.strays.remove_strays`, scope ``isolated``)
+    stray = {**stray, "scope": "isolated", "window_px": 5}
+    register_variant(_prop_sfs_variant("fused-stray5", "fused",
+                                       {**defaults, **{STRAY_PREFIX + key: value for key, value in stray.items()}}))
 
 
 def _calibration(scan):
@@ -257,9 +269,9 @@ def _calibration(scan):
 #: such as the knife edge's plate, which reaches the window's border).
 SEGMENTATIONS = ("auto", "mask")
 
-#: Settings of the stray-point rule that ``fused-stray`` applies after PROP-SFS (:func:`leafsfs.strays.remove_strays`):
-#: to the pulses PROP-SFS moved, with the rule's settings of the ``stray-point`` variant.
-STRAY_DEFAULTS = {"stray_scope": "moved", "stray_window_px": 3, "stray_max_range_diff_m": 0.02, "stray_min_share": 0.5}
+#: Prefix of a PROP-SFS variant's parameters for the stray-point rule it applies after PROP-SFS
+#: (:func:`leafsfs.strays.remove_strays`'s, without the prefix).
+STRAY_PREFIX = "stray_"
 
 
 def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
@@ -270,7 +282,7 @@ def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
         import leafsfs
         from leafsfs.strays import remove_strays
 
-        stray = {key[len("stray_"):]: params.pop(key) for key in STRAY_DEFAULTS if key in params}
+        stray = {key[len(STRAY_PREFIX):]: params.pop(key) for key in list(params) if key.startswith(STRAY_PREFIX)}
         if segmentation not in SEGMENTATIONS:
             raise BenchError(f"PROP-SFS segmentation must be one of {SEGMENTATIONS}, got {segmentation!r}")
         params = leafsfs.SfsParams(**params)
@@ -291,12 +303,14 @@ def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
     def heights(sample, segmentation, **params):
         import leafsfs
 
-        params = {key: value for key, value in params.items() if key not in STRAY_DEFAULTS}
+        params = {key: value for key, value in params.items() if not key.startswith(STRAY_PREFIX)}
         return leafsfs.reconstruct_heights(sample.alpha, sample.height, sample.mask, sample.grid, engine,
                                            leafsfs.SfsParams(**params))
 
     shell = params["shell_set"]
-    extra = ", moved pulses the stray-point rule flags removed" if "stray_window_px" in params else ""
+    extra = {"moved": ", moved pulses the stray-point rule flags removed",
+             "isolated": ", moved pulses the stray-point rule flags (5 px window) and isolated pulses outside its "
+                         "leaves removed"}.get(params.get(STRAY_PREFIX + "scope"), "")
     return Variant(name, "prop-sfs", run, params,
                    f"PROP-SFS {engine} propagation, shell-rule set {shell} (leafsfs.reconstruct, model calibration)"
                    f"{extra}",

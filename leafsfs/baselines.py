@@ -37,6 +37,11 @@ from tlssim.scan import grid_to_xyz
 #: The eight neighbours of a pixel in the range image.
 _NEIGHBOURS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
 
+#: FARO SCENE's stray-point rule as the heritage-science study set it (prior-art digest §2.3, its Table 2): a 3 px
+#: window, 2 cm range tolerance, 50 % of the neighbours agreeing. The one source of :func:`stray_point_filter`'s,
+#: :func:`leafsfs.strays.remove_strays`' and the benchmark variants' settings.
+STRAY_POINT_RULE = {"window_px": 3, "max_range_diff_m": 0.02, "min_share": 0.5}
+
 
 def _checked_mask(scan, mask) -> np.ndarray:
     if mask is None:
@@ -190,14 +195,14 @@ def shadow_filter(scan, mask=None, min_angle_deg: float = 10.0) -> np.ndarray:
     return mask & ~veiled
 
 
-def stray_point_filter(scan, mask=None, window_px: int = 3, max_range_diff_m: float = 0.02,
-                       min_share: float = 0.5) -> np.ndarray:
+def stray_point_filter(scan, mask=None, window_px: int = STRAY_POINT_RULE["window_px"],
+                       max_range_diff_m: float = STRAY_POINT_RULE["max_range_diff_m"],
+                       min_share: float = STRAY_POINT_RULE["min_share"]) -> np.ndarray:
     """FARO SCENE's stray-point rule: keep a point whose grid neighbours mostly share its range.
 
     A point is kept when at least ``min_share`` of the returns in its
     ``window_px × window_px`` grid neighbourhood (itself excluded) lie within
-    ``max_range_diff_m`` of its range (settings of the heritage-science study
-    quoted in the prior-art digest §2.3).
+    ``max_range_diff_m`` of its range (defaults: :data:`STRAY_POINT_RULE`).
 
     Parameters
     ----------

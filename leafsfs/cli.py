@@ -13,6 +13,9 @@ from pathlib import Path
 
 from tlssim.clitools import run_main
 
+#: The ``--variant`` of ``leafsfs reconstruct`` that runs ``fused`` and then :func:`leafsfs.strays.remove_strays`.
+STRAY_VARIANT = "fused-stray"
+
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every ``leafsfs`` command."""
@@ -26,7 +29,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scan", help="scan file: .npz (tlssim), .e57 or .ptx, or a tiled scan directory ('tlssim scan "
                                 "-o DIR --tile-cols/--memory-budget'), reconstructed window by window")
     p.add_argument("-o", "--outdir", required=True, help="output directory")
-    p.add_argument("--variant", choices=VARIANTS, default="buffer", help="PROP-SFS variant (default buffer)")
+    p.add_argument("--variant", choices=(*VARIANTS, STRAY_VARIANT), default="buffer",
+                   help=f"PROP-SFS variant (default buffer); {STRAY_VARIANT}: fused, then the pulses it moved that "
+                        "the stray-point rule flags removed (leafsfs.strays; whole scans only)")
     p.add_argument("--calibration", required=True,
                    help="calibration JSON file ('leafsfs calibrate', or 'tlsbench experiment calibration' for a "
                         "simulated scanner)")
@@ -74,8 +79,12 @@ def _reconstruct(args) -> int:
     from leafsfs.params import SfsParams
     from leafsfs.reconstruct import reconstruct
 
+    from leafsfs.strays import remove_strays
     from leafsfs.tiled import is_tiled
 
+    if args.variant == STRAY_VARIANT and is_tiled(args.scan):
+        raise SfsError(f"--variant {STRAY_VARIANT} needs a whole scan: a tiled scan's windows do not apply the "
+                       "stray-point rule yet (use fused)")
     scan = None if is_tiled(args.scan) else _load_scan(Path(args.scan))
     mask = None
     if args.mask:
@@ -95,7 +104,10 @@ def _reconstruct(args) -> int:
         params = params.replace(**{k: tuple(v) if isinstance(v, list) else v for k, v in changes.items()})
     if is_tiled(args.scan):
         return _reconstruct_tiled(args, params, mask)
-    result = reconstruct(scan, mask, args.variant, params, calibration=args.calibration)
+    stray = args.variant == STRAY_VARIANT
+    result = reconstruct(scan, mask, "fused" if stray else args.variant, params, calibration=args.calibration)
+    if stray:
+        result = remove_strays(result)
     paths = write_outputs(result, args.outdir)
     print(f"{len(result.leaves)} leaves, {int(result.corrected.sum())} distances corrected, "
           f"{int(result.outlier.sum())} outliers ({int(result.removed.sum())} removed); rppp_1 {result.rppp()['rppp_1']:.3f}")

@@ -211,6 +211,22 @@ def test_corrected_scan_round_trip_and_cli(leaf_scan, tmp_path):
     assert (outdir / "mesh.ply").stat().st_size > 1000 and (outdir / "preview.png").stat().st_size > 1000
 
 
+def test_cli_fused_stray_is_fused_without_the_moved_strays(leaf_scan, tmp_path):
+    _, scan, calibration = leaf_scan
+    path = scan.save(tmp_path / "leaf.npz")
+    calibration_path = str(calibration.save(tmp_path / "calibration.json"))
+    for variant in ("fused", "fused-stray"):
+        assert main(["reconstruct", str(path), "--variant", variant, "--calibration", calibration_path, "-o",
+                     str(tmp_path / variant)]) == 0
+    fused, stray = (tlssim.Scan.load(tmp_path / variant / "corrected.npz") for variant in ("fused", "fused-stray"))
+    # the same reconstruction, less the pulses the rule removed: each of them one fused moved, now NaN and flagged
+    gone = stray.layers["removed"] & ~fused.layers["removed"]
+    same = ~gone
+    assert np.array_equal(stray.range[same], fused.range[same], equal_nan=True)
+    assert np.isnan(stray.range[gone]).all() and stray.layers["outlier"][gone].all()
+    assert (fused.range[gone] != scan.range[gone]).all()
+
+
 def test_reconstruct_errors(leaf_scan, tmp_path, capsys):
     _, scan, calibration = leaf_scan
     with pytest.raises(SfsError, match="must match the scan grid"):

@@ -66,3 +66,17 @@ def test_unclaimed_scope_adds_pulses_outside_the_leaves(plate):
 def test_unknown_scope_is_refused(plate):
     with pytest.raises(SfsError, match="stray scope"):
         remove_strays(plate, scope="all")
+
+
+def test_isolated_scope_keeps_unclaimed_pulses_with_a_neighbour_at_their_range(plate):
+    # a pair of strays side by side in the skipped region: each has one neighbour of eight at its range
+    measured = plate.scan.range.copy()
+    measured[1, 14] = measured[1, 15] = 2.3
+    corrected = plate.range.copy()
+    corrected[1, 14] = corrected[1, 15] = 2.3
+    pair = _result(measured, corrected, plate.labels)
+    assert {(1, 14), (1, 15)} <= set(zip(*np.nonzero(remove_strays(pair, scope="unclaimed").removed)))
+    gone = set(zip(*np.nonzero(remove_strays(pair, scope="isolated").removed)))
+    # the moved strays go as with "moved", the lone kept stray outside the leaves too; the pair stays
+    assert gone == {(12, 8), (5, 20), (3, 17)}
+    assert stray_scope(pair, "isolated").sum() == stray_scope(pair, "unclaimed").sum()

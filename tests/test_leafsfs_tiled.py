@@ -112,6 +112,10 @@ def test_reconstruct_command_on_a_tiled_scan(tiled_leaf, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "1 leaves in 3 tiles of 150 columns" in out and "pulses/s" in out
     assert open_tiled(tmp_path / "out" / "corrected").complete
+    # the stray-point rule after fused needs a whole scan: refused in one line, before any window is run
+    assert main(["reconstruct", str(tiled.path), "--calibration", str(cal), "-o", str(tmp_path / "stray"),
+                 "--variant", "fused-stray"]) == 2
+    assert "needs a whole scan" in capsys.readouterr().err and not (tmp_path / "stray").exists()
 
 
 def test_same_output_for_any_worker_count_and_input_tiling(tiled_leaf, by_core, tmp_path):
