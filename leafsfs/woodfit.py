@@ -166,9 +166,19 @@ def cylinder_ranges(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, t
     dr, dc = np.mgrid[-h:h + 1, -h:h + 1]
     disc = dr ** 2 + dc ** 2 <= radius_px ** 2
     dr, dc = dr[disc], dc[disc]
+    # Padded images (a core label where a return is, 0 elsewhere; the range) read the discs without bounds checks.
+    fitted = np.pad(np.where(np.isfinite(range_m), cores, 0), h)
+    padded = np.pad(range_m, h, constant_values=np.nan)
+    # Targets fitted in order of their count of core pulses, so a batch's neighbourhood tables, holding only those
+    # pulses, are about as wide as each row needs (a target's fit does not depend on its batch).
+    count = np.concatenate([(fitted[rows[i:i + CHUNK, None] + dr + h, cols[i:i + CHUNK, None] + dc + h]
+                             == owner[rows[i:i + CHUNK], cols[i:i + CHUNK], None]).sum(axis=1)
+                            for i in range(0, len(rows), CHUNK)] or [np.zeros(0, int)])
+    order = np.argsort(count, kind="stable")
+    rows, cols = rows[order], cols[order]
     for start in range(0, len(rows), CHUNK):
         r, c = rows[start:start + CHUNK], cols[start:start + CHUNK]
-        out[r, c] = _fit(range_m, cores, owner, r, c, dr, dc, step_rad, noise_m)
+        out[r, c] = _fit(range_m, fitted, padded, h, owner, r, c, dr, dc, step_rad, noise_m)
     return out
 
 
@@ -179,12 +189,25 @@ def _take(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, fill):
     return np.where(inside, value, fill)
 
 
-def _fit(range_m, cores, owner, rows, cols, dr, dc, step_rad, noise_m):
-    """Circle-profile ranges at the pulses ``(rows, cols)`` from their owner's core pulses within a disc of offsets."""
+def _fit(range_m, fitted, padded, h, owner, rows, cols, dr, dc, step_rad, noise_m):
+    """Circle-profile ranges at the pulses ``(rows, cols)`` from their owner's core pulses within a disc of offsets.
+
+    ``fitted`` and ``padded`` are the core labels with a return and the ranges, padded by ``h`` pixels. Only the
+    owner's core pulses enter the fits: each row's are packed to the left of tables as wide as the most of them
+    (offsets 0, weight 0 beyond).
+    """
     label = owner[rows, cols]
-    rr, cc = rows[:, None] + dr, cols[:, None] + dc
-    z = _take(range_m, rr, cc, np.nan)
-    w = ((_take(cores, rr, cc, 0) == label[:, None]) & np.isfinite(z)).astype(float)
+    rr, cc = rows[:, None] + dr + h, cols[:, None] + dc + h
+    ti, tj = np.nonzero(fitted[rr, cc] == label[:, None])
+    per_row = np.bincount(ti, minlength=len(rows))
+    slot = np.arange(len(ti)) - (np.cumsum(per_row) - per_row)[ti]
+    shape = (len(rows), int(per_row.max(initial=0)))
+    w, z = np.zeros(shape), np.full(shape, np.nan)
+    w[ti, slot] = 1.0
+    z[ti, slot] = padded[rr[ti, tj], cc[ti, tj]]
+    offsets = dr, dc
+    dr, dc = np.zeros(shape, dtype=int), np.zeros(shape, dtype=int)
+    dr[ti, slot], dc[ti, slot] = offsets[0][tj], offsets[1][tj]
     n = w.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         mr, mc = (w * dr).sum(axis=1) / n, (w * dc).sum(axis=1) / n
@@ -215,7 +238,8 @@ def _fit(range_m, cores, owner, rows, cols, dr, dc, step_rad, noise_m):
     fit = (n >= MIN_PULSES) & (norm > 0) & far_ok & near_ok & (radius <= MAX_RADIUS_M)
     if not fit.any():
         return out
-    nr, nc, spacing, radius, x0, zbar, n, w, z = (a[fit] for a in (nr, nc, spacing, radius, x0, zbar, n, w, z))
+    nr, nc, spacing, radius, x0, zbar, n, w, z, dr, dc = (a[fit] for a in (nr, nc, spacing, radius, x0, zbar, n, w, z,
+                                                                           dr, dc))
     x = (dr * nr[:, None] + dc * nc[:, None]) * spacing[:, None]
     y = (-dr * nc[:, None] + dc * nr[:, None]) * spacing[:, None]
     zl = np.where(w > 0, np.nan_to_num(z) - zbar[:, None], 0.0)
