@@ -80,3 +80,19 @@ def test_occlusion_viewpoints_face_every_visible_point():
         facing = np.einsum("ni,ni->n", views - cloud.points, cloud.normals)
         assert np.all(facing > 0), arc  # PCA normals oriented towards them point outwards
         assert len(np.unique(views, axis=0)) <= scanners, arc
+
+
+def test_simulator_scan_memory_splits_into_start_output_and_growth():
+    """One measured scan's peak resident memory is what was resident at its start, its output and what it grew
+    beyond both; Dr.Jit's own peak is that of the scan's chunk buffers (the scan allocates on the tracer)."""
+    import sys
+
+    from benchmarks.experiments.simulator_perf import perf_setup, simulate_measured
+
+    scene, setup = perf_setup(8)
+    row = simulate_measured(scene, setup, 0, "llvm")
+    assert row["output_mb"] == 8 * 8 * 92 / 2**20  # the scan's grids and truth: 92 bytes per pulse
+    assert row["drjit_peak_mb"] > 0
+    if sys.platform == "linux":
+        assert row["peak_mb"] >= row["start_mb"] > 0
+        assert abs(row["peak_mb"] - row["start_mb"] - row["output_mb"] - row["growth_mb"]) < 1e-9

@@ -150,21 +150,36 @@ def simulate_measured(scene: scenes.Scene, setup: ScanSetup, seed: int, backend:
     Returns
     -------
     dict
-        ``wall_s`` and ``cpu_s`` (s); ``output_mb`` (the scan's arrays), ``peak_mb`` (the process's peak
-        resident memory during this scan: the peak is reset before it) and ``beyond_output_mb`` (``peak_mb``
-        less the output), MB of 2**20 bytes (as ``peak_rss_mb``); the memory figures are ``None`` where the
-        peak cannot be reset (not Linux).
+        ``wall_s`` and ``cpu_s`` (s); ``output_mb`` (the scan's arrays), ``start_mb`` (the process's resident
+        memory when the scan starts, Dr.Jit's cache of freed blocks emptied first: the interpreter, Mitsuba,
+        LLVM and what earlier scans left), ``peak_mb`` (the process's peak resident memory during this scan:
+        the peak is reset before it), ``beyond_output_mb`` (``peak_mb`` less the output), ``growth_mb``
+        (``peak_mb`` less ``start_mb`` and the output: what the scan itself needed beyond its output) and
+        ``drjit_peak_mb`` (the peak of Dr.Jit's own allocations during the scan, host memory on the LLVM
+        backend, the GPU's on CUDA), MB of 2**20 bytes (as ``peak_rss_mb``); the resident-memory figures are
+        ``None`` where the peak cannot be reset (not Linux).
     """
+    import drjit as dr
+
+    jit = dr.JitBackend.CUDA if backend == "cuda" else dr.JitBackend.LLVM
     gc.collect()
-    reset = _reset_peak()
+    dr.flush_malloc_cache()  # blocks an earlier scan freed would otherwise count as this one's start
+    start_kb = _memory_kb("VmRSS")
+    dr.detail.malloc_clear_statistics()
+    reset = _reset_peak() and start_kb is not None
     start, start_cpu = time.perf_counter(), time.process_time()
     scan = simulate(scene, setup, seed=seed, progress=False, backend=backend)
     wall, cpu = time.perf_counter() - start, time.process_time() - start_cpu
     peak = _memory_kb("VmHWM") if reset else None
     output_mb = _output_bytes(scan) / 2**20
-    peak_mb = None if peak is None else peak / 1024
+    if peak is None:
+        peak_mb = beyond = growth = None
+    else:
+        peak_mb = peak / 1024
+        beyond, growth = peak_mb - output_mb, peak_mb - output_mb - start_kb / 1024
     return {"wall_s": wall, "cpu_s": cpu, "output_mb": output_mb, "peak_mb": peak_mb,
-            "beyond_output_mb": None if peak is None else peak_mb - output_mb}
+            "start_mb": None if peak is None else start_kb / 1024, "beyond_output_mb": beyond,
+            "growth_mb": growth, "drjit_peak_mb": dr.detail.malloc_watermark(jit) / 2**20}
 
 
 def run_perf(size: int = 500, repeat: int = 3, backend: str = "auto") -> dict:
@@ -219,6 +234,9 @@ def run_perf(size: int = 500, repeat: int = 3, backend: str = "auto") -> dict:
         "scan_output_mb": median_mb("output_mb"),
         "scan_peak_mb": median_mb("peak_mb"),
         "scan_peak_beyond_output_mb": median_mb("beyond_output_mb"),
+        "scan_start_mb": median_mb("start_mb"),
+        "scan_growth_beyond_output_mb": median_mb("growth_mb"),
+        "scan_drjit_peak_mb": median_mb("drjit_peak_mb"),
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
     }
 
@@ -282,4 +300,7 @@ def _print_report(report: dict, size: int) -> None:
     if report["scan_peak_mb"] is not None:
         print(f"  one scan's peak RSS  {report['scan_peak_mb']:8.0f} MB: output {report['scan_output_mb']:.0f} MB "
               f"+ {report['scan_peak_beyond_output_mb']:.0f} MB beyond it")
+        print(f"    of which           {report['scan_start_mb']:8.0f} MB resident when the scan starts, "
+              f"{report['scan_growth_beyond_output_mb']:.0f} MB grown during it "
+              f"(Dr.Jit's own allocations peak at {report['scan_drjit_peak_mb']:.0f} MB)")
     print(f"  peak memory (RSS)    {report['peak_rss_mb']:8.0f} MB  (the process, the raw measurement included)")
