@@ -288,21 +288,16 @@ def simulate_columns(job: ScanJob, c0: int, c1: int, seed: int = 0, chunk_subray
     theta32, psi32 = theta_axis.astype(np.float32), psi_axis.astype(np.float32)
     chunks = [(a, min(cols, a + cols_per_chunk)) for a in range(0, cols, cols_per_chunk)]
 
-    def draw(a, b):
-        """The host side of the wavefront of columns ``a:b`` of the tile: its per-column draws and its pulses'
-        angles, row by row (psi outer, theta inner) so that every result is already a block of the output grids."""
+    def start(a, b):
+        """Draw and launch the wavefront of columns ``a:b`` of the tile, traced row by row (psi outer, theta
+        inner) so that every result is already a block of the output grids; the draws are per column."""
         draws = {key: None if value is None else np.ascontiguousarray(value.T)
                  for key, value in column_draws(seed, c0 + a, c0 + b, rows, smear_rad > 0).items()}
-        return draws, np.tile(theta32[a:b], rows), np.repeat(psi32, b - a)
-
-    def launch(drawn):
-        """Launch the kernels of a wavefront drawn by ``draw``; returns its draws and the tracer's ``finish``."""
-        draws, theta, psi = drawn
         return draws, job.traced.start_trace(
-            model, job.beam, pose, theta, psi, draws["spin"].ravel(), smear_rad,
-            None if draws["instants"] is None else draws["instants"].ravel())
+            model, job.beam, pose, np.tile(theta32[a:b], rows), np.repeat(psi32, b - a),
+            draws["spin"].ravel(), smear_rad, None if draws["instants"] is None else draws["instants"].ravel())
 
-    pending = launch(draw(*chunks[0]))
+    pending = start(*chunks[0])
     for index, (a, b) in enumerate(chunks):
         width = b - a
 
@@ -310,13 +305,10 @@ def simulate_columns(job: ScanJob, c0: int, c1: int, seed: int = 0, chunk_subray
             """A wavefront's per-pulse values (row-major over the chunk) as its (psi, theta) block."""
             return values.reshape((rows, width) + values.shape[1:])
 
-        # The next wavefront's draws are made while this one's kernels still run (the tracer's threads would
-        # otherwise wait for them), and its kernels run while this one is post-processed.
-        drawn = draw(*chunks[index + 1]) if index + 1 < len(chunks) else None
         draws, finish = pending
         hits = finish()
-        if drawn is not None:
-            pending = launch(drawn)
+        if index + 1 < len(chunks):  # the next wavefront's kernels run while this one is post-processed
+            pending = start(*chunks[index + 1])
         dist, amp = _pulse_returns(hits, model)
         returns = PulseReturns(distance_m=on_grid(dist), amplitude=on_grid(amp), power=on_grid(hits.total_power))
         grids["range"][:, a:b], grids["intensity"][:, a:b] = detect_with_noise(
