@@ -537,18 +537,20 @@ def score_wood(wood: Target, output: VariantOutput) -> dict:
     -------
     dict
         ``diameter_err_bias_m``, ``diameter_err_mae_m``, ``diameter_err_rmse_m``,
-        ``wood_completeness``, ``wood_precision``, ``detection_rate``,
+        ``wood_completeness``, ``wood_seen_completeness`` (of the truth length
+        the object's points reach), ``wood_precision``, ``detection_rate``,
         ``volume_rel_err`` (signed), ``volume_true_m3``, ``volume_rec_m3``, the
         method's stats.
     """
     import woody
 
-    scores = woody.score(wood.truth, output.traits["cylinders"])
+    scores = woody.score(wood.truth, output.traits["cylinders"], points=wood.scan.xyz[wood.mask])
     diameter = scores["diameter_error_m"]
     return json_ready({"target": wood.name, "object_id": wood.object_id, "object_type": wood.object_type,
                        "n_points": int(wood.mask.sum()), "diameter_err_bias_m": diameter["bias"],
                        "diameter_err_mae_m": diameter["mae"], "diameter_err_rmse_m": diameter["rmse"],
-                       "wood_completeness": scores["completeness"], "wood_precision": scores["precision"],
+                       "wood_completeness": scores["completeness"],
+                       "wood_seen_completeness": scores["seen_completeness"], "wood_precision": scores["precision"],
                        "detection_rate": scores["detection_rate"], "volume_rel_err": scores["volume_error"],
                        "volume_true_m3": scores["volume_true_m3"], "volume_rec_m3": scores["volume_rec_m3"],
                        **output.stats})
