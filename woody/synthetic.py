@@ -321,7 +321,8 @@ def _grow_branch(out: list, rng, start, direction, length, radius, order, parent
         _grow_branch(out, rng, attach, child_dir, child_len, r_child, order + 1, first + piece, branch_id, spec)
 
 
-#: Shape parameters of the procedural apple-like tree (assumptions sized to about 2-3 dm^3 and order <= 7).
+#: Shape parameters of the procedural apple-like tree (assumptions sized to about 2-3 dm^3; the 3 mm smallest radius
+#: ends the branching at order 4 on seeds 0-7, before ``max_order``, where the paper's tree reaches order 7).
 APPLE_SPEC = {"taper": 0.6, "bend": 0.12, "gravitropism": 0.05, "max_order": 6, "children": (2, 4),
               "radius_ratio": (0.45, 0.7), "min_radius": 0.003, "branch_angle_deg": (35, 65),
               "length_ratio": (0.45, 0.7)}
