@@ -1,6 +1,7 @@
 """The Scan type: NPZ and PLY round trips, determinism, and the scan CLI."""
 
 import json
+import threading
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ import scenes
 import tlssim
 from tlssim.cli import main as tlssim_main
 from tlssim.errors import ScanError
-from tlssim.scan import GRID_KEYS, TRUTH_KEYS, Scan
+from tlssim.scan import GRID_KEYS, TRUTH_KEYS, Scan, write_npz
 from tlssim.simulate import setup_from_section, simulate
 
 
@@ -119,3 +120,20 @@ def test_scenes_cli_lists_the_library(capsys):
     assert tlssim_main(["scenes"]) == 0
     listed = [line.split()[0] for line in capsys.readouterr().out.splitlines()]
     assert set(scenes.names()) == set(listed) and "knife-edge" in listed and "tilted-plane" in listed
+
+
+def test_two_writers_of_one_npz_do_not_collide(tmp_path):
+    """A second writer that finishes while the first is still writing (a shared tile cache) leaves both intact."""
+    path = tmp_path / "tile.npz"
+
+    def first_members():
+        yield "a", np.arange(1000.0)
+        other = threading.Thread(target=write_npz, args=(path, {"a": np.arange(1000.0), "b": np.ones(3)}))
+        other.start()  # another writer of the same file, done meanwhile
+        other.join()
+        yield "b", np.ones(3)
+
+    write_npz(path, first_members())
+    with np.load(path, allow_pickle=False) as data:
+        assert np.array_equal(data["a"], np.arange(1000.0)) and np.array_equal(data["b"], np.ones(3))
+    assert [p.name for p in tmp_path.iterdir()] == ["tile.npz"]

@@ -32,6 +32,8 @@ Files
 from __future__ import annotations
 
 import json
+import os
+import threading
 import zipfile
 import zlib
 from dataclasses import dataclass, field, replace
@@ -272,13 +274,25 @@ class Scan:
 NPZ_COMPRESS_LEVEL = 1
 
 
+def partial_path(path: Path) -> Path:
+    """The temporary name beside ``path`` that this process and thread write before renaming onto ``path``.
+
+    ``<name>.<process id>-<thread id>.partial``: each writer has its own,
+    so that writers of the same file at once (two processes filling one
+    cache) never write into each other's file.
+    """
+    return path.with_name(f"{path.name}.{os.getpid()}-{threading.get_ident()}.partial")
+
+
 def write_npz(path, arrays) -> Path:
     """Write arrays as a compressed NPZ (:data:`NPZ_COMPRESS_LEVEL`) whose bytes depend only on the arrays.
 
     ``numpy.savez`` stamps the current time into the archive; here every
     member gets a fixed date so that the same data gives the same file. The
-    file is written under a temporary name and renamed, so an interrupted
-    write never leaves a truncated scan behind.
+    file is written under a temporary name of its own and renamed, so an
+    interrupted write never leaves a truncated scan behind and two writers
+    of the same file (e.g. two benchmark runs filling one tile cache) do not
+    collide.
 
     Parameters
     ----------
@@ -295,7 +309,7 @@ def write_npz(path, arrays) -> Path:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".partial")
+    tmp = partial_path(path)
     with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as archive:
         for name, value in (arrays.items() if isinstance(arrays, dict) else arrays):
             info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))

@@ -37,7 +37,7 @@ import numpy as np
 
 from tlssim.errors import ScanError
 from tlssim.pattern import ScannerPose
-from tlssim.scan import GRID_KEYS, TRUTH_KEYS, Scan, ScannerDescription
+from tlssim.scan import GRID_KEYS, TRUTH_KEYS, Scan, ScannerDescription, partial_path
 
 FORMAT = "tlssim-tiled-scan"
 VERSION = 1
@@ -336,7 +336,7 @@ def import_tile_cols(tile_cols: int | None, earlier: TiledScan | None, rows: int
 
 def _write_index(path: Path, index: dict) -> None:
     """Write the index atomically (temporary file, then rename)."""
-    tmp = path / (INDEX + ".partial")
+    tmp = partial_path(path / INDEX)
     tmp.write_text(json.dumps(index), encoding="utf-8")
     tmp.replace(path / INDEX)
 
