@@ -44,6 +44,19 @@ or distance enters). A range tolerance that follows the point spacing
 (``spacing * tan(60-80 deg)`` per neighbour) or a test of the range's
 second difference along the four grid lines did no better at the same
 good points lost on the tree, seed 31 and seed 41.
+
+``fused-stray-out`` against the stray-point rule at 0.08 deg (ROP reduction
+3 sigma / 1 cm, good points lost): leafy tree 0.651 / 0.845, 14.5 % against
+0.632 / 0.868, 15.3 %; pear seed 31 at 2.5 m 0.689 / 0.881, 7.7 % against
+0.633 / 0.876, 8.2 %; seed 41 at 5 m 0.721 / 0.882, 21.1 % against 0.710 /
+0.893, 22.0 % (chosen on these three); not tuned on: seed 53 at 2 m 0.730 /
+0.897, 5.7 % against 0.630 / 0.874, 6.0 %; seed 67 at 3.5 m 0.653 / 0.828,
+12.9 % against 0.627 / 0.833, 13.5 %; seed 41 at 4 m 0.728 / 0.912, 13.1 %
+against 0.717 / 0.908, 14.0 %; seed 79 at 3 m 0.738 / 0.898, 8.7 % against
+0.670 / 0.893, 9.3 %; but seed 23 at 6 m 0.656 / 0.813, 23.4 % against
+0.688 / 0.817, 24.4 %: there PROP-SFS's corrections within its leaves
+already cost ROP reduction (0.675 with them undone); keeping them only in
+regions of many pulses did not mend it.
 """
 
 from __future__ import annotations
