@@ -14,7 +14,9 @@ the targets' points, and returns its own leaf regions with their traits. Familie
   (``simple``, ``sps``, ``buffer``, ``fused`` with the shell-rule set T3, and
   ``buffer-T1``, ``buffer-T2``, ``buffer-T3*``; ``fused-stray``, ``fused`` without the pulses it moved that the
   stray-point rule flags, :mod:`leafsfs.strays`; ``fused-stray5``, for coarse steps, the rule in a 5 px
-  window and pulses outside its leaves with no neighbour at their range), calibrated by simulating the
+  window and pulses outside its leaves with no neighbour at their range; ``fused-stray-out``, for coarse steps,
+  its changes only within its leaves, the rule on the pulses it moved there and on the measured ones outside
+  them), calibrated by simulating the
   scan's scanner model; they run once on the whole scan, as a user runs
   them, segment it into leaves themselves and return their regions with
   the traits of each (:mod:`benchmarks.scoring` matches the regions to the
@@ -255,6 +257,11 @@ def _register_prop_sfs() -> None:
     stray = {**stray, "scope": "isolated", "window_px": 5}
     register_variant(_prop_sfs_variant("fused-stray5", "fused",
                                        {**defaults, **{STRAY_PREFIX + key: value for key, value in stray.items()}}))
+    # ``fused-stray-out``, for coarse steps: PROP-SFS's changes kept only within its leaves, and the rule (the
+    # ``stray-point`` variant's settings) on the pulses it moved there and on every pulse outside them
+    stray = {"scope": "outside", **baselines.STRAY_POINT_RULE}
+    register_variant(_prop_sfs_variant("fused-stray-out", "fused",
+                                       {**defaults, **{STRAY_PREFIX + key: value for key, value in stray.items()}}))
 
 
 def _calibration(scan):
@@ -310,7 +317,9 @@ def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
     shell = params["shell_set"]
     extra = {"moved": ", moved pulses the stray-point rule flags removed",
              "isolated": ", moved pulses the stray-point rule flags (5 px window) and isolated pulses outside its "
-                         "leaves removed"}.get(params.get(STRAY_PREFIX + "scope"), "")
+                         "leaves removed",
+             "outside": ", its changes kept only within its leaves; there the moved pulses and elsewhere all pulses "
+                        "that the stray-point rule flags removed"}.get(params.get(STRAY_PREFIX + "scope"), "")
     return Variant(name, "prop-sfs", run, params,
                    f"PROP-SFS {engine} propagation, shell-rule set {shell} (leafsfs.reconstruct, model calibration)"
                    f"{extra}",

@@ -20,6 +20,7 @@ STRAY_VARIANT = "fused-stray"
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every ``leafsfs`` command."""
     from leafsfs.params import VARIANTS
+    from leafsfs.strays import SCOPES
 
     parser = argparse.ArgumentParser(prog="leafsfs", description="PROP-SFS leaf reconstruction from TLS intensity.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -31,7 +32,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--outdir", required=True, help="output directory")
     p.add_argument("--variant", choices=(*VARIANTS, STRAY_VARIANT), default="buffer",
                    help=f"PROP-SFS variant (default buffer); {STRAY_VARIANT}: fused, then the pulses it moved that "
-                        "the stray-point rule flags removed (leafsfs.strays; whole scans only)")
+                        "the stray-point rule flags removed (leafsfs.strays; on a tiled scan window by window)")
+    p.add_argument("--stray-scope", choices=SCOPES,
+                   help=f"with --variant {STRAY_VARIANT}: the pulses the rule judges (default moved; outside: "
+                        "fused's changes kept only within its leaves, the rule on the pulses it moved there and on "
+                        "all pulses outside them, for coarse steps such as 0.08 deg)")
     p.add_argument("--calibration", required=True,
                    help="calibration JSON file ('leafsfs calibrate', or 'tlsbench experiment calibration' for a "
                         "simulated scanner)")
@@ -82,9 +87,8 @@ def _reconstruct(args) -> int:
     from leafsfs.strays import remove_strays
     from leafsfs.tiled import is_tiled
 
-    if args.variant == STRAY_VARIANT and is_tiled(args.scan):
-        raise SfsError(f"--variant {STRAY_VARIANT} needs a whole scan: a tiled scan's windows do not apply the "
-                       "stray-point rule yet (use fused)")
+    if args.stray_scope is not None and args.variant != STRAY_VARIANT:
+        raise SfsError(f"--stray-scope needs --variant {STRAY_VARIANT}")
     scan = None if is_tiled(args.scan) else _load_scan(Path(args.scan))
     mask = None
     if args.mask:
@@ -107,7 +111,7 @@ def _reconstruct(args) -> int:
     stray = args.variant == STRAY_VARIANT
     result = reconstruct(scan, mask, "fused" if stray else args.variant, params, calibration=args.calibration)
     if stray:
-        result = remove_strays(result)
+        result = remove_strays(result, args.stray_scope or "moved")
     paths = write_outputs(result, args.outdir)
     print(f"{len(result.leaves)} leaves, {int(result.corrected.sum())} distances corrected, "
           f"{int(result.outlier.sum())} outliers ({int(result.removed.sum())} removed); rppp_1 {result.rppp()['rppp_1']:.3f}")
@@ -137,9 +141,11 @@ def _reconstruct_tiled(args, params, mask) -> int:
                   "" if plan.fits else f", over the {args.memory_budget:g} GB budget (the smallest windows tried): "
                                        "use fewer --workers or a larger --memory-budget"))
     with tqdm(total=tiled.shape[0] * tiled.shape[1], unit="pulse", unit_scale=True, desc="reconstruct") as bar:
-        result = reconstruct_tiled(tiled, args.outdir, args.variant, params, calibration=args.calibration,
-                                   core_cols=core_cols, band_rows=plan.band_rows, leaf_size_m=leaf_size,
-                                   workers=args.workers, progress=bar.update)
+        stray = args.variant == STRAY_VARIANT
+        result = reconstruct_tiled(tiled, args.outdir, "fused" if stray else args.variant, params,
+                                   calibration=args.calibration, core_cols=core_cols, band_rows=plan.band_rows,
+                                   leaf_size_m=leaf_size, workers=args.workers, progress=bar.update,
+                                   strays=(args.stray_scope or "moved") if stray else None)
     print(f"{len(result.traits)} leaves in {len(result.scan.tiles)} tiles of {core_cols} columns; "
           f"{result.windows} windows run in {result.elapsed_s:.1f} s on {args.workers} worker(s): "
           f"{result.pulses_per_s:,.0f} pulses/s")

@@ -26,6 +26,37 @@ seed 31 at 2.5 m and seed 41 at 5 m, against the stray-point rule alone
 0.571 / 0.523 losing 6.0 / 4.6 / 4.8 %): ahead on the nearer pears, short at
 5 m, where the outliers left lie mostly outside the leaves it finds. The 5 px
 window was chosen on the tree and seed 31.
+
+Why 5 m fails (truth, pulses of the target leaves, seed 41 at 5 m): of the
+608 outliers ``isolated`` leaves, 446 are pulses PROP-SFS kept as measured
+outside its leaves (304 of them on leaves it did not find), 100 pulses it
+moved within its leaves, 47 kept within them, 15 moved outside them; the
+stray-point rule flags 240 of the 446. And PROP-SFS's changes outside its
+leaves cost more than they give at a coarse step: with the rule's flags
+everywhere, its corrections of the pulses the rule keeps lower the ROP
+reduction from 0.727 to 0.689 (per-leaf means: they help the large leaves
+it reconstructs and harm the small leaves it does not). Scope ``outside``
+therefore keeps PROP-SFS's changes only within its leaves: every return
+outside them gets back its measured range and is judged by the rule, as in
+the ``stray-point`` variant, and within them the rule judges the pulses it
+moved (tlsbench ``fused-stray-out``, the rule's default settings: no step
+or distance enters). A range tolerance that follows the point spacing
+(``spacing * tan(60-80 deg)`` per neighbour) or a test of the range's
+second difference along the four grid lines did no better at the same
+good points lost on the tree, seed 31 and seed 41.
+
+``fused-stray-out`` against the stray-point rule at 0.08 deg (ROP reduction
+3 sigma / 1 cm, good points lost): leafy tree 0.651 / 0.845, 14.5 % against
+0.632 / 0.868, 15.3 %; pear seed 31 at 2.5 m 0.689 / 0.881, 7.7 % against
+0.633 / 0.876, 8.2 %; seed 41 at 5 m 0.721 / 0.882, 21.1 % against 0.710 /
+0.893, 22.0 % (chosen on these three); not tuned on: seed 53 at 2 m 0.730 /
+0.897, 5.7 % against 0.630 / 0.874, 6.0 %; seed 67 at 3.5 m 0.653 / 0.828,
+12.9 % against 0.627 / 0.833, 13.5 %; seed 41 at 4 m 0.728 / 0.912, 13.1 %
+against 0.717 / 0.908, 14.0 %; seed 79 at 3 m 0.738 / 0.898, 8.7 % against
+0.670 / 0.893, 9.3 %; but seed 23 at 6 m 0.656 / 0.813, 23.4 % against
+0.688 / 0.817, 24.4 %: there PROP-SFS's corrections within its leaves
+already cost ROP reduction (0.675 with them undone); keeping them only in
+regions of many pulses did not mend it.
 """
 
 from __future__ import annotations
@@ -39,7 +70,7 @@ from leafsfs.errors import SfsError
 from leafsfs.reconstruct import SfsResult
 
 #: Where :func:`remove_strays` applies the stray-point rule.
-SCOPES = ("moved", "unclaimed", "isolated")
+SCOPES = ("moved", "unclaimed", "isolated", "outside")
 
 #: Window of the ``isolated`` scope's test of unclaimed pulses, pixels: the eight nearest neighbours.
 ISOLATED_WINDOW_PX = 3
@@ -52,9 +83,12 @@ def stray_scope(result: SfsResult, scope: str = "moved") -> np.ndarray:
     ----------
     result : SfsResult
         A reconstruction.
-    scope : {"moved", "unclaimed", "isolated"}
+    scope : {"moved", "unclaimed", "isolated", "outside"}
         ``moved``: pulses PROP-SFS gave a new range; ``unclaimed`` and
-        ``isolated``: those and the pulses in no reconstructed leaf region.
+        ``isolated``: those and the pulses in no reconstructed leaf region;
+        ``outside``: the pulses it moved within its leaf regions and every
+        return in no leaf region (judged on its measured range, which
+        :func:`remove_strays` gives back).
 
     Returns
     -------
@@ -72,7 +106,10 @@ def stray_scope(result: SfsResult, scope: str = "moved") -> np.ndarray:
     moved = valid & result.corrected & (result.range != result.scan.range)
     if scope == "moved":
         return moved
-    return moved | (valid & ~np.isin(result.labels, [leaf.label for leaf in result.leaves]))
+    outside = ~np.isin(result.labels, [leaf.label for leaf in result.leaves])
+    if scope == "outside":
+        return (moved & ~outside) | (result.scan.valid & outside)
+    return moved | (valid & outside)
 
 
 def remove_strays(result: SfsResult, scope: str = "moved", window_px: int = STRAY_POINT_RULE["window_px"],
@@ -89,8 +126,10 @@ def remove_strays(result: SfsResult, scope: str = "moved", window_px: int = STRA
     ----------
     result : SfsResult
         A reconstruction (:func:`leafsfs.reconstruct`).
-    scope : {"moved", "unclaimed", "isolated"}
-        Pulses the rule may remove (:func:`stray_scope`); with ``isolated``
+    scope : {"moved", "unclaimed", "isolated", "outside"}
+        Pulses the rule may remove (:func:`stray_scope`); with ``outside``
+        every return in no leaf region first gets back its measured range
+        (PROP-SFS's changes are kept only within its leaves); with ``isolated``
         the moved pulses are judged by the rule and the pulses in no leaf
         region (moved or not) are removed also when none
         of their :data:`ISOLATED_WINDOW_PX` neighbours lies within
@@ -109,6 +148,11 @@ def remove_strays(result: SfsResult, scope: str = "moved", window_px: int = STRA
     """
     candidates = stray_scope(result, scope)
     strays = candidates & ~stray_point_filter(result.scan, None, window_px, max_range_diff_m, min_share)
+    if scope == "outside":
+        back = result.scan.valid & ~np.isin(result.labels, [leaf.label for leaf in result.leaves])
+        result = dataclasses.replace(result, range=np.where(back, result.scan.range, result.range),
+                                     corrected=result.corrected & ~back, outlier=result.outlier & ~back,
+                                     removed=result.removed & ~back)
     if scope == "isolated":
         moved = stray_scope(result, "moved")
         # a share of at least one neighbour in eight: one neighbour at the pulse's range keeps it

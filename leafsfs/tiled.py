@@ -73,6 +73,7 @@ from leafsfs.outputs import json_ready
 from leafsfs.params import VARIANTS, SfsParams
 from leafsfs.preprocess import resolve_calibration
 from leafsfs.reconstruct import reconstruct
+from leafsfs.strays import SCOPES, remove_strays
 from tlssim.pattern import ScannerPose
 from tlssim.scan import GRID_KEYS, META_KEYS, TRUTH_KEYS, Scan, ScannerDescription, grid_to_xyz, write_npz
 from tlssim.tiled import INDEX, TiledScan, add_tile_members, concat_columns, open_tiled, start_tiled
@@ -282,7 +283,7 @@ def plan_windows(tiled: TiledScan, budget_bytes: float, workers: int = 1, leaf_s
 def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params: SfsParams | None = None, *,
                       calibration=None, core_cols: int = 512, band_rows: int | None = None,
                       leaf_size_m: float = LEAF_SIZE_M, max_margin: int = 2048, workers: int = 1,
-                      progress=None) -> TiledResult:
+                      progress=None, strays: str | None = None) -> TiledResult:
     """Reconstruct the leaves of a tiled scan window by window into ``outdir`` (tiled scan plus ``traits.json``).
 
     Parameters
@@ -314,6 +315,10 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
         core rectangles), and the core it writes (:data:`ASSEMBLY_BYTES_PER_PULSE` in all).
     progress : callable, optional
         Called with the number of pulses of every finished core.
+    strays : {"moved", "unclaimed", "isolated", "outside"}, optional
+        Scope of the stray-point rule after PROP-SFS (:func:`leafsfs.strays.remove_strays`, its default
+        settings), applied in every window before it is cut to its core, so that the margins hold the
+        neighbours the rule reads (default: none).
 
     Returns
     -------
@@ -334,6 +339,8 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
                        f"{leaf_size_m}, {workers}")
     if variant not in VARIANTS:
         raise SfsError(f"unknown variant {variant!r}; allowed: {', '.join(VARIANTS)}")
+    if strays is not None and strays not in SCOPES:
+        raise SfsError(f"stray scope must be one of {SCOPES}, got {strays!r}")
     if not tiled.complete:
         raise SfsError(f"{tiled.path}: the tiled scan is incomplete; finish (resume) the scan first")
     start = time.perf_counter()
@@ -343,12 +350,14 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
     wrap = is_full_circle(tiled.theta_columns)
     identity = {"scan": tiled.index.get("fingerprint"), "tiles": [t.sha256 for t in tiled.tiles], "variant": variant,
                 "params": params.to_dict(), "calibration": repr(calibration), "margin": [leaf_size_m, max_margin],
-                **({} if band_rows >= rows else {"band_rows": band_rows}), **({"wrap": True} if wrap else {})}
+                **({} if band_rows >= rows else {"band_rows": band_rows}), **({"wrap": True} if wrap else {}),
+                **({} if strays is None else {"strays": strays})}
     fingerprint = hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()
     header = {key: tiled.index[key] for key in ("shape", "scanner", "scanner_position", "scanner_rotation",
                                                 "object_names", "theta_columns", "psi_rows", "has_truth")}
     header["meta"] = {**tiled.meta, "leafsfs": {"variant": variant, "params": params.to_dict(),
-                                               "source": str(tiled.path)}}
+                                               "source": str(tiled.path),
+                                               **({} if strays is None else {"strays": strays})}}
     try:
         index, todo = start_tiled(outdir / "corrected", header, fingerprint, core_cols)
     except ScanError as exc:
@@ -373,7 +382,7 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
     needed = list(dict.fromkeys(key for keys in uses for key in keys))
     last_use = {key: i for i, keys in enumerate(uses) for key in keys}
     tasks = [((b, j), (bands[b], (j * core_cols, min(cols, (j + 1) * core_cols)), leaf_size_m, max_margin,
-                       variant, params, calibration, wrap)) for b, j in needed]
+                       variant, params, calibration, wrap, strays)) for b, j in needed]
     results = _in_order(tiled, tasks, workers)
 
     def window(b: int, k: int) -> _Window:
@@ -610,12 +619,13 @@ def _margin(extent: np.ndarray, valid: np.ndarray, step_rad: float, leaf_size_m:
 
 
 def _reconstruct_window(tiled: TiledScan, band: tuple, core: tuple, leaf_size_m: float, max_margin: int,
-                        variant: str, params: SfsParams, calibration, wrap: bool = False) -> _Window:
+                        variant: str, params: SfsParams, calibration, wrap: bool = False,
+                        strays: str | None = None) -> _Window:
     """Reconstruct the window of a band's rows ``r0:r1`` and a core's columns ``c0:c1``.
 
     The window widens (both margins doubled) while a leaf it keeps comes near an inner border. With
     ``wrap`` (a 360 deg scan) its columns continue past the scan's seam (:func:`_load_window`), up to
-    the whole scan.
+    the whole scan. With ``strays``, the stray-point rule in that scope then judges the whole window.
     """
     (r0, r1), (c0, c1) = band, core
     rows, cols = tiled.shape
@@ -651,6 +661,8 @@ def _reconstruct_window(tiled: TiledScan, band: tuple, core: tuple, leaf_size_m:
             break
         margin_c = min(2 * max(margin_c, 1), max_margin)
         margin_r = 0 if (r0, r1) == (0, rows) else min(2 * max(margin_r, 1), max_margin)
+    if strays is not None:
+        result = remove_strays(result, strays)
     rank = np.zeros(n + 1, dtype=np.int32)
     rank[[leaf.label for leaf in kept]] = np.arange(1, len(kept) + 1, dtype=np.int32)
     # A window keeps its regions and the pulses corrected outside any region (background pulses) whose nearest

@@ -1,5 +1,6 @@
 """The stray-point rule after PROP-SFS (leafsfs.strays): only pulses PROP-SFS moved, or left outside its leaves."""
 
+import dataclasses
 import types
 
 import numpy as np
@@ -80,3 +81,23 @@ def test_isolated_scope_keeps_unclaimed_pulses_with_a_neighbour_at_their_range(p
     # the moved strays go as with "moved", the lone kept stray outside the leaves too; the pair stays
     assert gone == {(12, 8), (5, 20), (3, 17)}
     assert stray_scope(pair, "isolated").sum() == stray_scope(pair, "unclaimed").sum()
+
+
+def test_outside_scope_gives_back_the_measured_pulses_outside_the_leaves(plate):
+    corrected = plate.range.copy()
+    corrected[9, 5] = 2.01                       # a plate pulse moved within the leaf: its correction stays
+    corrected[2, 2] = 2.05                       # a plate pulse moved outside the leaves: measured range back
+    corrected[18, 20] = np.nan                   # a plate pulse removed outside the leaves: given back
+    moved = _result(plate.scan.range, corrected, plate.labels)
+    moved = dataclasses.replace(moved, removed=~np.isfinite(corrected) & plate.scan.valid)
+    out = remove_strays(moved, scope="outside")
+    gone = set(zip(*np.nonzero(out.removed)))
+    # the rule's strays: moved within the leaf, moved outside it (judged on the measured range), kept outside;
+    # the stray PROP-SFS kept as measured within its leaf stays
+    assert gone == {(12, 8), (5, 20), (3, 17)} and np.isfinite(out.range[10, 6])
+    assert out.range[9, 5] == 2.01 and out.corrected[9, 5]
+    assert out.range[2, 2] == out.range[18, 20] == 2.0
+    assert not (out.corrected | out.outlier)[2, 2] and not (out.corrected | out.outlier)[18, 20]
+    # outside the leaves every return is judged, inside only the moved ones
+    scope = stray_scope(moved, "outside")
+    assert scope[18, 20] and scope[3, 17] and scope[9, 5] and not scope[10, 6]

@@ -10,6 +10,7 @@ import tlssim
 from benchmarks.experiments.calibration import simulated_calibration
 from leafsfs import SfsError, reconstruct
 from leafsfs.cli import main
+from leafsfs.strays import remove_strays
 from leafsfs.tiled import GUARD_COLS, is_full_circle, margin_columns, margin_rows, reconstruct_tiled
 from tlssim.simulate import simulate_tiled
 from tlssim.tiled import add_tile, open_tiled, start_tiled
@@ -112,10 +113,21 @@ def test_reconstruct_command_on_a_tiled_scan(tiled_leaf, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "1 leaves in 3 tiles of 150 columns" in out and "pulses/s" in out
     assert open_tiled(tmp_path / "out" / "corrected").complete
-    # the stray-point rule after fused needs a whole scan: refused in one line, before any window is run
+    # the stray-point rule after fused, window by window: the pulses the whole scan's run removes, but for
+    # background pulses that the last core's window gives back as measured (their nearest leaf is another
+    # window's), with fused alone too
     assert main(["reconstruct", str(tiled.path), "--calibration", str(cal), "-o", str(tmp_path / "stray"),
-                 "--variant", "fused-stray"]) == 2
-    assert "needs a whole scan" in capsys.readouterr().err and not (tmp_path / "stray").exists()
+                 "--variant", "fused-stray", "--core-cols", "150"]) == 0
+    corrected = open_tiled(tmp_path / "stray" / "corrected").load()
+    whole = remove_strays(reconstruct(tiled.load(), variant="fused", calibration=calibration))
+    removed = corrected.layers["removed"]
+    assert removed.sum() > 1000 and not (removed & ~whole.removed).any()
+    assert (removed & whole.removed).sum() > 0.85 * whole.removed.sum()
+    kept = ~whole.removed
+    assert np.mean(np.isclose(corrected.range, whole.range, atol=1e-4)[kept]) > 0.99
+    assert main(["reconstruct", str(tiled.path), "--calibration", str(cal), "-o", str(tmp_path / "scope"),
+                 "--stray-scope", "outside"]) == 2
+    assert "--stray-scope needs --variant fused-stray" in capsys.readouterr().err
 
 
 def test_same_output_for_any_worker_count_and_input_tiling(tiled_leaf, by_core, tmp_path):
