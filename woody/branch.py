@@ -251,15 +251,16 @@ class Branch:
         self.envelope = self.r_median + 3.0 * 1.4826 * median(np.abs(orth - self.r_median))
 
     def _fit_axis_point(self, pts: np.ndarray) -> None:
-        """Move the axis onto the centre of the circle fitted to the points seen along the axis (that of the points
-        within :data:`CIRCLE_TRIM` median distances of the centroid where it is :data:`CIRCLE_WIDE` times narrower)."""
+        """Move the axis onto the centre of the circle fitted to the points seen along the axis (in strict mode that
+        of the points within :data:`CIRCLE_TRIM` median distances of the centroid where it is :data:`CIRCLE_WIDE`
+        times narrower; the paper's faithful mode fits all the points)."""
         u, v, _ = orthonormal_frame(self.direction)
         rel = pts - self.axis_point
         xy = np.column_stack([rel @ u, rel @ v])
         distance = np.linalg.norm(xy, axis=1)
         near = distance <= CIRCLE_TRIM * np.median(distance)
         fits = [fit_circle(part) + (np.linalg.norm(part, axis=1).max(),)
-                for part in ((xy, xy[near]) if 8 <= near.sum() < len(xy) else (xy,))]
+                for part in ((xy, xy[near]) if 8 <= near.sum() < len(xy) and self.params.mode == "strict" else (xy,))]
         accepted = [np.isfinite(radius) and radius < 1.5 * extent for _, radius, extent in fits]
         if accepted[0]:
             trimmed = len(fits) == 2 and accepted[1] and fits[1][1] < fits[0][1] / CIRCLE_WIDE
