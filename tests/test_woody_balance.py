@@ -54,3 +54,26 @@ def test_a_clamped_section_keeps_its_own_circle_only_when_its_points_lie_on_it()
     assert _on_circle([section], limb) == [True]
     assert _on_circle([section], twigs) == [False]
     assert _on_circle([section], limb[:5]) == [False]  # too few points to tell
+
+
+def test_a_limb_grown_from_a_thin_twig_keeps_its_own_radius_through_the_pipe_model():
+    """A 2 cm limb seen from one side (its points on the circle) grown as the child of a 3 mm twig: the clamp at
+    the twig's radius is the parent's error, and the pipe model (on by default) must not shrink it again."""
+    from woody.cylinders import _records, apply_pipe_model
+
+    rng = np.random.default_rng(11)
+    angle, z = rng.uniform(0, 2 * np.pi, 200), rng.uniform(0.0, 0.1, 200)
+    twig = np.column_stack([0.003 * np.cos(angle), 0.003 * np.sin(angle), z])
+    angle, z = rng.uniform(0, np.pi, 1500), rng.uniform(0.1, 0.4, 1500)
+    limb = np.column_stack([0.02 * np.cos(angle), 0.02 * np.sin(angle), z]) + rng.normal(0, 0.0005, (1500, 3))
+    points, params = np.vstack([twig, limb]), FollowParams()
+    parent = Branch(0, 0, None, 1, (points, None), params)
+    child = Branch(1, 200, parent, 2, (points, None), params)
+    parent.points, child.points, parent.children = list(range(200)), list(range(200, 1700)), [child]
+    for branch in (parent, child):
+        branch.refit(np.array([0.0, 0.0, 1.0]))
+    records, _ = _records([parent, child], params, len(points), 0.003)
+    apply_pipe_model(records)
+    radii = [radius for _, _, radius in records[1]["sections"]]
+    assert records[0]["radius_m"] < 0.005 and len(radii) >= 2
+    assert all(0.017 < radius < 0.023 for radius in radii)

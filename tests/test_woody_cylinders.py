@@ -155,3 +155,20 @@ def test_the_start_does_not_hang_on_which_base_point_is_lowest(y_gap_cloud):
         radii.append(result.branches[0]["radius_m"])
     assert np.ptp(volumes) < 0.05 * np.mean(volumes)
     assert np.ptp(radii) < 0.05 * np.mean(radii)
+
+
+def test_a_few_side_twig_points_do_not_move_a_leaders_axis():
+    """A one-sided 15 mm leader (the visible half circle, 2 mm range noise) with five points of a side twig 4-5 cm
+    beside it: the circle that places the axis is fitted without the twig's points (all of them draw a 6 cm circle
+    whose centre lies 5 cm off the leader's axis)."""
+    from woody.branch import Branch
+
+    rng = np.random.default_rng(3)
+    angle, z = rng.uniform(-np.pi / 2, np.pi / 2, 80), rng.uniform(0, 0.12, 80)
+    leader = np.column_stack([-0.015 * np.cos(angle) + rng.normal(0, 0.002, 80), 0.015 * np.sin(angle), z])
+    twig = np.column_stack([np.zeros(5), np.linspace(0.04, 0.05, 5), rng.uniform(0, 0.12, 5)])
+    points = np.vstack([leader, twig])
+    branch = Branch(0, 0, None, 1, (points, None), FollowParams(direction="covariance"))
+    branch.points = list(range(len(points)))
+    branch.refit(np.array([0.0, 0.0, 1.0]))
+    assert branch.fitted and np.linalg.norm(branch.axis_point[:2]) < 0.003
