@@ -37,7 +37,9 @@ of them on leaves); every tested pulse onto its plane 0.6800 / 1.52 %
 0.639 / 0.786 -> 0.646 / 0.788, pear seed 7 at 3 m 0.655 / 0.786 -> 0.661 /
 0.787, seed 23 at 4 m 0.663 / 0.798 -> 0.670 / 0.798; not tuned on: seed 31
 at 2.5 m 0.682 / 0.822 -> 0.691 / 0.823, seed 41 at 5 m 0.656 / 0.771 ->
-0.661 / 0.772.
+0.661 / 0.772. At the quick suite's 0.08 deg (leafy tree; a window 4 times
+wider in metres) it costs a little: ``fused`` ROP reduction 1 cm 0.5224 ->
+0.5210, outlier flag precision 0.506 -> 0.499, recall 0.783 -> 0.785.
 """
 
 from __future__ import annotations
