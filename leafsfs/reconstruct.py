@@ -27,6 +27,7 @@ from leafsfs.fusion import noise_tails
 from leafsfs.leaves import Segmentation, angular_step, range_noise, segment_scan
 from leafsfs.params import VARIANTS, SfsParams
 from leafsfs.preprocess import resolve_calibration, scan_alpha
+from leafsfs.surfacetails import surface_tails
 from leafsfs.traits import leaf_traits
 from leafsfs.woodfit import wood_owner_range
 from tlssim.scan import Scan, grid_to_xyz
@@ -300,6 +301,13 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
     left = regions.unreliable & (regions.labels > 0) & ~grids.corrected & np.isfinite(regions.owner_range)
     grids.range[left] = regions.owner_range[left]
     grids.corrected |= left
+    if inliers == "refine":
+        # Pure pulses outside every leaf region (wood, background, leaves not found) in the tails of their window's
+        # noise take their neighbours' plane, as noise_tails moves a leaf's.
+        pure = valid & ~regions.unreliable & (regions.labels == 0) & ~grids.corrected
+        tails, plane = surface_tails(grids.range, pure, regions.noise)
+        grids.range[tails] = plane[tails]
+        grids.corrected |= tails
     # A pulse whose range proves it mixed and that no surface corrected lies between two surfaces and on neither.
     removed = regions.mixed & ~grids.corrected & (params.unexplained == "remove")
     grids.range[removed] = np.nan
@@ -343,6 +351,8 @@ class _Regions:
     ownerless : ndarray of bool, 2-D
         Unreliable pulses paired with two surfaces that no surface owns
         (:data:`OWNER_MARGIN`, :data:`OWNER_TOLERANCE_M`).
+    noise : ndarray, 2-D, or float
+        Each pulse's range noise (:func:`leafsfs.canopy.pulse_noise`), m.
     """
 
     labels: np.ndarray
@@ -354,6 +364,7 @@ class _Regions:
     mixed: np.ndarray
     thin: np.ndarray
     ownerless: np.ndarray
+    noise: np.ndarray | float
 
 
 class _Shares:
@@ -560,7 +571,8 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
         step = np.abs(mixed.pair_range[..., 0] - mixed.pair_range[..., 1])
         ownerless = unreliable & (mixed.pair[..., 1] > 0) & (off_half < OWNER_MARGIN) \
             & (off_half * step < OWNER_TOLERANCE_M)
-    return _Regions(labels, shares, background, unreliable, out_range, owner_range, proven, thin, ownerless)
+    return _Regions(labels, shares, background, unreliable, out_range, owner_range, proven, thin, ownerless,
+                    pulse_noise(segmentation.noise_m, scan.intensity, gain))
 
 
 def _rim_unlinked(scan: Scan, segmentation: Segmentation, gain_dn: float) -> Segmentation:
