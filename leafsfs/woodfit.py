@@ -169,16 +169,25 @@ def cylinder_ranges(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, t
     # Padded images (a core label where a return is, 0 elsewhere; the range) read the discs without bounds checks.
     fitted = np.pad(np.where(np.isfinite(range_m), cores, 0), h)
     padded = np.pad(range_m, h, constant_values=np.nan)
-    # Targets fitted in order of their count of core pulses, so a batch's neighbourhood tables, holding only those
-    # pulses, are about as wide as each row needs (a target's fit does not depend on its batch).
-    count = np.concatenate([(fitted[rows[i:i + CHUNK, None] + dr + h, cols[i:i + CHUNK, None] + dc + h]
-                             == owner[rows[i:i + CHUNK], cols[i:i + CHUNK], None]).sum(axis=1)
-                            for i in range(0, len(rows), CHUNK)] or [np.zeros(0, int)])
+    # Each target's core pulses of its owner in the disc (indices into the offsets), read once; the targets are
+    # fitted in order of their count, so a batch's neighbourhood tables, holding only those pulses, are about as wide
+    # as each row needs (a target's fit does not depend on its batch).
+    count, offset = [], []
+    for i in range(0, len(rows), CHUNK):
+        r, c = rows[i:i + CHUNK], cols[i:i + CHUNK]
+        ti, tj = np.nonzero(fitted[r[:, None] + dr + h, c[:, None] + dc + h] == owner[r, c, None])
+        count.append(np.bincount(ti, minlength=len(r)))
+        offset.append(tj.astype(np.int32))
+    count, offset = (np.concatenate(a or [np.zeros(0, int)]) for a in (count, offset))
+    first = np.cumsum(count) - count
     order = np.argsort(count, kind="stable")
-    rows, cols = rows[order], cols[order]
     for start in range(0, len(rows), CHUNK):
-        r, c = rows[start:start + CHUNK], cols[start:start + CHUNK]
-        out[r, c] = _fit(range_m, fitted, padded, h, owner, r, c, dr, dc, step_rad, noise_m)
+        batch = order[start:start + CHUNK]
+        ti = np.repeat(np.arange(len(batch)), count[batch])
+        tj = offset[np.repeat(first[batch] - (np.cumsum(count[batch]) - count[batch]), count[batch])
+                    + np.arange(len(ti))]
+        r, c = rows[batch], cols[batch]
+        out[r, c] = _fit(range_m, padded, h, owner, r, c, ti, tj, dr, dc, step_rad, noise_m)
     return out
 
 
@@ -189,22 +198,20 @@ def _take(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, fill):
     return np.where(inside, value, fill)
 
 
-def _fit(range_m, fitted, padded, h, owner, rows, cols, dr, dc, step_rad, noise_m):
+def _fit(range_m, padded, h, owner, rows, cols, ti, tj, dr, dc, step_rad, noise_m):
     """Circle-profile ranges at the pulses ``(rows, cols)`` from their owner's core pulses within a disc of offsets.
 
-    ``fitted`` and ``padded`` are the core labels with a return and the ranges, padded by ``h`` pixels. Only the
-    owner's core pulses enter the fits: each row's are packed to the left of tables as wide as the most of them
-    (offsets 0, weight 0 beyond).
+    ``padded`` holds the ranges, padded by ``h`` pixels; the owner's core pulses of row ``ti`` are at the offsets
+    ``tj`` (sorted by row, then offset). Only they enter the fits: each row's are packed to the left of tables as
+    wide as the most of them (offsets 0, weight 0 beyond).
     """
     label = owner[rows, cols]
-    rr, cc = rows[:, None] + dr + h, cols[:, None] + dc + h
-    ti, tj = np.nonzero(fitted[rr, cc] == label[:, None])
     per_row = np.bincount(ti, minlength=len(rows))
     slot = np.arange(len(ti)) - (np.cumsum(per_row) - per_row)[ti]
     shape = (len(rows), int(per_row.max(initial=0)))
     w, z = np.zeros(shape), np.full(shape, np.nan)
     w[ti, slot] = 1.0
-    z[ti, slot] = padded[rr[ti, tj], cc[ti, tj]]
+    z[ti, slot] = padded[rows[ti] + dr[tj] + h, cols[ti] + dc[tj] + h]
     offsets = dr, dc
     dr, dc = np.zeros(shape, dtype=int), np.zeros(shape, dtype=int)
     dr[ti, slot], dc[ti, slot] = offsets[0][tj], offsets[1][tj]
