@@ -210,7 +210,7 @@ def local_planes_of(images: list, valid: np.ndarray, grid: PixelGrid, centres: n
     planes = []
     for image in images:
         h = np.where(w > 0, np.pad(image, pad).ravel()[flat], 0.0)
-        rhs = np.einsum("nk,ka->na", w * h, design)
+        rhs = np.einsum("nk,ka->na", h, design)  # h is 0 where the weight is: w h = h
         coef = np.linalg.solve(normal, rhs[..., None])[..., 0]
         if spread:
             resid = h - coef @ design.T
