@@ -185,25 +185,21 @@ def _fit_disc(fitted, padded, h, range_m, owner, rows, cols, radius_px, step_rad
     dr, dc = dr[disc], dc[disc]
     width = range_m.shape[1] + 2 * h
     delta = dr * width + dc  # the disc's offsets in the padded images' flat index
-    # Each target's core pulses of its owner in the disc (indices into the offsets), read once; the targets are
-    # fitted in order of their count, so a batch's neighbourhood tables, holding only those pulses, are about as wide
-    # as each row needs (a target's fit does not depend on its batch).
-    count, offset = [], []
-    for i in range(0, len(rows), CHUNK):
-        r, c = rows[i:i + CHUNK], cols[i:i + CHUNK]
-        ti, tj = np.nonzero(fitted[((r + h) * width + c + h)[:, None] + delta] == owner[r, c, None])
-        count.append(np.bincount(ti, minlength=len(r)))
-        offset.append(tj.astype(np.int32))
-    count, offset = (np.concatenate(a or [np.zeros(0, int)]) for a in (count, offset))
-    first = np.cumsum(count) - count
+    # Targets fitted in order of their count of core pulses, so a batch's neighbourhood tables, holding only those
+    # pulses, are about as wide as each row needs (a target's fit does not depend on its batch). The discs are read
+    # again per batch: keeping every target's pulses would hold ~70 bytes per pulse of the orchard window.
+    def members(r, c):  # each row's owner core pulses in the disc (row, index into the offsets)
+        return np.nonzero(fitted[((r + h) * width + c + h)[:, None] + delta] == owner[r, c, None])
+
+    count = np.concatenate([np.bincount(members(rows[i:i + CHUNK], cols[i:i + CHUNK])[0],
+                                        minlength=len(rows[i:i + CHUNK])) for i in range(0, len(rows), CHUNK)]
+                           or [np.zeros(0, int)])
     order = np.argsort(count, kind="stable")
     out = np.full(len(rows), np.nan)
     for start in range(0, len(rows), CHUNK):
         batch = order[start:start + CHUNK]
-        ti = np.repeat(np.arange(len(batch)), count[batch])
-        tj = offset[np.repeat(first[batch] - (np.cumsum(count[batch]) - count[batch]), count[batch])
-                    + np.arange(len(ti))]
-        out[batch] = _fit(range_m, padded, h, owner, rows[batch], cols[batch], ti, tj, dr, dc, step_rad, noise_m)
+        r, c = rows[batch], cols[batch]
+        out[batch] = _fit(range_m, padded, h, owner, r, c, *members(r, c), dr, dc, step_rad, noise_m)
     return out
 
 
