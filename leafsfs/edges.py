@@ -458,7 +458,7 @@ def _extrapolate(images: list, cores: np.ndarray, label: int, source: np.ndarray
     offset = np.stack(np.divmod(target, cols), axis=1) - centres[inverse]
     values = []
     for image, planes in zip(images, local_planes_of([image[window] for image in images], cores[window] == label,
-                                                     PixelGrid(), centres - low, radius_px)):
+                                                     PixelGrid(), centres - low, radius_px, spread=False)):
         value = planes.height[inverse] + np.sum(planes.gradient[inverse] * offset, axis=1)
         # Too few pixels for a plane (a sliver): the nearest pixel's value.
         values.append(np.where(np.isfinite(value), value, image.flat[source]))

@@ -155,7 +155,7 @@ def local_planes(image: np.ndarray, valid: np.ndarray, grid: PixelGrid, centres:
 
 
 def local_planes_of(images: list, valid: np.ndarray, grid: PixelGrid, centres: np.ndarray,
-                    radius_px: float, order: int = 1) -> list:
+                    radius_px: float, order: int = 1, spread: bool = True) -> list:
     """:func:`local_planes` of several images on the same valid pixels and centres (the normal equations once).
 
     Parameters
@@ -172,6 +172,9 @@ def local_planes_of(images: list, valid: np.ndarray, grid: PixelGrid, centres: n
         Neighbourhood radius, pixels.
     order : {1, 2}
         Degree of the fitted polynomial surface.
+    spread : bool
+        Whether the residuals' RMS and the gradient's covariance are computed
+        (False: they are NaN, and their cost, most of the fit's, is saved).
 
     Returns
     -------
@@ -182,35 +185,40 @@ def local_planes_of(images: list, valid: np.ndarray, grid: PixelGrid, centres: n
     di, dj = np.mgrid[-r:r + 1, -r:r + 1]
     keep = di**2 + dj**2 <= radius_px**2 + 1e-9
     offsets = np.stack([di[keep], dj[keep]], axis=1)
-    rows, cols = valid.shape
-    i = centres[:, None, 0] + offsets[None, :, 0]
-    j = centres[:, None, 1] + offsets[None, :, 1]
-    inside = (i >= 0) & (i < rows) & (j >= 0) & (j < cols)
-    ic, jc = np.clip(i, 0, rows - 1), np.clip(j, 0, cols - 1)
-    w = (inside & valid[ic, jc]).astype(float)
+    # The images padded (invalid) so that every neighbourhood lies inside: one flat index per neighbour.
+    pad = max(r, r - int(centres.min(initial=0)), *(r + int(centres[:, a].max(initial=0)) + 1 - valid.shape[a]
+                                                    for a in (0, 1)))
+    width = valid.shape[1] + 2 * pad
+    flat = ((centres[:, 0] + pad) * width + centres[:, 1] + pad)[:, None] + (offsets[:, 0] * width + offsets[:, 1])
+    w = np.pad(valid, pad).ravel()[flat].astype(float)
     dx = offsets @ grid.matrix.T  # continuous offsets, (k, 2)
     columns = [np.ones(len(offsets)), dx[:, 0], dx[:, 1]]
     if order == 2:
         columns += [dx[:, 0] ** 2, dx[:, 0] * dx[:, 1], dx[:, 1] ** 2]
     design = np.stack(columns, axis=1)  # (k, 3 or 6)
     terms = design.shape[1]
-    # The weights are 0 or 1, so the products of two operands are those of three; the sums run over k in order.
+    # The weights are 0 or 1, so the products of two operands are those of three; the sums run over k in order,
+    # or in any order (a matrix product) where they are sums of integers that are exact in floating point.
     outer = (design[:, :, None] * design[:, None, :]).reshape(len(design), terms * terms)
-    normal = np.einsum("nk,kc->nc", w, outer).reshape(len(w), terms, terms)
+    exact = np.array_equal(outer, np.round(outer)) and np.abs(outer).sum() < 2.0 ** 52
+    normal = (w @ outer if exact else np.einsum("nk,kc->nc", w, outer)).reshape(len(w), terms, terms)
     count = w.sum(axis=1)
     ok = (count >= terms + 1) & (np.abs(np.linalg.det(normal)) > 1e-300)
     normal[~ok] = np.eye(terms)
-    inverse = np.linalg.inv(normal)
+    inverse = np.linalg.inv(normal) if spread else None
     nan = np.where(ok, 1.0, np.nan)
     planes = []
     for image in images:
-        h = np.where(w > 0, image[ic, jc], 0.0)
-        rhs = np.einsum("nk,ka->na", w * h, design)
+        h = np.where(w > 0, np.pad(image, pad).ravel()[flat], 0.0)
+        rhs = np.einsum("nk,ka->na", h, design)  # h is 0 where the weight is: w h = h
         coef = np.linalg.solve(normal, rhs[..., None])[..., 0]
-        resid = h - coef @ design.T
-        dof = np.maximum(count - terms, 1)
-        rms = np.sqrt(np.sum(w * resid**2, axis=1) / dof)
-        covariance = rms[:, None, None] ** 2 * inverse[:, 1:3, 1:3]
+        if spread:
+            resid = h - coef @ design.T
+            dof = np.maximum(count - terms, 1)
+            rms = np.sqrt(np.sum(w * resid**2, axis=1) / dof)
+            covariance = rms[:, None, None] ** 2 * inverse[:, 1:3, 1:3]
+        else:
+            rms, covariance = np.full(len(w), np.nan), np.full((len(w), 2, 2), np.nan)
         planes.append(LocalPlanes(coef[:, 0] * nan, coef[:, 1:3] * nan[:, None], covariance * nan[:, None, None],
                                   rms * nan, count))
     return planes

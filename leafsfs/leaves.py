@@ -29,7 +29,8 @@ from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 
 from leafsfs.canopy import (MIN_LEAF_WIDTH_M, dark_surfaces, edge_pulses, join_occluded, narrow_surfaces,
-                            principal_spreads, pulse_noise, shifted, split_creases, split_necks, wood_surfaces)
+                            principal_spreads, pulse_noise, rim_mixed, shifted, split_creases, split_necks,
+                            wood_surfaces)
 from leafsfs.edges import MixedPulses, attribute_mixed, band_pixels
 from leafsfs.errors import SfsError
 from tlssim.pattern import beam_frame
@@ -190,7 +191,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
                  neck_ratio: float = 0.3, gain_dn: float | None = None, max_aspect: float = 4.0,
                  min_fill: float = 0.5, occluder_gap_m: float = 0.01, crease_angle_deg: float = 40.0,
                  min_piece_px: int = 3, min_leaf_width_m: float = MIN_LEAF_WIDTH_M,
-                 lobe_ratio: float = 0.15) -> Segmentation:
+                 lobe_ratio: float = 0.15, rim_sigma: float = 0.0) -> Segmentation:
     """Surfaces, mixed pulses and leaf regions of a scan.
 
     Parameters
@@ -293,6 +294,12 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         leaf the neck cut took off, and joins it
         (:func:`leafsfs.canopy.join_occluded`'s ``lobe_ratio``; needs
         ``occluder_gap_m`` > 0; 0: not joined).
+    rim_sigma : float
+        The pulses linked into a surface's outline whose range lies more than
+        this many of their range-noise standard deviations off the surface's
+        core (:func:`leafsfs.canopy.rim_mixed`, footprint radius margin) are
+        mixed: they leave their surface before the mixed pulses are
+        attributed (0: none leave).
     """
     valid = np.isfinite(range_m)
     if not valid.any():
@@ -376,6 +383,11 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         # numbered after every label used so far (a joined top label leaves its number unused)
         surfaces = np.where(piece, index.reshape(surfaces.shape) + len(leaf) - 1, surfaces)
         leaf = np.concatenate([leaf, np.zeros(max(int(surfaces.max()) + 1 - len(leaf), 0), dtype=bool)])
+    if rim_sigma > 0:
+        rim = rim_mixed(range_m, surfaces, pulse_noise(sigma, intensity, gain_dn), max(1.0, 2 * footprint) / 2,
+                        rim_sigma)
+        surfaces = np.where(rim, 0, surfaces)
+        reach = band_pixels(reach_m, range_m, surfaces, step) if reach_m > 0 else 0
     mixed = attribute_mixed(range_m, surfaces, band, intensity, tolerance_m=3 * sigma,
                             reach_px=reach)
     leaf_surfaces = np.nonzero(leaf)[0]

@@ -18,13 +18,13 @@ import numpy as np
 import trimesh
 from scipy import ndimage
 
-from leafsfs.canopy import pulse_noise, rim_mixed, rim_shares, visibility
-from leafsfs.edges import attribute_mixed, band_pixels, bracketed
+from leafsfs.canopy import pulse_noise, rim_shares, visibility
+from leafsfs.edges import bracketed
 from leafsfs.engine import HeightResult, reconstruct_heights
 from leafsfs.errors import SfsError
 from leafsfs.frame import MARGIN_PX, LocalFrame, local_frame
 from leafsfs.fusion import noise_tails
-from leafsfs.leaves import Segmentation, angular_step, range_noise, segment_scan
+from leafsfs.leaves import range_noise, segment_scan
 from leafsfs.params import VARIANTS, SfsParams
 from leafsfs.preprocess import resolve_calibration, scan_alpha
 from leafsfs.surfacetails import surface_tails
@@ -511,8 +511,8 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
         When no leaf pixel has a valid return.
     """
     gain = float(scan.scanner.assumed_model.log_gain_dn)  # the recorded model's, else the default preset's
-    segmentation = _rim_unlinked(scan, segment_scan(scan.range, scan.theta, scan.psi, alpha, intensity=scan.intensity,
-                                                    gain_dn=gain), gain)
+    segmentation = segment_scan(scan.range, scan.theta, scan.psi, alpha, intensity=scan.intensity, gain_dn=gain,
+                                rim_sigma=RIM_MIXED_SIGMA)
     mixed = segmentation.mixed
     unreliable = valid & mixed.straddling
     out_range = scan.range.copy()
@@ -573,34 +573,6 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
             & (off_half * step < OWNER_TOLERANCE_M)
     return _Regions(labels, shares, background, unreliable, out_range, owner_range, proven, thin, ownerless,
                     pulse_noise(segmentation.noise_m, scan.intensity, gain))
-
-
-def _rim_unlinked(scan: Scan, segmentation: Segmentation, gain_dn: float) -> Segmentation:
-    """The segmentation with the mixed pulses linked into a surface's outline (:func:`leafsfs.canopy.rim_mixed`)
-    taken out of it and attributed (:func:`leafsfs.edges.attribute_mixed`) with the other mixed pulses.
-
-    Parameters
-    ----------
-    scan : tlssim.Scan
-        The scan (ranges in m, intensities in DN).
-    segmentation : Segmentation
-        :func:`leafsfs.leaves.segment_scan`'s result with its default parameters.
-    gain_dn : float
-        Log-amplifier gain, DN per e-fold (the per-pulse noise, :func:`leafsfs.canopy.pulse_noise`).
-    """
-    mixed = segmentation.mixed
-    noise = pulse_noise(segmentation.noise_m, scan.intensity, gain_dn)
-    rim = rim_mixed(scan.range, mixed.surfaces, noise, segmentation.footprint_px / 2, RIM_MIXED_SIGMA)
-    if not rim.any():
-        return segmentation
-    surfaces = np.where(rim, 0, mixed.surfaces)
-    reach = band_pixels(segmentation.reach_m, scan.range, surfaces, angular_step(scan.theta, scan.psi)) \
-        if segmentation.reach_m > 0 else 0
-    mixed = attribute_mixed(scan.range, surfaces, segmentation.band_px, scan.intensity,
-                            tolerance_m=3 * segmentation.noise_m, reach_px=reach)
-    relabel = np.zeros(int(segmentation.mixed.surfaces.max()) + 1, dtype=int)
-    relabel[segmentation.leaf_surfaces] = np.arange(1, len(segmentation.leaf_surfaces) + 1)
-    return dataclasses.replace(segmentation, leaves=np.where(mixed.thin, 0, relabel[mixed.owner]), mixed=mixed)
 
 
 def _mixes_in_range(region: np.ndarray, paired: np.ndarray, rim_px: float) -> np.ndarray:

@@ -132,7 +132,7 @@ def wood_labels(surfaces: np.ndarray, range_m: np.ndarray, theta: np.ndarray, ps
 
 
 def cylinder_ranges(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, targets: np.ndarray, step_rad: float,
-                    radius_px: float, noise_m: float) -> np.ndarray:
+                    radius_px, noise_m: float) -> np.ndarray:
     """Distance of each target pulse's owner surface from the circle across it (NaN where none fits).
 
     Parameters
@@ -150,8 +150,9 @@ def cylinder_ranges(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, t
         The pulses to give their owner's circle distance.
     step_rad : float
         Angle between neighbouring beams, rad.
-    radius_px : float
-        Radius of the neighbourhood whose core pulses fit the depth, pixels.
+    radius_px : float or ndarray, 2-D
+        Radius of the neighbourhood whose core pulses fit the depth, pixels
+        (one for all, or per pulse).
     noise_m : float
         Range noise, m (sigma).
 
@@ -162,23 +163,43 @@ def cylinder_ranges(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, t
     """
     out = np.full(range_m.shape, np.nan)
     rows, cols = np.nonzero(targets & (owner > 0))
-    h = int(math.ceil(radius_px))
+    radii = np.broadcast_to(np.asarray(radius_px, dtype=float), range_m.shape)[rows, cols]
+    h = int(math.ceil(radii.max(initial=0)))
+    # Padded images (a core label where a return is, 0 elsewhere, flat; the range) read the discs without bounds
+    # checks.
+    fitted = np.pad(np.where(np.isfinite(range_m), cores, 0), h)
+    fitted = fitted.astype(np.int32).ravel() if fitted.max(initial=0) < 2**31 else fitted.ravel()
+    padded = np.pad(range_m, h, constant_values=np.nan)
+    for radius in np.unique(radii):
+        at = radii == radius
+        out[rows[at], cols[at]] = _fit_disc(fitted, padded, h, range_m, owner, rows[at], cols[at], radius, step_rad,
+                                            noise_m)
+    return out
+
+
+def _fit_disc(fitted, padded, h, range_m, owner, rows, cols, radius_px, step_rad, noise_m):
+    """:func:`cylinder_ranges` of the targets ``(rows, cols)`` on one disc radius (``fitted``, ``padded``: the core
+    labels, flat, and the ranges, padded by ``h`` pixels)."""
     dr, dc = np.mgrid[-h:h + 1, -h:h + 1]
     disc = dr ** 2 + dc ** 2 <= radius_px ** 2
     dr, dc = dr[disc], dc[disc]
-    # Padded images (a core label where a return is, 0 elsewhere; the range) read the discs without bounds checks.
-    fitted = np.pad(np.where(np.isfinite(range_m), cores, 0), h)
-    padded = np.pad(range_m, h, constant_values=np.nan)
+    width = range_m.shape[1] + 2 * h
+    delta = dr * width + dc  # the disc's offsets in the padded images' flat index
     # Targets fitted in order of their count of core pulses, so a batch's neighbourhood tables, holding only those
-    # pulses, are about as wide as each row needs (a target's fit does not depend on its batch).
-    count = np.concatenate([(fitted[rows[i:i + CHUNK, None] + dr + h, cols[i:i + CHUNK, None] + dc + h]
-                             == owner[rows[i:i + CHUNK], cols[i:i + CHUNK], None]).sum(axis=1)
-                            for i in range(0, len(rows), CHUNK)] or [np.zeros(0, int)])
+    # pulses, are about as wide as each row needs (a target's fit does not depend on its batch). The discs are read
+    # again per batch: keeping every target's pulses would hold ~70 bytes per pulse of the orchard window.
+    def members(r, c):  # each row's owner core pulses in the disc (row, index into the offsets)
+        return np.nonzero(fitted[((r + h) * width + c + h)[:, None] + delta] == owner[r, c, None])
+
+    count = np.concatenate([np.bincount(members(rows[i:i + CHUNK], cols[i:i + CHUNK])[0],
+                                        minlength=len(rows[i:i + CHUNK])) for i in range(0, len(rows), CHUNK)]
+                           or [np.zeros(0, int)])
     order = np.argsort(count, kind="stable")
-    rows, cols = rows[order], cols[order]
+    out = np.full(len(rows), np.nan)
     for start in range(0, len(rows), CHUNK):
-        r, c = rows[start:start + CHUNK], cols[start:start + CHUNK]
-        out[r, c] = _fit(range_m, fitted, padded, h, owner, r, c, dr, dc, step_rad, noise_m)
+        batch = order[start:start + CHUNK]
+        r, c = rows[batch], cols[batch]
+        out[batch] = _fit(range_m, padded, h, owner, r, c, *members(r, c), dr, dc, step_rad, noise_m)
     return out
 
 
@@ -189,22 +210,20 @@ def _take(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, fill):
     return np.where(inside, value, fill)
 
 
-def _fit(range_m, fitted, padded, h, owner, rows, cols, dr, dc, step_rad, noise_m):
+def _fit(range_m, padded, h, owner, rows, cols, ti, tj, dr, dc, step_rad, noise_m):
     """Circle-profile ranges at the pulses ``(rows, cols)`` from their owner's core pulses within a disc of offsets.
 
-    ``fitted`` and ``padded`` are the core labels with a return and the ranges, padded by ``h`` pixels. Only the
-    owner's core pulses enter the fits: each row's are packed to the left of tables as wide as the most of them
-    (offsets 0, weight 0 beyond).
+    ``padded`` holds the ranges, padded by ``h`` pixels; the owner's core pulses of row ``ti`` are at the offsets
+    ``tj`` (sorted by row, then offset). Only they enter the fits: each row's are packed to the left of tables as
+    wide as the most of them (offsets 0, weight 0 beyond).
     """
     label = owner[rows, cols]
-    rr, cc = rows[:, None] + dr + h, cols[:, None] + dc + h
-    ti, tj = np.nonzero(fitted[rr, cc] == label[:, None])
     per_row = np.bincount(ti, minlength=len(rows))
     slot = np.arange(len(ti)) - (np.cumsum(per_row) - per_row)[ti]
     shape = (len(rows), int(per_row.max(initial=0)))
     w, z = np.zeros(shape), np.full(shape, np.nan)
     w[ti, slot] = 1.0
-    z[ti, slot] = padded[rr[ti, tj], cc[ti, tj]]
+    z[ti, slot] = padded[rows[ti] + dr[tj] + h, cols[ti] + dc[tj] + h]
     offsets = dr, dc
     dr, dc = np.zeros(shape, dtype=int), np.zeros(shape, dtype=int)
     dr[ti, slot], dc[ti, slot] = offsets[0][tj], offsets[1][tj]

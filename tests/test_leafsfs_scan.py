@@ -74,6 +74,13 @@ def test_planes_of_several_images_are_those_of_each():
     fitted = np.isfinite(both[0].height)
     assert fitted.mean() > 0.9
     assert np.allclose(both[0].gradient[fitted], [0.3, -0.7], atol=1e-9)
+    # Without the spread: the same planes, no RMS nor covariance; on a grid of pixel steps too (integer sums).
+    for g in (grid, PixelGrid()):
+        full = local_planes_of([plane, noisy], valid, g, centres, 3.5)
+        for planes, bare in zip(full, local_planes_of([plane, noisy], valid, g, centres, 3.5, spread=False)):
+            for name in ("height", "gradient", "count"):
+                assert np.array_equal(getattr(planes, name), getattr(bare, name), equal_nan=True)
+            assert np.isnan(bare.rms).all() and np.isnan(bare.covariance).all()
 
 
 def test_runaway_heights_are_not_plausible():
