@@ -132,7 +132,7 @@ def wood_labels(surfaces: np.ndarray, range_m: np.ndarray, theta: np.ndarray, ps
 
 
 def cylinder_ranges(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, targets: np.ndarray, step_rad: float,
-                    radius_px, noise_m: float) -> np.ndarray:
+                    radius_px: float, noise_m: float) -> np.ndarray:
     """Distance of each target pulse's owner surface from the circle across it (NaN where none fits).
 
     Parameters
@@ -150,9 +150,8 @@ def cylinder_ranges(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, t
         The pulses to give their owner's circle distance.
     step_rad : float
         Angle between neighbouring beams, rad.
-    radius_px : float or ndarray, 2-D
-        Radius of the neighbourhood whose core pulses fit the depth, pixels
-        (one for all, or per pulse).
+    radius_px : float
+        Radius of the neighbourhood whose core pulses fit the depth, pixels.
     noise_m : float
         Range noise, m (sigma).
 
@@ -163,23 +162,12 @@ def cylinder_ranges(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, t
     """
     out = np.full(range_m.shape, np.nan)
     rows, cols = np.nonzero(targets & (owner > 0))
-    radii = np.broadcast_to(np.asarray(radius_px, dtype=float), range_m.shape)[rows, cols]
-    h = int(math.ceil(radii.max(initial=0)))
+    h = int(math.ceil(radius_px))
     # Padded images (a core label where a return is, 0 elsewhere, flat; the range) read the discs without bounds
     # checks.
     fitted = np.pad(np.where(np.isfinite(range_m), cores, 0), h)
     fitted = fitted.astype(np.int32).ravel() if fitted.max(initial=0) < 2**31 else fitted.ravel()
     padded = np.pad(range_m, h, constant_values=np.nan)
-    for radius in np.unique(radii):
-        at = radii == radius
-        out[rows[at], cols[at]] = _fit_disc(fitted, padded, h, range_m, owner, rows[at], cols[at], radius, step_rad,
-                                            noise_m)
-    return out
-
-
-def _fit_disc(fitted, padded, h, range_m, owner, rows, cols, radius_px, step_rad, noise_m):
-    """:func:`cylinder_ranges` of the targets ``(rows, cols)`` on one disc radius (``fitted``, ``padded``: the core
-    labels, flat, and the ranges, padded by ``h`` pixels)."""
     dr, dc = np.mgrid[-h:h + 1, -h:h + 1]
     disc = dr ** 2 + dc ** 2 <= radius_px ** 2
     dr, dc = dr[disc], dc[disc]
@@ -195,11 +183,10 @@ def _fit_disc(fitted, padded, h, range_m, owner, rows, cols, radius_px, step_rad
                                         minlength=len(rows[i:i + CHUNK])) for i in range(0, len(rows), CHUNK)]
                            or [np.zeros(0, int)])
     order = np.argsort(count, kind="stable")
-    out = np.full(len(rows), np.nan)
     for start in range(0, len(rows), CHUNK):
         batch = order[start:start + CHUNK]
         r, c = rows[batch], cols[batch]
-        out[batch] = _fit(range_m, padded, h, owner, r, c, *members(r, c), dr, dc, step_rad, noise_m)
+        out[r, c] = _fit(range_m, padded, h, owner, r, c, *members(r, c), dr, dc, step_rad, noise_m)
     return out
 
 
