@@ -250,18 +250,15 @@ def _register_prop_sfs() -> None:
         register_variant(_prop_sfs_variant(f"buffer-{shell}", "buffer", {**defaults, "shell_set": shell}))
     # ``fused-stray``: the rule on the pulses PROP-SFS moved, with the ``stray-point`` variant's settings
     stray = {"scope": "moved", **baselines.STRAY_POINT_RULE}
-    register_variant(_prop_sfs_variant("fused-stray", "fused",
-                                       {**defaults, **{STRAY_PREFIX + key: value for key, value in stray.items()}}))
+    register_variant(_prop_sfs_variant("fused-stray", "fused", _with_stray(defaults, stray)))
     # ``fused-stray5``, for coarse steps: the rule in a 5 px window on the moved pulses, and the pulses in no leaf
     # region with no neighbour at their range removed (:func:`leafsfs.strays.remove_strays`, scope ``isolated``)
     stray = {**stray, "scope": "isolated", "window_px": 5}
-    register_variant(_prop_sfs_variant("fused-stray5", "fused",
-                                       {**defaults, **{STRAY_PREFIX + key: value for key, value in stray.items()}}))
+    register_variant(_prop_sfs_variant("fused-stray5", "fused", _with_stray(defaults, stray)))
     # ``fused-stray-out``, for coarse steps: PROP-SFS's changes kept only within its leaves, and the rule (the
     # ``stray-point`` variant's settings) on the pulses it moved there and on every pulse outside them
     stray = {"scope": "outside", **baselines.STRAY_POINT_RULE}
-    register_variant(_prop_sfs_variant("fused-stray-out", "fused",
-                                       {**defaults, **{STRAY_PREFIX + key: value for key, value in stray.items()}}))
+    register_variant(_prop_sfs_variant("fused-stray-out", "fused", _with_stray(defaults, stray)))
 
 
 def _calibration(scan):
@@ -279,6 +276,11 @@ SEGMENTATIONS = ("auto", "mask")
 #: Prefix of a PROP-SFS variant's parameters for the stray-point rule it applies after PROP-SFS
 #: (:func:`leafsfs.strays.remove_strays`'s, without the prefix).
 STRAY_PREFIX = "stray_"
+
+
+def _with_stray(params: dict, stray: dict) -> dict:
+    """``params`` and the stray-point rule's settings ``stray`` (:func:`leafsfs.strays.remove_strays`'s), prefixed."""
+    return {**params, **{STRAY_PREFIX + key: value for key, value in stray.items()}}
 
 
 def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:

@@ -106,10 +106,15 @@ def stray_scope(result: SfsResult, scope: str = "moved") -> np.ndarray:
     moved = valid & result.corrected & (result.range != result.scan.range)
     if scope == "moved":
         return moved
-    outside = ~np.isin(result.labels, [leaf.label for leaf in result.leaves])
+    outside = _in_no_leaf(result)
     if scope == "outside":
         return (moved & ~outside) | (result.scan.valid & outside)
     return moved | (valid & outside)
+
+
+def _in_no_leaf(result: SfsResult) -> np.ndarray:
+    """Pixels in no reconstructed leaf region of ``result``."""
+    return ~np.isin(result.labels, [leaf.label for leaf in result.leaves])
 
 
 def remove_strays(result: SfsResult, scope: str = "moved", window_px: int = STRAY_POINT_RULE["window_px"],
@@ -149,7 +154,7 @@ def remove_strays(result: SfsResult, scope: str = "moved", window_px: int = STRA
     candidates = stray_scope(result, scope)
     strays = candidates & ~stray_point_filter(result.scan, None, window_px, max_range_diff_m, min_share)
     if scope == "outside":
-        back = result.scan.valid & ~np.isin(result.labels, [leaf.label for leaf in result.leaves])
+        back = result.scan.valid & _in_no_leaf(result)
         result = dataclasses.replace(result, range=np.where(back, result.scan.range, result.range),
                                      corrected=result.corrected & ~back, outlier=result.outlier & ~back,
                                      removed=result.removed & ~back)
@@ -158,8 +163,7 @@ def remove_strays(result: SfsResult, scope: str = "moved", window_px: int = STRA
         # a share of at least one neighbour in eight: one neighbour at the pulse's range keeps it
         lone = ~stray_point_filter(result.scan, None, ISOLATED_WINDOW_PX, max_range_diff_m,
                                    1.0 / (ISOLATED_WINDOW_PX ** 2 - 1))
-        strays = (strays & moved) | (candidates & ~np.isin(result.labels, [leaf.label for leaf in result.leaves])
-                                     & lone)
+        strays = (strays & moved) | (candidates & _in_no_leaf(result) & lone)
     return dataclasses.replace(result, range=np.where(strays, np.nan, result.range),
                                corrected=result.corrected | strays, outlier=result.outlier | strays,
                                removed=result.removed | strays)
