@@ -383,9 +383,9 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         # numbered after every label used so far (a joined top label leaves its number unused)
         surfaces = np.where(piece, index.reshape(surfaces.shape) + len(leaf) - 1, surfaces)
         leaf = np.concatenate([leaf, np.zeros(max(int(surfaces.max()) + 1 - len(leaf), 0), dtype=bool)])
+    footprint_px = max(1.0, 2 * footprint)
     if rim_sigma > 0:
-        rim = rim_mixed(range_m, surfaces, pulse_noise(sigma, intensity, gain_dn), max(1.0, 2 * footprint) / 2,
-                        rim_sigma)
+        rim = rim_mixed(range_m, surfaces, pulse_noise(sigma, intensity, gain_dn), footprint_px / 2, rim_sigma)
         surfaces = np.where(rim, 0, surfaces)
         reach = band_pixels(reach_m, range_m, surfaces, step) if reach_m > 0 else 0
     mixed = attribute_mixed(range_m, surfaces, band, intensity, tolerance_m=3 * sigma,
@@ -393,8 +393,8 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     leaf_surfaces = np.nonzero(leaf)[0]
     relabel = np.zeros(len(leaf), dtype=int)
     relabel[leaf_surfaces] = np.arange(1, len(leaf_surfaces) + 1)
-    return Segmentation(np.where(mixed.thin, 0, relabel[mixed.owner]), leaf_surfaces, mixed, max(1.0, 2 * footprint),
-                        band, sigma, reach_m)
+    return Segmentation(np.where(mixed.thin, 0, relabel[mixed.owner]), leaf_surfaces, mixed, footprint_px, band,
+                        sigma, reach_m)
 
 
 def _rejoin_background(cut: np.ndarray, surfaces: np.ndarray, border: np.ndarray, leaf: np.ndarray) -> np.ndarray:
