@@ -666,13 +666,16 @@ def _reconstruct_window(tiled: TiledScan, band: tuple, core: tuple, leaf_size_m:
     rank = np.zeros(n + 1, dtype=np.int32)
     rank[[leaf.label for leaf in kept]] = np.arange(1, len(kept) + 1, dtype=np.int32)
     # A window keeps its regions and the pulses corrected outside any region (background pulses) whose nearest
-    # region it keeps; the others get back their measured values here (another window gives them).
+    # region it keeps, or that lie in its core: the window of their nearest region overrides these where it
+    # holds them (:func:`_assemble_core`). The others get back their measured values here.
     loose = result.corrected & (labels == 0)
     owner = labels
     if loose.any() and (labels > 0).any():
         nearest = ndimage.distance_transform_edt(labels == 0, return_distances=False, return_indices=True)
         owner = labels[tuple(nearest)]
-    claim = mine[labels] | (loose & mine[owner])
+    in_core = np.zeros(labels.shape, bool)
+    in_core[r0 - h0:r1 - h0, c0 - w0:c1 - w0] = True
+    claim = mine[labels] | (loose & (mine[owner] | in_core))
     dropped = ((labels > 0) | loose) & ~claim
     traits = [{**leaf.traits, "margin_cols": margin_c, "margin_rows": margin_r,
                "centroid_col": float(centre[1][leaf.label] % cols), "centroid_row": float(centre[0][leaf.label])}
@@ -688,7 +691,7 @@ def _reconstruct_window(tiled: TiledScan, band: tuple, core: tuple, leaf_size_m:
 def _split_window(extent: tuple, core: tuple, margins: tuple, outputs: dict, claim: np.ndarray, traits: list,
                   skipped: list) -> _Window:
     """A window's outputs over its core rectangle, dense, and its kept pixels beyond it, as a list."""
-    (h0, h1, w0, w1), (r0, r1, c0, c1) = extent, core
+    (h0, _, w0, _), (r0, r1, c0, c1) = extent, core
     inner = (slice(r0 - h0, r1 - h0), slice(c0 - w0, c1 - w0))
     beyond = claim.copy()
     beyond[inner] = False
