@@ -203,11 +203,10 @@ def case_rows(case: dict, variants: list[dict]):
 #: simulated into tiles on disk and scored window by window (:func:`_tiled_rows`), bytes.
 TILED_SCAN_BYTES = 2 * 1024**3
 #: Memory of one scoring window of a tiled case (the scan's columns, the truth, the variant's outputs), bytes, at
-#: :data:`leafsfs.tiled.RECONSTRUCT_BYTES_PER_PULSE` per pulse (imports and scan included). The reconstruction itself
-#: peaked at 815 MB above its start on the orchard row's 3.66 M-pulse windows at 0.018 deg (223 bytes per pulse),
-#: so a window of this budget (at most 9.2 M pulses) stays near 2-3 GB, within issue 16's 8 GB. Smaller windows
-#: repeat their margins' pulses: the orchard row's 3334 x 3334 window at 0.018 deg (margins of about 440 columns)
-#: is 8 windows of 29.4 M pulses in all at 2e9, 2 windows of 14.0 M at 6e9.
+#: :data:`leafsfs.tiled.RECONSTRUCT_BYTES_PER_PULSE` per pulse (imports and scan included): windows of at most
+#: 18 M pulses, within issue 16's 8 GB. Smaller windows repeat their margins' pulses and cut leaves near the
+#: borders: the orchard row's 3334 x 3334 window at 0.018 deg (margins of about 440 columns) is one window of
+#: 11.1 M pulses at this budget (peak 3,120 MB), 2 windows of 14.0 M in all at 3e9.
 TILED_WINDOW_BYTES = 6e9
 
 

@@ -90,9 +90,11 @@ BAND_ROWS = 1024
 #: Columns from the scan's start whose margins size the windows of the ``leafsfs reconstruct`` command (a fixed
 #: count rather than the first tile, so that the windows do not depend on how the scan was tiled).
 SIZING_COLS = 1024
-#: Memory of a reconstruction per pulse of its window, bytes: the ``leafsfs reconstruct`` process peaked at 664 MB
-#: on windows of 1.0 M pulses of the orchard row at 0.018 deg (``fused``), imports included.
-RECONSTRUCT_BYTES_PER_PULSE = 650
+#: Memory of a scored reconstruction per pulse of its window, bytes (:func:`core_columns`): the benchmark's scoring
+#: of the orchard-row window at 0.018 deg (``fused``; imports, the window's scan and its truth included) peaked at
+#: 2,206 MB on two windows of 7.0 M pulses (315 bytes per pulse) and at 3,120 MB on one window of 11.1 M (281).
+#: The 650 used before came from a 1.0 M-pulse window, where the imports weigh more.
+RECONSTRUCT_BYTES_PER_PULSE = 330
 #: Peak memory of a window's reconstruction per pulse of the window, bytes, for :func:`plan_windows`: a window of
 #: 1546 x 1200 pulses of the orchard row at 0.018 deg (rows 7168-8192 and their margins, near the tripod; ``fused``)
 #: peaked at 2.04 GB in a fresh process, 0.12 GB of it imports: 1,034 bytes per pulse.
