@@ -322,7 +322,8 @@ def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
                          "leaves removed",
              "outside": ", its changes kept only within its leaves; pulses the stray-point rule flags removed: "
                         "outside them on the measured ranges, within them a moved pulse flagged on its measured or "
-                        "corrected range, a kept one on both"}.get(params.get(STRAY_PREFIX + "scope"), "")
+                        "corrected range, a kept one on both; moves beyond the rule's tolerance of pulses it keeps "
+                        "undone"}.get(params.get(STRAY_PREFIX + "scope"), "")
     return Variant(name, "prop-sfs", run, params,
                    f"PROP-SFS {engine} propagation, shell-rule set {shell} (leafsfs.reconstruct, model calibration)"
                    f"{extra}",

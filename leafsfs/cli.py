@@ -36,7 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stray-scope", choices=SCOPES,
                    help=f"with --variant {STRAY_VARIANT}: the pulses the rule judges (default moved; outside: "
                         "fused's changes kept only within its leaves, the rule on all pulses outside them and, within "
-                        "them, on the measured and the corrected ranges, for coarse steps such as 0.08 deg)")
+                        "them, on the measured and the corrected ranges (moves beyond its tolerance of pulses it keeps "
+                        "undone), for coarse steps such as 0.08 deg)")
     p.add_argument("--calibration", required=True,
                    help="calibration JSON file ('leafsfs calibrate', or 'tlsbench experiment calibration' for a "
                         "simulated scanner)")

@@ -67,18 +67,27 @@ pulses the rule removes (23 outliers). The rule therefore also reads the
 ranges PROP-SFS left within its leaves (those outside them measured): a
 pulse it moved goes when it is off its neighbours on either range, a pulse
 it kept when on both (a kept pulse whose neighbours PROP-SFS brought to its
-range is on its leaf). Giving the measured range back to a one-pulse rim
-of each region, or tolerances that follow the point spacing
-(``k * spacing * offset``, k 1.5-3, on the ranges it left) did worse: at
-2.5 m the spacing (3.5 mm) is below the range noise and the losses rise.
-At 0.08 deg (ROP reduction 3 sigma / 1 cm, good points lost; against the
-stray-point rule above): leafy tree 0.668 / 0.868, 15.0 % (1 cm 0.0007
-short); seed 31 at 2.5 m 0.707 / 0.902, 8.0 %; seed 41 at 5 m 0.736 /
-0.902, 21.9 %; seed 23 at 6 m 0.680 / 0.836, 24.3 % (3 sigma 0.008 short);
-seed 67 at 3.5 m 0.660 / 0.838, 13.4 % (chosen on these five); checked
-only: seed 53 at 2 m 0.735 / 0.903, 5.9 %; seed 41 at 4 m 0.734 / 0.921,
-13.6 %; seed 79 at 3 m 0.744 / 0.906, 9.1 %. Fewer good points lost than
-the rule on all eight, more ROP reduction at both definitions on six.
+range is on its leaf). And a pulse the rule keeps on its measured range
+that PROP-SFS moved by more than the rule's tolerance gets its measured
+range back: the move takes it off its measured neighbours, and at 0.08 deg
+those large moves are wrong about as often as right (seed 23 at 6 m: of the
+moved pulses kept, 95 good ones moved over 1 cm became outliers, 77
+outliers became good), while the per-leaf means weigh the small leaves
+where they are wrong. Giving the measured range back to a one-pulse rim of
+each region, tolerances that follow the point spacing (``k * spacing *
+offset``, k 1.5-3, on the ranges it left), or undoing moves beyond 3
+spacings instead of the tolerance did worse: at 2.5 m the spacing (3.5 mm)
+is below the range noise and the losses rise (undoing beyond 3 spacings:
+seed 31 at 2.5 m 0.694 / 0.886 against 0.719 / 0.909). At 0.08 deg (ROP
+reduction 3 sigma / 1 cm, good points lost; against the stray-point rule
+above): leafy tree 0.695 / 0.899, 14.9 %; seed 31 at 2.5 m 0.719 / 0.909,
+8.0 %; seed 41 at 5 m 0.738 / 0.902, 21.6 %; seed 23 at 6 m 0.694 / 0.847,
+24.2 % (chosen on these four, the tolerance for undoing among 1, 2 and 3
+cm; seed 67 seen when choosing the kept pulses' test): seed 67 at 3.5 m
+0.670 / 0.843, 13.3 %; checked only: seed 53 at 2 m 0.741 / 0.912, 5.9 %;
+seed 41 at 4 m 0.747 / 0.924, 13.6 %; seed 79 at
+3 m 0.751 / 0.914, 9.0 %. More ROP reduction than the rule at both
+definitions and fewer good points lost on all eight.
 """
 
 from __future__ import annotations
@@ -159,7 +168,9 @@ def remove_strays(result: SfsResult, scope: str = "moved", window_px: int = STRA
         every return in no leaf region first gets back its measured range
         (PROP-SFS's changes are kept only within its leaves) and within them the
         rule also reads the ranges PROP-SFS left: a moved pulse goes when it
-        is off its neighbours on either range, a kept one when on both; with
+        is off its neighbours on either range, a kept one when on both, and a
+        pulse moved by more than ``max_range_diff_m`` that the rule keeps on its
+        measured range gets that range back; with
         ``isolated``
         the moved pulses are judged by the rule and the pulses in no leaf
         region (moved or not) are removed also when none
@@ -183,8 +194,12 @@ def remove_strays(result: SfsResult, scope: str = "moved", window_px: int = STRA
     if scope == "outside":
         moved = stray_scope(result, "moved")
         back = result.scan.valid & _in_no_leaf(result)
-        result = dataclasses.replace(result, range=np.where(back, result.scan.range, result.range),
-                                     corrected=result.corrected & ~back, outlier=result.outlier & ~back,
+        # within the leaves, a move beyond the rule's tolerance takes a pulse the rule keeps off its neighbours
+        with np.errstate(invalid="ignore"):
+            undone = moved & ~back & ~off_measured & (np.abs(result.range - result.scan.range) > max_range_diff_m)
+        moved &= ~undone
+        result = dataclasses.replace(result, range=np.where(back | undone, result.scan.range, result.range),
+                                     corrected=result.corrected & ~back, outlier=result.outlier & ~(back | undone),
                                      removed=result.removed & ~back)
         left = copy.copy(result.scan)
         left.range = result.range

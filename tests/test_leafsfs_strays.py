@@ -103,16 +103,22 @@ def test_outside_scope_gives_back_the_measured_pulses_outside_the_leaves(plate):
 
 
 def test_outside_scope_judges_the_leaves_on_the_ranges_prop_sfs_left(plate):
-    """Within a leaf region a moved pulse goes when its new range is off its neighbours' (its measured range
-    agreeing), and a kept pulse off its measured neighbours stays when PROP-SFS moved them to its range."""
+    """Within a leaf region a moved pulse goes when its new range is off its neighbours' new ranges (its measured
+    range agreeing), a kept pulse off its measured neighbours stays when PROP-SFS moved them to its range, and a
+    pulse the rule keeps as measured gets its measured range back when PROP-SFS moved it beyond the tolerance."""
     measured = plate.scan.range.copy()
-    measured[10, 10] = 2.3                       # a leaf pulse 30 cm behind its measured neighbours ...
+    measured[10, 10] = 2.03                      # a leaf pulse 3 cm behind its measured neighbours ...
     corrected = plate.range.copy()
-    corrected[9:12, 10:12] = 2.3                 # ... where PROP-SFS moves five of them (the leaf lies there)
-    corrected[13, 5] = 2.2                       # a plate pulse moved off the leaf
+    corrected[9:12, 10:12] = 2.015               # ... five of which PROP-SFS moves 1.5 cm towards it
+    corrected[10, 10] = 2.03
+    corrected[13:16, 5:8] = 1.99                 # a patch moved 1 cm ...
+    corrected[14, 6] = 2.015                     # ... its centre 1.5 cm the other way: 2.5 cm off the patch
+    corrected[15, 10] = 2.2                      # a plate pulse moved 20 cm
     result = _result(measured, corrected, plate.labels)
     assert not stray_scope(result, "moved")[10, 10]
-    gone = set(zip(*np.nonzero(remove_strays(result, scope="outside").removed)))
-    assert (13, 5) in gone and (10, 10) not in gone
-    # the rule on the measured ranges alone keeps the pulse moved off the leaf
-    assert (13, 5) not in set(zip(*np.nonzero(remove_strays(result, scope="unclaimed").removed)))
+    out = remove_strays(result, scope="outside")
+    gone = set(zip(*np.nonzero(out.removed)))
+    assert (14, 6) in gone and (10, 10) not in gone and (15, 10) not in gone
+    assert out.range[15, 10] == 2.0 and not out.outlier[15, 10] and out.range[13, 5] == 1.99
+    # the rule on the measured ranges alone keeps the centre of the patch
+    assert (14, 6) not in set(zip(*np.nonzero(remove_strays(result, scope="unclaimed").removed)))
