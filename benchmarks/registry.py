@@ -15,8 +15,8 @@ the targets' points, and returns its own leaf regions with their traits. Familie
   ``buffer-T1``, ``buffer-T2``, ``buffer-T3*``; ``fused-stray``, ``fused`` without the pulses it moved that the
   stray-point rule flags, :mod:`leafsfs.strays`; ``fused-stray5``, for coarse steps, the rule in a 5 px
   window and pulses outside its leaves with no neighbour at their range; ``fused-stray-out``, for coarse steps,
-  its changes only within its leaves, the rule on the pulses it moved there and on the measured ones outside
-  them), calibrated by simulating the
+  its changes only within its leaves, the rule on the measured pulses outside them and, within them, on both
+  the measured ranges and its own), calibrated by simulating the
   scan's scanner model; they run once on the whole scan, as a user runs
   them, segment it into leaves themselves and return their regions with
   the traits of each (:mod:`benchmarks.scoring` matches the regions to the
@@ -256,7 +256,7 @@ def _register_prop_sfs() -> None:
     stray = {**stray, "scope": "isolated", "window_px": 5}
     register_variant(_prop_sfs_variant("fused-stray5", "fused", _with_stray(defaults, stray)))
     # ``fused-stray-out``, for coarse steps: PROP-SFS's changes kept only within its leaves, and the rule (the
-    # ``stray-point`` variant's settings) on the pulses it moved there and on every pulse outside them
+    # ``stray-point`` variant's settings) on every pulse outside them and, within them, on its ranges and the measured
     stray = {"scope": "outside", **baselines.STRAY_POINT_RULE}
     register_variant(_prop_sfs_variant("fused-stray-out", "fused", _with_stray(defaults, stray)))
 
@@ -320,8 +320,10 @@ def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
     extra = {"moved": ", moved pulses the stray-point rule flags removed",
              "isolated": ", moved pulses the stray-point rule flags (5 px window) and isolated pulses outside its "
                          "leaves removed",
-             "outside": ", its changes kept only within its leaves; there the moved pulses and elsewhere all pulses "
-                        "that the stray-point rule flags removed"}.get(params.get(STRAY_PREFIX + "scope"), "")
+             "outside": ", its changes kept only within its leaves; pulses the stray-point rule flags removed: "
+                        "outside them on the measured ranges, within them a moved pulse flagged on its measured or "
+                        "corrected range, a kept one on both; moves beyond the rule's tolerance of pulses it keeps "
+                        "undone"}.get(params.get(STRAY_PREFIX + "scope"), "")
     return Variant(name, "prop-sfs", run, params,
                    f"PROP-SFS {engine} propagation, shell-rule set {shell} (leafsfs.reconstruct, model calibration)"
                    f"{extra}",

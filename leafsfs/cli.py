@@ -35,8 +35,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "the stray-point rule flags removed (leafsfs.strays; on a tiled scan window by window)")
     p.add_argument("--stray-scope", choices=SCOPES,
                    help=f"with --variant {STRAY_VARIANT}: the pulses the rule judges (default moved; outside: "
-                        "fused's changes kept only within its leaves, the rule on the pulses it moved there and on "
-                        "all pulses outside them, for coarse steps such as 0.08 deg)")
+                        "fused's changes kept only within its leaves, the rule on all pulses outside them and, within "
+                        "them, on the measured and the corrected ranges (moves beyond its tolerance of pulses it keeps "
+                        "undone), for coarse steps such as 0.08 deg)")
     p.add_argument("--calibration", required=True,
                    help="calibration JSON file ('leafsfs calibrate', or 'tlsbench experiment calibration' for a "
                         "simulated scanner)")

@@ -92,12 +92,33 @@ def test_outside_scope_gives_back_the_measured_pulses_outside_the_leaves(plate):
     moved = dataclasses.replace(moved, removed=~np.isfinite(corrected) & plate.scan.valid)
     out = remove_strays(moved, scope="outside")
     gone = set(zip(*np.nonzero(out.removed)))
-    # the rule's strays: moved within the leaf, moved outside it (judged on the measured range), kept outside;
-    # the stray PROP-SFS kept as measured within its leaf stays
-    assert gone == {(12, 8), (5, 20), (3, 17)} and np.isfinite(out.range[10, 6])
+    # the rule's strays: moved within the leaf, moved outside it (judged on the measured range), kept outside, and
+    # the stray PROP-SFS kept as measured within its leaf (off its neighbours as measured and as PROP-SFS left them)
+    assert gone == {(12, 8), (5, 20), (3, 17), (10, 6)}
     assert out.range[9, 5] == 2.01 and out.corrected[9, 5]
     assert out.range[2, 2] == out.range[18, 20] == 2.0
     assert not (out.corrected | out.outlier)[2, 2] and not (out.corrected | out.outlier)[18, 20]
-    # outside the leaves every return is judged, inside only the moved ones
     scope = stray_scope(moved, "outside")
-    assert scope[18, 20] and scope[3, 17] and scope[9, 5] and not scope[10, 6]
+    assert scope[18, 20] and scope[3, 17] and scope[9, 5] and scope[10, 6]
+
+
+def test_outside_scope_judges_the_leaves_on_the_ranges_prop_sfs_left(plate):
+    """Within a leaf region a moved pulse goes when its new range is off its neighbours' new ranges (its measured
+    range agreeing), a kept pulse off its measured neighbours stays when PROP-SFS moved them to its range, and a
+    pulse the rule keeps as measured gets its measured range back when PROP-SFS moved it beyond the tolerance."""
+    measured = plate.scan.range.copy()
+    measured[10, 10] = 2.03                      # a leaf pulse 3 cm behind its measured neighbours ...
+    corrected = plate.range.copy()
+    corrected[9:12, 10:12] = 2.015               # ... five of which PROP-SFS moves 1.5 cm towards it
+    corrected[10, 10] = 2.03
+    corrected[13:16, 5:8] = 1.99                 # a patch moved 1 cm ...
+    corrected[14, 6] = 2.015                     # ... its centre 1.5 cm the other way: 2.5 cm off the patch
+    corrected[15, 10] = 2.2                      # a plate pulse moved 20 cm
+    result = _result(measured, corrected, plate.labels)
+    assert not stray_scope(result, "moved")[10, 10]
+    out = remove_strays(result, scope="outside")
+    gone = set(zip(*np.nonzero(out.removed)))
+    assert (14, 6) in gone and (10, 10) not in gone and (15, 10) not in gone
+    assert out.range[15, 10] == 2.0 and not out.outlier[15, 10] and out.range[13, 5] == 1.99
+    # the rule on the measured ranges alone keeps the centre of the patch
+    assert (14, 6) not in set(zip(*np.nonzero(remove_strays(result, scope="unclaimed").removed)))
