@@ -99,6 +99,12 @@ test trees (spec Part D; each a documented departure in the default mode):
   through the pipe model below, which judges the radius it keeps (judged
   on the clamped radius, the leaders of a simulated leafy pear found as
   children of 2.9 mm twigs came out at 0.37 of their 1-2.5 cm radii);
+  and a section the points resolve is no wider than the radius at which
+  they would still cover half of its visible half surface
+  (``covered_radii``): circles fitted to a dozen stray points beside a
+  stem were 17-20 mm wide where no wood was (0.30 of the 0.72 dm3 of
+  false volume on a simulated leafless apple-like tree of 2.7 dm3, 0.65
+  of 1.58 dm3 on a leafy pear);
 - unresolved radii (strict mode, addition, ``pipe_model=True``, the
   default): a section whose radius is under one point spacing, or whose
   branch's points beside it scatter about its surface by more than a
@@ -526,7 +532,8 @@ def _records(branches: list[Branch], params: FollowParams, count: int,
     """Branch records with ids renumbered in breadth-first order from the trunk and orders recomputed (D-M14);
     in strict mode each record's ``reliable`` says which of its sections the points resolve: not those clamped
     at their parent's radius (:func:`_cap_radii`) whose points do not cover their fitted circle
-    (:func:`_covered`) and, with ``pipe_model``, not those :func:`_resolved` rejects."""
+    (:func:`_covered`) and, with ``pipe_model``, not those :func:`_resolved` rejects; a resolved section is cut
+    to the radius its points cover (:func:`covered_radii`)."""
     roots = [b for b in branches if b.parent is None]
     order_of, queue = {}, [(r, 1) for r in roots]
     ranked = []
@@ -537,7 +544,7 @@ def _records(branches: list[Branch], params: FollowParams, count: int,
         queue += [(c, order + 1) for c in branch.children if c.points]
     new_id = {id(b): i for i, b in enumerate(ranked)}
     labels = np.full(count, -1, np.int64)
-    records = []
+    records, cover_limits = [], []
     for b in ranked:
         labels[b.points] = new_id[id(b)]
         records.append({"id": new_id[id(b)], "parent": -1 if b.parent is None else new_id[id(b.parent)],
@@ -551,7 +558,8 @@ def _records(branches: list[Branch], params: FollowParams, count: int,
             continue
         fitted = list(records[-1]["sections"])
         clamped = _cap_radii(records[-1], anchor, max(params.k_r)) if anchor is not None else [False] * len(fitted)
-        covered = _covered(fitted, b.coords[b.points], spacing) if any(clamped) else [True] * len(fitted)
+        limits = covered_radii(fitted, b.coords[b.points], spacing)
+        covered = [r <= limit for (_, _, r), limit in zip(fitted, limits)]
         # A clamp that was the parent's error: the child's own circle stands, and the pipe model's test judges it
         # (judged on the clamped radius, its points lie far off it and it would be shrunk again).
         if any(clamped):
@@ -561,6 +569,12 @@ def _records(branches: list[Branch], params: FollowParams, count: int,
         resolved = _resolved(records[-1]["sections"], b.coords[b.points], spacing) if params.pipe_model else \
             [True] * len(clamped)
         records[-1]["reliable"] = [r and (cov or not c) for r, c, cov in zip(resolved, clamped, covered)]
+        cover_limits.append(limits)
+    # A resolved section is cut to the radius its points cover once every child is clamped (the clamps judge the
+    # fitted radii); the pipe model judges the others.
+    for record, limits in zip(records, cover_limits):  # strict mode only (none otherwise)
+        record["sections"] = [(a, e, min(r, limit) if ok else r) for (a, e, r), limit, ok in
+                              zip(record["sections"], limits, record["reliable"])]
     return records, labels
 
 
@@ -594,22 +608,30 @@ def _resolved(sections: list[tuple], points: np.ndarray, spacing: float) -> list
 
 #: A section clamped at its parent's radius is taken for a misfit when its points cover less than this fraction
 #: of the visible half of its fitted cylinder (``n spacing^2 / (pi r L)``; a one-sided view of a cylinder gives
-#: about 2 / pi = 0.64 with the nominal spacing, more with several views). Assumption, from four clouds: on a
-#: simulated vine and a leafless apple-like tree 73-85 % of the clamped volume lay under it (circles fitted
-#: across several twigs), on the two real clouds of ``tlsbench experiment woody-real`` 1 and 14 % (limbs under
-#: a parent piece fitted too thin: the clamp there is the parent's error, not the child's).
+#: about 2 / pi = 0.64 with the nominal spacing, more with several views), and a resolved section is cut to the
+#: radius its points cover at this fraction. Assumption, from four clouds: on a simulated vine and a leafless
+#: apple-like tree 73-85 % of the clamped volume lay under it (circles fitted across several twigs), on the two
+#: real clouds of ``tlsbench experiment woody-real`` 1 and 14 % (limbs under a parent piece fitted too thin: the
+#: clamp there is the parent's error, not the child's).
 COVERED_FRACTION = 0.5
 
 
 def _covered(sections: list[tuple], points: np.ndarray, spacing: float) -> list[bool]:
     """Whether a branch's ``points`` (m) that project inside each section ``(start, end, radius)`` (m) cover at
     least :data:`COVERED_FRACTION` of its visible half surface at the cloud's point ``spacing`` (m)."""
+    return [radius <= limit for (_, _, radius), limit in zip(sections, covered_radii(sections, points, spacing))]
+
+
+def covered_radii(sections: list[tuple], points: np.ndarray, spacing: float) -> list[float]:
+    """The widest radius (m) at which each section ``(start, end, radius)`` (m) would still be covered by the
+    branch's ``points`` (m) that project inside it (:data:`COVERED_FRACTION` of its visible half surface at the
+    cloud's point ``spacing``, m): ``n spacing^2 / (COVERED_FRACTION pi L)``; infinite for a section of no length."""
     out = []
-    for start, end, radius in sections:
+    for start, end, _ in sections:
         length = float(np.linalg.norm(np.subtract(end, start)))
         _, t = segment_distance(points, np.asarray(start), np.asarray(end))
         inside = int(((t > 0) & (t < 1)).sum())
-        out.append(radius * length <= 0 or inside * spacing ** 2 >= COVERED_FRACTION * np.pi * radius * length)
+        out.append(inside * spacing ** 2 / (COVERED_FRACTION * np.pi * length) if length > 0 else np.inf)
     return out
 
 
