@@ -33,7 +33,12 @@ deg counts for that share at the larger of the two secants, the planes' and
 the intensity's (a curled leaf turns edge-on towards its outline, which its
 mixed pulses alone see); a leaf's mixed pulses count at most twice what the
 planes give them (in a canopy the other surface's extrapolated intensity can
-be wrong).
+be wrong). The decomposition is trusted only where that other surface is one
+evenly lit surface around the pulse (:func:`background_spread` at most
+:data:`BAND_MAX_BACKGROUND_SPREAD_DN`): a wall behind a single leaf is, a
+leaf or twig behind a canopy leaf mostly is not (its own incidence changes
+over the band, or a third surface lights part of it), and there the planes'
+area stands.
 Parts of a curled leaf turned edge-on or hidden behind its own curl are not
 seen and not counted.
 
