@@ -28,7 +28,7 @@ from leafsfs.leaves import range_noise, segment_scan
 from leafsfs.params import VARIANTS, SfsParams
 from leafsfs.preprocess import resolve_calibration, scan_alpha
 from leafsfs.surfacetails import surface_tails
-from leafsfs.traits import leaf_traits
+from leafsfs.traits import BAND_MAX_BACKGROUND_SPREAD_DN, background_spread, leaf_traits, mixed_band
 from leafsfs.woodfit import wood_owner_range
 from tlssim.scan import Scan, grid_to_xyz
 
@@ -275,7 +275,7 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
     labels = None if mask is None else _labels_from_mask(mask, scan.shape)
     calibration = resolve_calibration(calibration)
     alpha, reliable = scan_alpha(scan.intensity, scan.range, calibration)
-    regions = _leaf_regions(scan, alpha, labels, valid)
+    regions = _leaf_regions(scan, alpha, labels, valid, calibration)
     inliers = params.inliers if params.inliers != "auto" else ("refine" if variant == "fused" else "keep")
     grids = _Grids(range=regions.range, corrected=regions.background.copy(),
                    candidates=np.zeros(scan.shape, dtype=int), spread=np.full(scan.shape, np.nan),
@@ -353,6 +353,10 @@ class _Regions:
         (:data:`OWNER_MARGIN`, :data:`OWNER_TOLERANCE_M`).
     noise : ndarray, 2-D, or float
         Each pulse's range noise (:func:`leafsfs.canopy.pulse_noise`), m.
+    band : _Shares
+        Per region, its share of its mixed pulses' footprints and the secant
+        of its incidence there (last axis), from their range and intensity
+        (:func:`leafsfs.traits.mixed_band`; NaN where unknown).
     """
 
     labels: np.ndarray
@@ -365,6 +369,7 @@ class _Regions:
     thin: np.ndarray
     ownerless: np.ndarray
     noise: np.ndarray | float
+    band: "_Shares"
 
 
 class _Shares:
@@ -396,7 +401,7 @@ class _Shares:
         own, values = self._parts[int(label)]
         (b0, b1), (c0, c1) = ((sl.indices(n)[:2]) for sl, n in zip(box, self.shape))
         (o0, o1), (p0, p1) = ((sl.indices(n)[:2]) for sl, n in zip(own, self.shape))
-        out = np.zeros((b1 - b0, c1 - c0))
+        out = np.zeros((b1 - b0, c1 - c0) + values.shape[2:])
         r0, r1, q0, q1 = max(b0, o0), min(b1, o1), max(c0, p0), min(c1, p1)
         if r0 < r1 and q0 < q1:
             out[r0 - b0:r1 - b0, q0 - c0:q1 - c0] = values[r0 - o0:r1 - o0, q0 - p0:q1 - p0]
@@ -490,7 +495,8 @@ def _check_inputs(scan: Scan, variant: str, params: SfsParams | None) -> tuple[S
     return params, valid
 
 
-def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, valid: np.ndarray) -> _Regions:
+def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, valid: np.ndarray,
+                  calibration) -> _Regions:
     """Leaf regions, their footprint shares and the background pulses of a scan.
 
     Parameters
@@ -525,11 +531,12 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
         labels = segmentation.leaves
         extents = mixed.extents()
         partial = np.zeros(scan.shape, dtype=bool)
-        shares = _Shares(scan.shape)
+        shares, band = _Shares(scan.shape), _Shares(scan.shape)
         for k in np.unique(labels[labels > 0]):
             surface = segmentation.region_surface(k)
             box = extents[surface]
             share = with_thin.share_of(surface, gain, box)
+            band.add(k, box, _band(mixed, surface, box, scan.intensity, gain, calibration, segmentation.band_px))
             # Pure pulses at the outline with nothing beside the leaf count for the part of their footprint on it.
             rim = rim_shares(labels[box] == k, scan.intensity[box], gain, segmentation.footprint_px)
             rim = np.where(_mixes_in_range(labels[box] == k, mixed.pair[box] == surface, segmentation.footprint_px),
@@ -546,10 +553,11 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
         # A given region counts its pixels whole, except the mixed pulses of its main surface, which count (inside
         # the region or just outside it) for their share of that surface; its mixed pulses that another surface
         # dominates (the wall behind) take that surface's distance and leave the region.
-        shares = _Shares(scan.shape)
+        shares, band = _Shares(scan.shape), _Shares(scan.shape)
         whole = (slice(None), slice(None))
         for k in np.unique(labels[labels > 0]):
             main = _main_surface(mixed.surfaces, labels == k)
+            band.add(k, whole, _band(mixed, main, whole, scan.intensity, gain, calibration, segmentation.band_px))
             paired = (mixed.surfaces == 0) & (mixed.pair == main).any(axis=-1)
             own = rim_shares(labels == k, scan.intensity, gain, segmentation.footprint_px)
             own = np.where(_mixes_in_range(labels == k, mixed.pair == main, segmentation.footprint_px), 1.0, own)
@@ -572,7 +580,33 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
         ownerless = unreliable & (mixed.pair[..., 1] > 0) & (off_half < OWNER_MARGIN) \
             & (off_half * step < OWNER_TOLERANCE_M)
     return _Regions(labels, shares, background, unreliable, out_range, owner_range, proven, thin, ownerless,
-                    pulse_noise(segmentation.noise_m, scan.intensity, gain))
+                    pulse_noise(segmentation.noise_m, scan.intensity, gain), band)
+
+
+def _band(mixed, surface: int, box: tuple, intensity: np.ndarray, gain: float, calibration,
+          band_px: int) -> np.ndarray:
+    """Surface ``surface``'s share and secant of incidence (last axis) on the mixed pulses it shares with another
+    surface in the window ``box`` (:func:`leafsfs.traits.mixed_band`), NaN elsewhere and where that surface's pure
+    pulses within ``band_px`` vary by more than :data:`leafsfs.traits.BAND_MAX_BACKGROUND_SPREAD_DN`."""
+    pair = mixed.pair[box]
+    out = np.full(pair.shape[:2] + (2,), np.nan)
+    other_surface = np.where(pair[..., 0] == surface, pair[..., 1], np.where(pair[..., 1] == surface, pair[..., 0], 0))
+    rows, cols = np.nonzero(other_surface)
+    if not len(rows):
+        return out
+    (r0, _), (c0, _) = ((sl.indices(n)[:2]) for sl, n in zip(box, mixed.surfaces.shape))
+    near = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))  # the paired pulses' window
+    clean = np.zeros(pair.shape[:2], dtype=bool)
+    clean[near] = background_spread(mixed.surfaces, intensity, other_surface[near],
+                                    (slice(r0 + near[0].start, r0 + near[0].stop),
+                                     slice(c0 + near[1].start, c0 + near[1].stop)), band_px) \
+        <= BAND_MAX_BACKGROUND_SPREAD_DN
+    for member, other in ((0, 1), (1, 0)):
+        sel = (pair[..., member] == surface) & (pair[..., other] > 0) & clean
+        share = mixed.share[box] if member == 0 else 1.0 - mixed.share[box]
+        out[sel] = mixed_band(share[sel], intensity[box][sel], mixed.pair_intensity[box][..., other][sel],
+                              mixed.pair_range[box][..., member][sel], gain, calibration)
+    return out
 
 
 def _mixes_in_range(region: np.ndarray, paired: np.ndarray, rim_px: float) -> np.ndarray:
@@ -730,7 +764,8 @@ def _assemble(scan: Scan, variant: str, params: SfsParams, regions: _Regions, gr
         region = labels[box] == label  # the frame's box holds the whole region
         # The traits of the output: corrected distances of the leaf's outliers, measured ones of its inliers.
         height = fit.frame.height(np.where(region & corrected[box], out_range[box], np.nan))
-        traits = {**leaf_traits(fit.frame, height, regions.shares.crop(label, box), params.trait_smoothing_m),
+        traits = {**leaf_traits(fit.frame, height, regions.shares.crop(label, box), params.trait_smoothing_m,
+                                regions.band.crop(label, box)),
                   "n_points": int(region.sum()), "n_outliers": int((outlier[box] & region).sum()),
                   "unreliable_alpha_fraction": float(np.mean(~reliable[box][region])),
                   "outlier_threshold_m": fit.threshold}

@@ -7,7 +7,7 @@ import pytest
 from scipy import ndimage
 
 from leafsfs.frame import local_frame
-from leafsfs.traits import _quadratic_slope, leaf_traits
+from leafsfs.traits import _quadratic_slope, background_spread, leaf_traits, mixed_band
 from tlssim.pattern import beam_frame
 
 STEP = math.radians(0.018)
@@ -48,7 +48,7 @@ def test_area_of_a_flat_plate_at_80_deg_incidence_ignores_flattened_rim_heights(
     assert traits["area_m2"] == pytest.approx(expected, rel=0.03)
 
 
-@pytest.mark.parametrize("incidence_deg", [0.0, 60.0, 80.0])
+@pytest.mark.parametrize("incidence_deg", [0.0, 60.0, 75.0, 80.0])
 def test_area_of_a_noisy_flat_plate_is_that_of_its_pulses_whatever_the_incidence(incidence_deg):
     rng = np.random.default_rng(3)
     theta, psi, range_m, axis = _tilted_plate(incidence_deg)
@@ -99,3 +99,106 @@ def test_quadratic_slope_is_the_gradient_of_a_quadratic_height_field():
     slope = _quadratic_slope(np.where(known, height, np.nan), known)
     assert slope[..., 0] == pytest.approx(2e-3 + 6e-5 * rows - 2e-5 * cols, abs=1e-12)
     assert slope[..., 1] == pytest.approx(-1e-3 - 2e-5 * rows + 8e-5 * cols, abs=1e-12)
+
+
+class _CosineCalibration:
+    """Amplitude ``exp((I - I0) / k)`` proportional to the cosine of the incidence (a Lambertian leaf, fixed range)."""
+
+    def __init__(self, i0, gain):
+        self.i0, self.gain = i0, gain
+
+    def alpha(self, intensity_dn, range_m):
+        return np.arccos(np.clip(np.exp((np.asarray(intensity_dn) - self.i0) / self.gain), 0.0, 1.0))
+
+
+@pytest.mark.parametrize("incidence_deg", [40.0, 75.0, 85.0])
+def test_mixed_band_recovers_the_share_and_incidence_of_a_leaf_edge_over_a_wall(incidence_deg):
+    # A footprint 0.1-0.9 on a leaf at the incidence (amplitude per unit beam cos), the rest on a wall facing the
+    # scanner (amplitude 1.2, as bright as a leaf of 20 % more reflectance at normal incidence): the range gives the
+    # leaf's power share, the intensity the total; share and secant come back exactly.
+    gain, i0 = 100.0, 1500.0
+    share = np.array([0.1, 0.3, 0.5, 0.7, 0.9])
+    leaf, wall = math.cos(math.radians(incidence_deg)), 1.2
+    total = share * leaf + (1 - share) * wall
+    band = mixed_band(share * leaf / total, i0 + gain * np.log(total), np.full(5, i0 + gain * math.log(wall)),
+                      np.full(5, 3.0), gain, _CosineCalibration(i0, gain))
+    assert band[:, 0] == pytest.approx(share, rel=1e-9)
+    assert band[:, 1] == pytest.approx(1.0 / leaf, rel=1e-6)
+
+
+def test_mixed_band_is_unknown_without_the_other_surface_or_with_an_impossible_share():
+    band = mixed_band(np.array([0.5, 0.5]), np.array([1500.0, 1600.0]), np.array([np.nan, 1500.0]), np.full(2, 3.0),
+                      100.0, _CosineCalibration(1500.0, 100.0))
+    assert np.isnan(band).all()  # no wall intensity; more total than the wall's half share explains: f < 0
+
+
+def _grazing_plate_rim():
+    theta, psi, range_m, axis = _tilted_plate(80.0)
+    region = np.zeros(theta.shape, bool)
+    region[38:52, 5:55] = True
+    frame = local_frame(theta, psi, range_m, region)
+    height = np.where(region, frame.height(range_m), np.nan)
+    rim = region & ~ndimage.binary_erosion(region, iterations=3)
+    weight = np.where(rim, 0.5, region.astype(float))
+    cos_plate = np.abs(np.sum(axis * [-math.cos(math.radians(80)), 0, math.sin(math.radians(80))], -1))
+    return theta, frame, height, rim, weight, cos_plate, range_m**2 * STEP**2
+
+
+def test_a_grazing_plates_mixed_pulses_count_for_their_decomposed_share_at_the_larger_secant():
+    # The 80 deg plate's outer 3 rings (share 0.5, flattened heights): given a decomposed share of 0.55 at 82 deg
+    # (steeper than the plate), they count 0.55 / cos(82 deg) footprints; given 0.55 at 60 deg, the planes' secant.
+    theta, frame, height, rim, weight, cos_plate, footprint = _grazing_plate_rim()
+    for band_deg, secant in ((82.0, np.full(theta.shape, 1 / math.cos(math.radians(82)))), (60.0, 1 / cos_plate)):
+        band = np.where(rim[..., None], [0.55, 1 / math.cos(math.radians(band_deg))], np.nan)
+        traits = leaf_traits(frame, height[frame.box], weight[frame.box], 0.005, band[frame.box])
+        expected = np.sum(np.where(rim, 0.55 * secant, weight / cos_plate) * footprint)
+        assert traits["area_m2"] == pytest.approx(expected, rel=0.03)
+
+
+def test_a_grazing_plates_mixed_pulses_count_at_most_twice_the_planes_area():
+    # Share 0.9 at 87 deg would count the rings 0.9 / cos(87 deg) / (0.5 / cos(80 deg)) = 6 times what the planes
+    # give them (a wrong background intensity): they count BAND_LEAF_CAP (2) times, the pure pulses as before.
+    theta, frame, height, rim, weight, cos_plate, footprint = _grazing_plate_rim()
+    band = np.where(rim[..., None], [0.9, 1 / math.cos(math.radians(87))], np.nan)
+    with_band = leaf_traits(frame, height[frame.box], weight[frame.box], 0.005, band[frame.box])["area_m2"]
+    planes = leaf_traits(frame, height[frame.box], weight[frame.box], 0.005)["area_m2"]
+    pure = np.sum(np.where(rim, 0.0, weight / cos_plate) * footprint)
+    assert with_band - planes == pytest.approx(planes - pure, rel=0.03)  # the rings' area doubled, nothing more
+
+
+@pytest.mark.parametrize("incidence_deg", [40.0, 65.0])
+def test_mixed_pulses_of_a_plate_below_70_deg_keep_the_planes_area(incidence_deg):
+    # Below 70 deg the planes' area is right; a noisy intensity secant (here 85 deg) must not raise it.
+    theta, psi, range_m, axis = _tilted_plate(incidence_deg)
+    region = np.zeros(theta.shape, bool)
+    region[20:70, 10:50] = True
+    frame = local_frame(theta, psi, range_m, region)
+    height = np.where(region, frame.height(range_m), np.nan)
+    rim = region & ~ndimage.binary_erosion(region, iterations=2)
+    weight = np.where(rim, 0.5, region.astype(float))
+    band = np.where(rim[..., None], [0.7, 1 / math.cos(math.radians(85))], np.nan)
+    with_band = leaf_traits(frame, height[frame.box], weight[frame.box], 0.005, band[frame.box])
+    assert with_band["area_m2"] == pytest.approx(leaf_traits(frame, height[frame.box], weight[frame.box],
+                                                             0.005)["area_m2"], rel=1e-12)
+
+
+def test_background_spread_is_the_other_surfaces_intensity_spread_in_the_band():
+    # Surface 2 (right half) alternates 1000 / 1040 DN column by column (standard deviation 20 DN), surface 3 (the
+    # bottom right corner) is flat at 900 DN; each pulse asks for one of them within 1 pixel, on the grid's border
+    # too, and a surface with no pulse near is unknown (infinite).
+    surfaces = np.zeros((6, 8), int)
+    surfaces[:, 4:] = 2
+    surfaces[4:, 6:] = 3
+    intensity = np.where(np.arange(8) % 2 == 0, 1000.0, 1040.0) * np.ones((6, 1))
+    intensity[surfaces == 3] = 900.0
+    intensity[0, 5] = np.nan  # no return: no part of the spread
+    other = np.full((6, 8), 2)
+    other[5, 7] = 3
+    other[0, 0] = 3
+    spread = background_spread(surfaces, intensity, other, (slice(None), slice(None)), 1)
+    assert spread[2, 4] == pytest.approx(20.0)  # columns 4 (1000) and 5 (1040), three rows each
+    assert spread[2, 3] == pytest.approx(0.0)  # column 4 alone
+    assert spread[5, 7] == pytest.approx(0.0)
+    assert np.isinf(spread[0, 0]) and np.isinf(spread[2, 1])
+    window = background_spread(surfaces, intensity, other[1:4, 3:6], (slice(1, 4), slice(3, 6)), 1)
+    assert window == pytest.approx(spread[1:4, 3:6])
