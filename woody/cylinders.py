@@ -623,9 +623,25 @@ def _covered(sections: list[tuple], points: np.ndarray, spacing: float) -> list[
 
 
 def covered_radii(sections: list[tuple], points: np.ndarray, spacing: float) -> list[float]:
-    """The widest radius (m) at which each section ``(start, end, radius)`` (m) would still be covered by the
-    branch's ``points`` (m) that project inside it (:data:`COVERED_FRACTION` of its visible half surface at the
-    cloud's point ``spacing``, m): ``n spacing^2 / (COVERED_FRACTION pi L)``; infinite for a section of no length."""
+    """The widest radius at which each section would still be covered by the branch points that project inside it.
+
+    Covered means :data:`COVERED_FRACTION` of its visible half surface at the cloud's point spacing:
+    ``n spacing^2 / (COVERED_FRACTION pi L)`` for ``n`` points inside a section of length ``L``.
+
+    Parameters
+    ----------
+    sections : list of tuple
+        ``(start, end, radius)`` of each section, m.
+    points : ndarray, (n, 3)
+        The branch's points, m.
+    spacing : float
+        The cloud's point spacing, m.
+
+    Returns
+    -------
+    list of float
+        Radius per section, m; infinite for a section of no length.
+    """
     out = []
     for start, end, _ in sections:
         length = float(np.linalg.norm(np.subtract(end, start)))
