@@ -308,6 +308,13 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
         tails, plane = surface_tails(grids.range, pure, regions.noise)
         grids.range[tails] = plane[tails]
         grids.corrected |= tails
+        # A pulse flagged as straddling that no surface pairs or owns and no region holds (on the leafy tree at
+        # 0.018 deg 6,139 pulses: 61 % pure on wood, 30 % pure on leaves, 40 % within 2 px of a region) is tested the
+        # same way against the plane of the reliable pulses around it, the leaf regions' at their corrected ranges.
+        lone = valid & regions.unreliable & ~regions.mixed & (regions.labels == 0) & ~grids.corrected
+        tails, plane = surface_tails(grids.range, valid & ~regions.unreliable, regions.noise, tested=lone)
+        grids.range[tails] = plane[tails]
+        grids.corrected |= tails
     # A pulse whose range proves it mixed and that no surface corrected lies between two surfaces and on neither.
     removed = regions.mixed & ~grids.corrected & (params.unexplained == "remove")
     grids.range[removed] = np.nan
