@@ -101,7 +101,9 @@ def surface_tails(range_m: np.ndarray, pure: np.ndarray, noise_m: np.ndarray | f
     pure = pure & np.isfinite(range_m)
     tested = pure if tested is None else tested & np.isfinite(range_m)
     noise = np.broadcast_to(np.asarray(noise_m, dtype=float), range_m.shape)
-    first, _, _ = _window_planes(range_m, pure, half_px, pure)
+    # The first plane is needed only at the pure pulses that share a window with a tested one.
+    at = pure if tested is pure else pure & ndimage.maximum_filter(tested, size=2 * half_px + 1, mode="constant")
+    first, _, _ = _window_planes(range_m, pure, half_px, at)
     with np.errstate(invalid="ignore"):
         fitted = pure & ~(np.abs(range_m - first) > 3.0 * noise)
     plane, rms, count = _window_planes(range_m, fitted, half_px, tested)
