@@ -1,4 +1,4 @@
-"""Noise tails of the pure pulses that no leaf region holds (wood, the background, leaves the segmentation missed).
+"""Noise tails of the pulses that no leaf region holds (wood, the background, leaves the segmentation missed).
 
 :func:`leafsfs.fusion.noise_tails` moves a leaf's pure pulses in the tails
 of the range noise onto the plane of their neighbours, inside the leaf's
@@ -40,6 +40,28 @@ at 2.5 m 0.682 / 0.822 -> 0.691 / 0.823, seed 41 at 5 m 0.656 / 0.771 ->
 0.661 / 0.772. At the quick suite's 0.08 deg (leafy tree; a window 4 times
 wider in metres) it costs a little: ``fused`` ROP reduction 1 cm 0.5224 ->
 0.5210, outlier flag precision 0.506 -> 0.499, recall 0.783 -> 0.785.
+
+The pulses the segmentation flags as straddling two surfaces but that no
+surface pairs or owns and no region holds (``tested``) are kept as
+measured otherwise; most are pure (on the leafy tree at 0.018 deg 6,139
+pulses: 61 % on wood, 30 % on leaves, 9 % mixed), and pure leaf pulses
+among them held 6.6 % of the per-leaf ROP that ``fused`` leaves (truth,
+3 sigma). They are tested against the plane of every reliable pulse
+around them, the leaf regions' at their corrected ranges, and are not
+fitted themselves; :func:`leafsfs.reconstruct.reconstruct` moves those
+within ``LONE_TAIL_SIGMA`` (4) modelled deviations of the plane (at
+0.08 deg the window reaches other surfaces: without that bound the leafy
+tree's ``fused`` ROP reduction 3 sigma / 1 cm falls 0.381 / 0.521 -> 0.365
+/ 0.499, with it 0.383 / 0.521). Leafy tree at 0.018 deg (whole scan,
+scratch scoring of :func:`benchmarks.scoring.score_scan`, mean per-leaf
+ROP reduction 3 sigma / 1 cm, good points lost / damaged): 0.6722 /
+0.8033, 0.36 / 1.45 % -> 0.6799 / 0.8059, 0.36 / 1.48 % (same constants
+as above, none tuned). In the benchmark, without the bound (``fused`` at
+0.018 deg, before -> after; good points lost, found leaves and traits
+unchanged): leafy tree 0.646 / 0.788 -> 0.653 / 0.787, pear seed 7 at 3 m
+0.661 / 0.787 -> 0.667 / 0.789, seed 23 at 4 m 0.670 / 0.798 -> 0.679 /
+0.801; not tuned on: seed 31 at 2.5 m 0.691 / 0.823 -> 0.703 / 0.825, seed
+41 at 5 m 0.661 / 0.772 -> 0.665 / 0.773.
 """
 
 from __future__ import annotations
@@ -61,37 +83,44 @@ SURFACE_TAIL_MIN_COUNT = 20
 
 
 def surface_tails(range_m: np.ndarray, pure: np.ndarray, noise_m: np.ndarray | float,
-                  half_px: int = SURFACE_TAIL_HALF_PX) -> tuple[np.ndarray, np.ndarray]:
-    """Pure pulses in the tails of their window's range noise, and their neighbours' plane's range there, m.
+                  half_px: int = SURFACE_TAIL_HALF_PX, tested: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Pulses in the tails of their window's range noise, and their neighbours' plane's range there, m.
 
     Parameters
     ----------
     range_m : ndarray, 2-D
         Ranges, m (NaN: no return).
     pure : ndarray of bool, 2-D
-        The pulses fitted and tested (pure pulses outside the leaf regions).
+        The pulses fitted (pure pulses outside the leaf regions; with ``tested``, every pure pulse).
     noise_m : ndarray or float
         Each pulse's range noise (:func:`leafsfs.canopy.pulse_noise`), m.
     half_px : int
         Half-width of the square window, pixels.
+    tested : ndarray of bool, 2-D, optional
+        The pulses tested (default: ``pure``); pulses tested but not in ``pure`` are not fitted.
 
     Returns
     -------
     tails : ndarray of bool, 2-D
-        Pulses that take the plane's range (more than :data:`SURFACE_TAIL_SIGMA` of its RMS residuals off it).
+        Tested pulses that take the plane's range (more than :data:`SURFACE_TAIL_SIGMA` of its RMS residuals off
+        it).
     plane : ndarray, 2-D
         The refitted plane's range at every tested pulse, m (NaN elsewhere and where no plane was fitted).
     """
     pure = pure & np.isfinite(range_m)
+    tested = pure if tested is None else tested & np.isfinite(range_m)
     noise = np.broadcast_to(np.asarray(noise_m, dtype=float), range_m.shape)
-    first, _, _ = _window_planes(range_m, pure, half_px, pure)
+    # The first plane is needed only at the pure pulses that share a window with a tested one.
+    at = pure if tested is pure else pure & ndimage.maximum_filter(tested, size=2 * half_px + 1, mode="constant")
+    first, _, _ = _window_planes(range_m, pure, half_px, at)
     with np.errstate(invalid="ignore"):
         fitted = pure & ~(np.abs(range_m - first) > 3.0 * noise)
-    plane, rms, count = _window_planes(range_m, fitted, half_px, pure)
+    plane, rms, count = _window_planes(range_m, fitted, half_px, tested)
     with np.errstate(invalid="ignore"):
-        tails = pure & (np.abs(range_m - plane) > SURFACE_TAIL_SIGMA * rms) \
+        tails = tested & (np.abs(range_m - plane) > SURFACE_TAIL_SIGMA * rms) \
             & (rms <= SURFACE_TAIL_RMS_SIGMA * noise) & (count >= SURFACE_TAIL_MIN_COUNT)
-    return tails, np.where(pure, plane, np.nan)
+    return tails, np.where(tested, plane, np.nan)
 
 
 def _window_planes(range_m: np.ndarray, valid: np.ndarray, half_px: int, at: np.ndarray

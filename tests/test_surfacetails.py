@@ -60,3 +60,29 @@ def test_nothing_moves_where_no_plane_fits_enough_pulses():
     tails, plane = surface_tails(measured, pure, MODELLED)
     assert not tails.any()
     assert np.isnan(plane[~pure]).all()
+
+
+def test_tested_pulses_outside_the_fit_take_the_plane_of_the_fitted_ones_and_do_not_bend_it():
+    """Pulses flagged as straddling (tested, not fitted) on a tilted plane: those pushed off it take its range."""
+    rows, cols = np.mgrid[0:40, 0:40]
+    true = 2.0 + 0.0004 * rows - 0.0007 * cols  # a tilted flat leaf at 2 m, m
+    rng = np.random.default_rng(5)
+    measured = true + rng.normal(0, NOISE, true.shape)
+    lone = np.zeros(true.shape, dtype=bool)
+    lone[8:32:3, 8:32:3] = True  # 64 pulses, at most 9 in a window
+    pushed = lone & (rng.random(true.shape) < 0.5)
+    measured[pushed] += 5 * NOISE  # all the same way: they would tilt a plane fitted to them
+    tails, plane = surface_tails(measured, ~lone, MODELLED, tested=lone)
+    assert not tails[~lone].any() and np.isnan(plane[~lone]).all()
+    assert tails[pushed].all()
+    np.testing.assert_allclose(plane[lone], true[lone], atol=0.6 * NOISE)  # 81 - 9 pulses: sigma / sqrt(72) x 3
+    # Unpushed lone pulses more than 2 RMS off move too (onto the plane, closer to the truth); the rest keep theirs.
+    calm = lone & ~pushed & ~tails
+    assert calm.sum() > 0.8 * (lone & ~pushed).sum()
+    # A 5 cm step between two surfaces through the window (and lone pulses beside it): the refit keeps the pulse's
+    # side, and every pulse that moves lands on its own surface, none on the other one.
+    step = np.where(cols >= 20, 0.05, 0.0)
+    beside = lone | ((cols == 19) | (cols == 20)) & (rows % 3 == 1)
+    tails, plane = surface_tails(measured + step, ~beside, MODELLED, tested=beside)
+    assert tails[beside & (np.abs(cols - 20) <= 3)].any()
+    np.testing.assert_allclose(plane[tails], (true + step)[tails], atol=1.5 * NOISE)
