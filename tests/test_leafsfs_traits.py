@@ -132,14 +132,20 @@ def test_mixed_band_is_unknown_without_the_other_surface_or_with_an_impossible_s
     assert np.isnan(band).all()  # no wall intensity; more total than the wall's half share explains: f < 0
 
 
-def _grazing_plate_rim():
-    theta, psi, range_m, axis = _tilted_plate(80.0)
+def _plate_rim(incidence_deg: float, rows: slice, cols: slice, rings: int):
+    """A tilted plate's region, frame and heights, its outer ``rings`` as mixed pulses of share 0.5."""
+    theta, psi, range_m, axis = _tilted_plate(incidence_deg)
     region = np.zeros(theta.shape, bool)
-    region[38:52, 5:55] = True
+    region[rows, cols] = True
     frame = local_frame(theta, psi, range_m, region)
     height = np.where(region, frame.height(range_m), np.nan)
-    rim = region & ~ndimage.binary_erosion(region, iterations=3)
+    rim = region & ~ndimage.binary_erosion(region, iterations=rings)
     weight = np.where(rim, 0.5, region.astype(float))
+    return theta, range_m, axis, frame, height, rim, weight
+
+
+def _grazing_plate_rim():
+    theta, range_m, axis, frame, height, rim, weight = _plate_rim(80.0, slice(38, 52), slice(5, 55), 3)
     cos_plate = np.abs(np.sum(axis * [-math.cos(math.radians(80)), 0, math.sin(math.radians(80))], -1))
     return theta, frame, height, rim, weight, cos_plate, range_m**2 * STEP**2
 
@@ -169,13 +175,7 @@ def test_a_grazing_plates_mixed_pulses_count_at_most_twice_the_planes_area():
 @pytest.mark.parametrize("incidence_deg", [40.0, 65.0])
 def test_mixed_pulses_of_a_plate_below_70_deg_keep_the_planes_area(incidence_deg):
     # Below 70 deg the planes' area is right; a noisy intensity secant (here 85 deg) must not raise it.
-    theta, psi, range_m, axis = _tilted_plate(incidence_deg)
-    region = np.zeros(theta.shape, bool)
-    region[20:70, 10:50] = True
-    frame = local_frame(theta, psi, range_m, region)
-    height = np.where(region, frame.height(range_m), np.nan)
-    rim = region & ~ndimage.binary_erosion(region, iterations=2)
-    weight = np.where(rim, 0.5, region.astype(float))
+    _, _, _, frame, height, rim, weight = _plate_rim(incidence_deg, slice(20, 70), slice(10, 50), 2)
     band = np.where(rim[..., None], [0.7, 1 / math.cos(math.radians(85))], np.nan)
     with_band = leaf_traits(frame, height[frame.box], weight[frame.box], 0.005, band[frame.box])
     assert with_band["area_m2"] == pytest.approx(leaf_traits(frame, height[frame.box], weight[frame.box],
