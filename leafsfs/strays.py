@@ -98,7 +98,6 @@ lost).
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 
 import numpy as np
@@ -207,8 +206,7 @@ def remove_strays(result: SfsResult, scope: str = "moved", window_px: int = STRA
         result = dataclasses.replace(result, range=np.where(back | undone, result.scan.range, result.range),
                                      corrected=result.corrected & ~back, outlier=result.outlier & ~(back | undone),
                                      removed=result.removed & ~back)
-        left = copy.copy(result.scan)
-        left.range = result.range
+        left = dataclasses.replace(result.scan, range=result.range)
         off_left = left.valid & ~stray_point_filter(left, None, window_px, max_range_diff_m, min_share)
         # within the leaves: a moved pulse goes when either range is off its neighbours', a kept one when both are
         strays = (strays & (back | moved)) | (off_left & ~back & (moved | off_measured))
