@@ -526,8 +526,10 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
     Raises
     ------
     SfsError
-        When no leaf pixel has a valid return.
+        When given regions hold no pixel with a valid return (a scan the segmentation finds no leaf in is
+        reconstructed without leaves: its wood and background pulses are still corrected).
     """
+    given = labels is not None
     gain = float(scan.scanner.assumed_model.log_gain_dn)  # the recorded model's, else the default preset's
     segmentation = segment_scan(scan.range, scan.theta, scan.psi, alpha, intensity=scan.intensity, gain_dn=gain,
                                 rim_sigma=RIM_MIXED_SIGMA)
@@ -581,8 +583,8 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
                                             segmentation.band_px, segmentation.noise_m), np.nan)
     out_range[background] = owner_range[background]
     labels = np.where(valid, labels, 0)
-    if not labels.any():
-        raise SfsError("no leaf pixel with a valid return: the mask (or the leaf segmentation) selects none")
+    if given and not labels.any():
+        raise SfsError("no leaf pixel with a valid return: the mask selects none")
     # The band is three footprint radii: a mixed pulse has a nearer and a farther pulse within one radius.
     proven = unreliable & bracketed(scan.range, max(1, segmentation.band_px // 3),
                                     MIXED_PROOF_SIGMA * segmentation.noise_m)

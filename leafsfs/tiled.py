@@ -643,7 +643,7 @@ def _reconstruct_window(tiled: TiledScan, band: tuple, core: tuple, leaf_size_m:
         scan = _load_window(tiled, w0, w1, slice(h0, h1))
         try:
             result = reconstruct(scan, None, variant, params, calibration=calibration)
-        except SfsError:  # no leaf in this window (inputs were checked before the first window)
+        except SfsError:  # no return in this window (inputs were checked before the first window)
             return _empty_window(scan, (h0, h1, w0, w1), (r0, r1, c0, c1), (margin_r, margin_c))
         labels = result.labels
         n = int(labels.max()) if labels.size else 0
@@ -717,7 +717,7 @@ def _near_inner_border(where: tuple, extent: tuple, shape: tuple, seam: bool = F
 
 
 def _empty_window(scan: Scan, extent: tuple, core: tuple, margins: tuple) -> _Window:
-    """The contribution of a window without leaves: the measured scan, nothing corrected."""
+    """The contribution of a window without returns: the measured scan, nothing corrected."""
     none = np.zeros(scan.shape, dtype=bool)
     outputs = {"range": scan.range, "outlier": none, "candidates": np.zeros(scan.shape, np.int32), "background": none,
                "spread": np.full(scan.shape, np.nan, np.float32), "leaf": np.zeros(scan.shape, np.int32)}

@@ -137,8 +137,9 @@ def test_reconstruct_command_on_a_tiled_scan(tiled_leaf, whole_fused, tmp_path, 
 
 def test_background_corrections_stay_where_a_window_holds_the_leaf(tiled_leaf, whole_fused, tmp_path):
     # fused moves background pulses (noise tails, mixed pulses given to the wall); a window keeps those in its
-    # core also when their nearest leaf is another core's, so only the last core, whose window holds no leaf,
-    # gives them back as measured (on main before round 15: 76 of them in the cores holding the leaf)
+    # core also when their nearest leaf is another core's (on main before round 15: 76 of them given back as
+    # measured in the cores holding the leaf), and the last core, whose window holds no leaf, corrects its own
+    # (before round 16 it gave them all back)
     tiled, calibration, _ = tiled_leaf
     measured = tiled.load()
     result = reconstruct_tiled(tiled, tmp_path / "fused", "fused", calibration=calibration, core_cols=150,
@@ -146,7 +147,7 @@ def test_background_corrections_stay_where_a_window_holds_the_leaf(tiled_leaf, w
     moved = ~np.isclose(whole_fused.range, measured.range, atol=1e-6)
     given_back = moved & np.isclose(result.scan.load().range, measured.range, atol=1e-6)
     assert moved.sum() > 1000
-    assert given_back[:, :300].sum() < 0.002 * moved.sum()
+    assert given_back.sum() < 0.002 * moved.sum()
 
 
 def test_same_output_for_any_worker_count_and_input_tiling(tiled_leaf, by_core, tmp_path):
