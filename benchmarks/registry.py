@@ -298,7 +298,7 @@ def _prop_sfs_variant(name: str, engine: str, params: dict) -> Variant:
         try:
             result = leafsfs.reconstruct(scan, mask=labels if segmentation == "mask" else None, variant=engine,
                                          params=params, calibration=_calibration(scan))
-        except leafsfs.SfsError:  # with valid parameters and calibration: no leaf in the scan
+        except leafsfs.SfsError:  # with valid parameters and calibration: no valid return, or a mask selecting none
             return VariantOutput(scan.xyz, stats={"skipped": 0}, flags=np.zeros(scan.shape, bool),
                                  labels=np.zeros(scan.shape, int), regions={},
                                  candidates=np.zeros(scan.shape, int))
