@@ -64,12 +64,16 @@ MIN_FLAT_TEST = 12
 MAX_RESIDUAL_SIGMA = 2.0
 #: Radius of a quadric fit's neighbourhood, in units of the circle's (:func:`wood_owner_range`). Measured with the
 #: truth on the mixed pulses that a surface not taken for a leaf owns (scored leaf pulses, outliers at each leaf's
-#: 3-sigma threshold against the dominant object's true surface, the plane -> circle -> circle or quadric): leafy
-#: tree at 0.018 deg, 14,749 pulses, 3,819 -> 3,808 -> 1.0: 3,634, 1.5: 3,632, 2: 3,589; pear seed 7 at 3 m, 26,657
-#: pulses, 6,810 -> 6,685 -> 1.0: 6,172, 1.5: 6,052, 2: 6,112 (/work/notes/r16/budget_leafwood.py for the thresholds).
+#: 3-sigma threshold against the dominant object's true surface; plane -> circle -> circle or quadric; script:
+#: /work/notes/r16/budget_leafwood.py for the thresholds): leafy tree at 0.018 deg, 14,749 pulses, 3,819 -> 3,808 ->
+#: 3,650; pear seed 7 at 3 m, 26,657 pulses, 6,810 -> 6,685 -> 6,030.
 QUADRIC_RADIUS_FACTOR = 1.5
 #: Fewest pulses of a quadric fit (six unknowns, twice as many pulses).
 MIN_QUADRIC_PULSES = 12
+#: Largest standard deviation of a quadric's range at the pulse, in range-noise sigmas (a quadric extrapolated far
+#: beyond its pulses amplifies their noise; here it stays within one pulse's noise). Same measure as above: 0.5:
+#: 3,727 / 6,239; 1: 3,650 / 6,030; 2: 3,771 / 6,164; no limit: 4,243 / 6,835.
+MAX_QUADRIC_SPREAD = 1.0
 #: Targets fitted per batch (bounds the memory of the neighbourhood tables).
 CHUNK = 4096
 
@@ -122,8 +126,8 @@ def wood_owner_range(mixed: MixedPulses, range_m: np.ndarray, theta: np.ndarray,
                 & (np.abs(range_m - fitted) <= np.abs(range_m - other) + tolerance * (mixed.pair[..., 1] == 0))
 
     on_circle = explains(circle)
-    quadric = quadric_ranges(range_m, mixed.surfaces, mixed.owner, targets & ~on_circle, step,
-                             QUADRIC_RADIUS_FACTOR * radius, noise_m)
+    quadric = quadric_ranges(range_m, mixed.surfaces, mixed.owner, targets & ~on_circle, QUADRIC_RADIUS_FACTOR * radius,
+                             noise_m)
     return np.where(on_circle, circle, np.where(explains(quadric), quadric, planar))
 
 
@@ -192,16 +196,19 @@ def cylinder_ranges(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, t
     return out
 
 
-def quadric_ranges(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, targets: np.ndarray, step_rad: float,
-                   radius_px: float, noise_m: float) -> np.ndarray:
+def quadric_ranges(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, targets: np.ndarray, radius_px: float,
+                   noise_m: float) -> np.ndarray:
     """Distance of each target pulse's owner surface from a quadric of its pure pulses around it (NaN where none fits).
 
     ``z = a + b x + c y + d x^2 + e x y + f y^2`` (``x``, ``y``: offsets along
-    the grid's rows and columns, pixels times ``r * step``, m) by least
-    squares over the owner's core pulses within ``radius_px``; the range at
-    the pulse is ``a``. None where fewer than :data:`MIN_QUADRIC_PULSES`
-    pulses enter the fit or its RMS residual (six degrees of freedom spent)
-    exceeds :data:`MAX_RESIDUAL_SIGMA` times the noise.
+    the grid's rows and columns, pixels: the range at the pulse, ``a``, does
+    not depend on their unit, and pixels keep the normal equations well
+    conditioned) by least squares over the owner's core pulses within
+    ``radius_px``; the range at the pulse is ``a``. None where fewer than :data:`MIN_QUADRIC_PULSES`
+    pulses enter the fit, its RMS residual (six degrees of freedom spent)
+    exceeds :data:`MAX_RESIDUAL_SIGMA` times the noise, or the noise of its
+    range at the pulse exceeds :data:`MAX_QUADRIC_SPREAD` times the noise
+    (the extrapolation's variance, from the normal equations).
 
     Parameters
     ----------
@@ -213,8 +220,6 @@ def quadric_ranges(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, ta
         Surface that returned most of each pulse's power (0: unknown).
     targets : ndarray of bool, 2-D
         The pulses to give their owner's quadric distance.
-    step_rad : float
-        Angle between neighbouring beams, rad.
     radius_px : float
         Radius of the neighbourhood whose core pulses are fitted, pixels.
     noise_m : float
@@ -226,19 +231,21 @@ def quadric_ranges(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, ta
         Range of the owner's quadric at each target, m (NaN elsewhere).
     """
     out = np.full(range_m.shape, np.nan)
-    for r, c, w, z, dr, dc in _neighbourhoods(range_m, cores, owner, targets, radius_px):
+    for r, c, w, z, x, y in _neighbourhoods(range_m, cores, owner, targets, radius_px):
         n = w.sum(axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
             zbar = (w * np.nan_to_num(z)).sum(axis=1) / n
-        spacing = np.nan_to_num(zbar) * step_rad
-        x, y = dr * spacing[:, None], dc * spacing[:, None]
+        x, y = x.astype(float), y.astype(float)
         zl = np.where(w > 0, np.nan_to_num(z) - np.nan_to_num(zbar)[:, None], 0.0)
         columns = [np.ones_like(x), x, y, x * x, x * y, y * y]
         coef = _solve(w, columns, zl)
+        # The fitted range's standard deviation at the pulse, in noise deviations: sqrt of the first diagonal element
+        # of the inverse normal matrix (the solution of the normal equations for the unit vector).
+        spread = np.sqrt(np.abs(_solve(w, columns, np.zeros_like(zl), np.eye(len(columns))[0])[:, 0]))
         with np.errstate(invalid="ignore", divide="ignore"):
             residual = zl - sum(coef[:, k, None] * column for k, column in enumerate(columns))
             rms = np.sqrt((w * residual ** 2).sum(axis=1) / (n - len(columns)))
-            ok = (n >= MIN_QUADRIC_PULSES) & (rms <= MAX_RESIDUAL_SIGMA * noise_m)
+            ok = (n >= MIN_QUADRIC_PULSES) & (rms <= MAX_RESIDUAL_SIGMA * noise_m) & (spread <= MAX_QUADRIC_SPREAD)
         out[r, c] = np.where(ok, zbar + coef[:, 0], np.nan)
     return out
 
@@ -357,11 +364,12 @@ def _fit(range_m, owner, rows, cols, w, z, dr, dc, step_rad, noise_m):
     return out
 
 
-def _solve(w: np.ndarray, columns: list, rhs: np.ndarray) -> np.ndarray:
-    """Weighted least squares per row: the coefficients (rows, k) of ``columns`` fitting ``rhs`` (NaN if singular)."""
+def _solve(w: np.ndarray, columns: list, rhs: np.ndarray, moment: np.ndarray | None = None) -> np.ndarray:
+    """Weighted least squares per row: the coefficients (rows, k) of ``columns`` fitting ``rhs`` (NaN if singular);
+    with ``moment`` (k,), the solution of the normal equations for that right-hand side instead."""
     design = np.stack(columns, axis=-1)  # (n, m, k)
     normal = np.einsum("nm,nmi,nmj->nij", w, design, design)
-    moment = np.einsum("nm,nmi,nm->ni", w, design, rhs)
+    moment = np.einsum("nm,nmi,nm->ni", w, design, rhs) if moment is None else np.broadcast_to(moment, normal.shape[:2])
     out = np.full(moment.shape, np.nan)
     with np.errstate(invalid="ignore"):
         good = np.abs(np.linalg.det(normal)) > 1e-30
