@@ -66,7 +66,8 @@ MAX_RESIDUAL_SIGMA = 2.0
 #: truth on the mixed pulses that a surface not taken for a leaf owns (scored leaf pulses, outliers at each leaf's
 #: 3-sigma threshold against the dominant object's true surface; plane -> circle -> circle or quadric; script:
 #: /work/notes/r16/budget_leafwood.py for the thresholds): leafy tree at 0.018 deg, 14,749 pulses, 3,819 -> 3,808 ->
-#: 3,650; pear seed 7 at 3 m, 26,657 pulses, 6,810 -> 6,685 -> 6,030.
+#: 3,650 (factor 1: 3,633; 2: 3,609); pear seed 7 at 3 m, 26,657 pulses, 6,810 -> 6,685 -> 6,030 (1: 6,195; 2:
+#: 5,997).
 QUADRIC_RADIUS_FACTOR = 1.5
 #: Fewest pulses of a quadric fit (six unknowns, twice as many pulses).
 MIN_QUADRIC_PULSES = 12
