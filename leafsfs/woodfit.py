@@ -25,8 +25,10 @@ a leaf, or leaves joined into one surface); nor where the circle's
 distance no longer brackets the pulse's range with the pair's other
 surface.
 
-Where no circle fits (a nearer leaf hides one silhouette: about 85 % of
-the wood-owned mixed pulses of the leafy tree at 0.018 deg), a quadric
+Where no circle fits (a nearer surface ends the extent on one side, a
+silhouette is missing, ...: the circle was kept for 15 % of the scored
+wood-dominated mixed pulses that wood owns on the leafy tree at 0.018
+deg), a quadric
 ``z = a + b x + c y + d x^2 + e x y + f y^2`` over the owner's pure pulses
 within :data:`QUADRIC_RADIUS_FACTOR` times the neighbourhood's radius
 around the pulse gives its distance (:func:`quadric_ranges`): the plane of
@@ -205,8 +207,8 @@ def quadric_ranges(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, ta
     the grid's rows and columns, pixels: the range at the pulse, ``a``, does
     not depend on their unit, and pixels keep the normal equations well
     conditioned) by least squares over the owner's core pulses within
-    ``radius_px``; the range at the pulse is ``a``. None where fewer than :data:`MIN_QUADRIC_PULSES`
-    pulses enter the fit, its RMS residual (six degrees of freedom spent)
+    ``radius_px``; the range at the pulse is ``a``. None where fewer than
+    :data:`MIN_QUADRIC_PULSES` pulses enter the fit, its RMS residual (six degrees of freedom spent)
     exceeds :data:`MAX_RESIDUAL_SIGMA` times the noise, or the noise of its
     range at the pulse exceeds :data:`MAX_QUADRIC_SPREAD` times the noise
     (the extrapolation's variance, from the normal equations).
