@@ -25,6 +25,18 @@ a leaf, or leaves joined into one surface); nor where the circle's
 distance no longer brackets the pulse's range with the pair's other
 surface.
 
+Where no circle fits (a nearer surface ends the extent on one side, a
+silhouette is missing, ...: the circle was kept for 15 % of the scored
+wood-dominated mixed pulses that wood owns on the leafy tree at 0.018
+deg), a quadric
+``z = a + b x + c y + d x^2 + e x y + f y^2`` over the owner's pure pulses
+within :data:`QUADRIC_RADIUS_FACTOR` times the neighbourhood's radius
+around the pulse gives its distance (:func:`quadric_ranges`): the plane of
+:func:`leafsfs.edges.attribute_mixed` ignores the curvature of a branch
+turning away from the beam (or a leaf surface taken for wood curling away),
+and stops short by a few millimetres. It is kept where it fits the pulses
+within the noise and passes the same bracket test as the circle.
+
 Assumption: the pixel spacing is ``r * step`` along both grid axes (a
 panoramic grid's horizontal spacing shrinks by ``sin(zenith)``, under 2 %
 within 11 deg of the horizon).
@@ -52,6 +64,19 @@ MIN_PULSES = 5
 MIN_FLAT_TEST = 12
 #: Largest RMS residual of a circle fit, in range-noise sigmas.
 MAX_RESIDUAL_SIGMA = 2.0
+#: Radius of a quadric fit's neighbourhood, in units of the circle's (:func:`wood_owner_range`). Measured with the
+#: truth on the mixed pulses that a surface not taken for a leaf owns (scored leaf pulses, outliers at each leaf's
+#: 3-sigma threshold against the dominant object's true surface; plane -> circle -> circle or quadric; script:
+#: /work/notes/r16/budget_leafwood.py for the thresholds): leafy tree at 0.018 deg, 14,749 pulses, 3,819 -> 3,808 ->
+#: 3,650 (factor 1: 3,633; 2: 3,609); pear seed 7 at 3 m, 26,657 pulses, 6,810 -> 6,685 -> 6,030 (1: 6,195; 2:
+#: 5,997).
+QUADRIC_RADIUS_FACTOR = 1.5
+#: Fewest pulses of a quadric fit (six unknowns, twice as many pulses).
+MIN_QUADRIC_PULSES = 12
+#: Largest standard deviation of a quadric's range at the pulse, in range-noise sigmas (a quadric extrapolated far
+#: beyond its pulses amplifies their noise; here it stays within one pulse's noise). Same measure as above: 0.5:
+#: 3,727 / 6,239; 1: 3,650 / 6,030; 2: 3,771 / 6,164; no limit: 4,243 / 6,835.
+MAX_QUADRIC_SPREAD = 1.0
 #: Targets fitted per batch (bounds the memory of the neighbourhood tables).
 CHUNK = 4096
 
@@ -88,17 +113,25 @@ def wood_owner_range(mixed: MixedPulses, range_m: np.ndarray, theta: np.ndarray,
     targets = (mixed.surfaces == 0) & ~mixed.thin & wood[mixed.owner] & np.isfinite(planar)
     if not targets.any():
         return planar
-    circle = cylinder_ranges(range_m, mixed.surfaces, mixed.owner, targets, step, max(8.0, float(band_px)), noise_m)
+    radius = max(8.0, float(band_px))
+    circle = cylinder_ranges(range_m, mixed.surfaces, mixed.owner, targets, step, radius, noise_m)
     # The circle must still explain the pulse: its range between the circle's and the pair's other surface's (within
     # the noise), and nearer the circle (the owner keeps most of the power). A pulse of one surface has no other.
     first = np.nan_to_num(mixed.share, nan=1.0) >= 0.5
     other = np.where(mixed.pair[..., 1] > 0, np.where(first, mixed.pair_range[..., 1], mixed.pair_range[..., 0]),
                      range_m)
     tolerance = 3 * noise_m
-    with np.errstate(invalid="ignore"):
-        kept = (range_m >= np.fmin(circle, other) - tolerance) & (range_m <= np.fmax(circle, other) + tolerance) \
-            & (np.abs(range_m - circle) <= np.abs(range_m - other) + tolerance * (mixed.pair[..., 1] == 0))
-    return np.where(np.isfinite(circle) & kept, circle, planar)
+
+    def explains(fitted):
+        with np.errstate(invalid="ignore"):
+            return np.isfinite(fitted) & (range_m >= np.fmin(fitted, other) - tolerance) \
+                & (range_m <= np.fmax(fitted, other) + tolerance) \
+                & (np.abs(range_m - fitted) <= np.abs(range_m - other) + tolerance * (mixed.pair[..., 1] == 0))
+
+    on_circle = explains(circle)
+    quadric = quadric_ranges(range_m, mixed.surfaces, mixed.owner, targets & ~on_circle, QUADRIC_RADIUS_FACTOR * radius,
+                             noise_m)
+    return np.where(on_circle, circle, np.where(explains(quadric), quadric, planar))
 
 
 def wood_labels(surfaces: np.ndarray, range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, step_rad: float,
@@ -161,6 +194,74 @@ def cylinder_ranges(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, t
         Range of the owner's circle at each target, m (NaN elsewhere).
     """
     out = np.full(range_m.shape, np.nan)
+    for r, c, w, z, dr, dc in _neighbourhoods(range_m, cores, owner, targets, radius_px):
+        out[r, c] = _fit(range_m, owner, r, c, w, z, dr, dc, step_rad, noise_m)
+    return out
+
+
+def quadric_ranges(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, targets: np.ndarray, radius_px: float,
+                   noise_m: float) -> np.ndarray:
+    """Distance of each target pulse's owner surface from a quadric of its pure pulses around it (NaN where none fits).
+
+    ``z = a + b x + c y + d x^2 + e x y + f y^2`` (``x``, ``y``: offsets along
+    the grid's rows and columns, pixels: the range at the pulse, ``a``, does
+    not depend on their unit, and pixels keep the normal equations well
+    conditioned) by least squares over the owner's core pulses within
+    ``radius_px``; the range at the pulse is ``a``. None where fewer than
+    :data:`MIN_QUADRIC_PULSES` pulses enter the fit, its RMS residual (six degrees of freedom spent)
+    exceeds :data:`MAX_RESIDUAL_SIGMA` times the noise, or the noise of its
+    range at the pulse exceeds :data:`MAX_QUADRIC_SPREAD` times the noise
+    (the extrapolation's variance, from the normal equations).
+
+    Parameters
+    ----------
+    range_m : ndarray, 2-D
+        Measured ranges, m (NaN = no return).
+    cores : ndarray of int, 2-D
+        Surface labels of the pulses trusted as pure (0: none).
+    owner : ndarray of int, 2-D
+        Surface that returned most of each pulse's power (0: unknown).
+    targets : ndarray of bool, 2-D
+        The pulses to give their owner's quadric distance.
+    radius_px : float
+        Radius of the neighbourhood whose core pulses are fitted, pixels.
+    noise_m : float
+        Range noise, m (sigma).
+
+    Returns
+    -------
+    ndarray, 2-D
+        Range of the owner's quadric at each target, m (NaN elsewhere).
+    """
+    out = np.full(range_m.shape, np.nan)
+    for r, c, w, z, x, y in _neighbourhoods(range_m, cores, owner, targets, radius_px):
+        n = w.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            zbar = (w * np.nan_to_num(z)).sum(axis=1) / n
+        x, y = x.astype(float), y.astype(float)
+        zl = np.where(w > 0, np.nan_to_num(z) - np.nan_to_num(zbar)[:, None], 0.0)
+        columns = [np.ones_like(x), x, y, x * x, x * y, y * y]
+        coef = _solve(w, columns, zl)
+        # The fitted range's standard deviation at the pulse, in noise deviations: sqrt of the first diagonal element
+        # of the inverse normal matrix (the solution of the normal equations for the unit vector).
+        spread = np.sqrt(np.abs(_solve(w, columns, np.zeros_like(zl), np.eye(len(columns))[0])[:, 0]))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            residual = zl - sum(coef[:, k, None] * column for k, column in enumerate(columns))
+            rms = np.sqrt((w * residual ** 2).sum(axis=1) / (n - len(columns)))
+            ok = (n >= MIN_QUADRIC_PULSES) & (rms <= MAX_RESIDUAL_SIGMA * noise_m) & (spread <= MAX_QUADRIC_SPREAD)
+        out[r, c] = np.where(ok, zbar + coef[:, 0], np.nan)
+    return out
+
+
+def _neighbourhoods(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, targets: np.ndarray,
+                    radius_px: float):
+    """Batches of target pulses with the owner's core pulses within ``radius_px`` of each.
+
+    Yields ``(rows, cols, w, z, dr, dc)``: the targets' pixels, and tables with
+    a row per target of weights (1 for a pulse, 0 for padding), ranges (m)
+    and pixel offsets from the target, each row's pulses packed to the left
+    of tables as wide as the most of them in the batch.
+    """
     rows, cols = np.nonzero(targets & (owner > 0))
     h = int(math.ceil(radius_px))
     # Padded images (a core label where a return is, 0 elsewhere, flat; the range) read the discs without bounds
@@ -186,8 +287,16 @@ def cylinder_ranges(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, t
     for start in range(0, len(rows), CHUNK):
         batch = order[start:start + CHUNK]
         r, c = rows[batch], cols[batch]
-        out[r, c] = _fit(range_m, padded, h, owner, r, c, *members(r, c), dr, dc, step_rad, noise_m)
-    return out
+        ti, tj = members(r, c)
+        per_row = np.bincount(ti, minlength=len(r))
+        slot = np.arange(len(ti)) - (np.cumsum(per_row) - per_row)[ti]
+        shape = (len(r), int(per_row.max(initial=0)))
+        w, z = np.zeros(shape), np.full(shape, np.nan)
+        w[ti, slot] = 1.0
+        z[ti, slot] = padded[r[ti] + dr[tj] + h, c[ti] + dc[tj] + h]
+        tdr, tdc = np.zeros(shape, dtype=int), np.zeros(shape, dtype=int)
+        tdr[ti, slot], tdc[ti, slot] = dr[tj], dc[tj]
+        yield r, c, w, z, tdr, tdc
 
 
 def _take(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, fill):
@@ -197,23 +306,10 @@ def _take(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, fill):
     return np.where(inside, value, fill)
 
 
-def _fit(range_m, padded, h, owner, rows, cols, ti, tj, dr, dc, step_rad, noise_m):
-    """Circle-profile ranges at the pulses ``(rows, cols)`` from their owner's core pulses within a disc of offsets.
-
-    ``padded`` holds the ranges, padded by ``h`` pixels; the owner's core pulses of row ``ti`` are at the offsets
-    ``tj`` (sorted by row, then offset). Only they enter the fits: each row's are packed to the left of tables as
-    wide as the most of them (offsets 0, weight 0 beyond).
-    """
+def _fit(range_m, owner, rows, cols, w, z, dr, dc, step_rad, noise_m):
+    """Circle-profile ranges at the pulses ``(rows, cols)`` from the tables of their owner's core pulses
+    (:func:`_neighbourhoods`: weights, ranges, pixel offsets)."""
     label = owner[rows, cols]
-    per_row = np.bincount(ti, minlength=len(rows))
-    slot = np.arange(len(ti)) - (np.cumsum(per_row) - per_row)[ti]
-    shape = (len(rows), int(per_row.max(initial=0)))
-    w, z = np.zeros(shape), np.full(shape, np.nan)
-    w[ti, slot] = 1.0
-    z[ti, slot] = padded[rows[ti] + dr[tj] + h, cols[ti] + dc[tj] + h]
-    offsets = dr, dc
-    dr, dc = np.zeros(shape, dtype=int), np.zeros(shape, dtype=int)
-    dr[ti, slot], dc[ti, slot] = offsets[0][tj], offsets[1][tj]
     n = w.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         mr, mc = (w * dr).sum(axis=1) / n, (w * dc).sum(axis=1) / n
@@ -271,11 +367,12 @@ def _fit(range_m, padded, h, owner, rows, cols, ti, tj, dr, dc, step_rad, noise_
     return out
 
 
-def _solve(w: np.ndarray, columns: list, rhs: np.ndarray) -> np.ndarray:
-    """Weighted least squares per row: the coefficients (rows, k) of ``columns`` fitting ``rhs`` (NaN if singular)."""
+def _solve(w: np.ndarray, columns: list, rhs: np.ndarray, moment: np.ndarray | None = None) -> np.ndarray:
+    """Weighted least squares per row: the coefficients (rows, k) of ``columns`` fitting ``rhs`` (NaN if singular);
+    with ``moment`` (k,), the solution of the normal equations for that right-hand side instead."""
     design = np.stack(columns, axis=-1)  # (n, m, k)
     normal = np.einsum("nm,nmi,nmj->nij", w, design, design)
-    moment = np.einsum("nm,nmi,nm->ni", w, design, rhs)
+    moment = np.einsum("nm,nmi,nm->ni", w, design, rhs) if moment is None else np.broadcast_to(moment, normal.shape[:2])
     out = np.full(moment.shape, np.nan)
     with np.errstate(invalid="ignore"):
         good = np.abs(np.linalg.det(normal)) > 1e-30

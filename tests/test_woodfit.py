@@ -5,7 +5,7 @@ import math
 import numpy as np
 
 from leafsfs.edges import attribute_mixed
-from leafsfs.woodfit import cylinder_ranges, wood_owner_range
+from leafsfs.woodfit import MIN_QUADRIC_PULSES, cylinder_ranges, quadric_ranges, wood_owner_range
 
 STEP = math.radians(0.018)
 N = 120
@@ -88,3 +88,59 @@ def test_flat_strip_keeps_its_plane():
     out = cylinder_ranges(flat, surfaces, mixed.owner, targets, STEP, 8.0, NOISE)
     assert targets.sum() > 100
     assert np.isfinite(out[targets]).mean() < 0.1
+
+
+def _bowl(curvature, noise, seed=2):
+    """A surface curving away from the beam, ``DIST + curvature (x^2 + y^2) / 2`` (x, y across the grid, m), with its
+    pure pulses on the rows above ``N / 2`` (label 1), the targets the next 8 rows below them, and the owner image
+    (label 1 on both)."""
+    rows, cols = np.mgrid[0:N, 0:N].astype(float)
+    x, y = (rows - N / 2) * STEP * DIST, (cols - N / 2) * STEP * DIST
+    true = DIST + 0.5 * curvature * (x ** 2 + y ** 2)
+    range_m = true + np.random.default_rng(seed).normal(0, noise, (N, N))
+    surfaces = np.where(rows < N / 2, 1, 0)
+    targets = (rows >= N / 2) & (rows < N / 2 + 8) & (np.abs(cols - N / 2) < 20)
+    return range_m, true, surfaces, targets, np.where(targets, 1, surfaces)
+
+
+def _plane_at(range_m, surfaces, row, col, radius):
+    """Least-squares plane of the pure pulses within ``radius`` pixels of ``(row, col)``, at that pixel, m."""
+    rows, cols = np.nonzero(surfaces > 0)
+    near = (rows - row) ** 2 + (cols - col) ** 2 <= radius ** 2
+    design = np.stack([np.ones(near.sum()), rows[near] - row, cols[near] - col], axis=1)
+    return np.linalg.lstsq(design, range_m[rows[near], cols[near]], rcond=None)[0][0]
+
+
+def test_quadric_follows_a_surface_curving_away():
+    # A 1 cm radius of curvature (a twig seen across): beyond the last pure pulses the surface falls behind their
+    # plane by millimetres; the quadric of the pure pulses lands on it within the noise.
+    range_m, true, surfaces, targets, owner = _bowl(1 / 0.01, NOISE / 4)
+    out = quadric_ranges(range_m, surfaces, owner, targets, 12.0, NOISE)
+    fitted = targets & np.isfinite(out)
+    assert fitted.sum() >= 40
+    rows, cols = np.nonzero(fitted)
+    plane = np.array([_plane_at(range_m, surfaces, r, c, 12.0) for r, c in zip(rows, cols)])
+    error, plane_error = np.abs(out - true)[fitted], np.abs(plane - true[fitted])
+    assert np.median(error) < NOISE / 2
+    assert np.median(error) < 0.2 * np.median(plane_error)
+
+
+def test_quadric_of_a_plane_is_the_plane():
+    range_m, true, surfaces, targets, owner = _bowl(0.0, NOISE)
+    out = quadric_ranges(range_m, surfaces, owner, targets, 12.0, NOISE)
+    error = (out - true)[targets & np.isfinite(out)]
+    assert len(error) >= 40
+    assert abs(np.median(error)) < NOISE / 2 and np.quantile(np.abs(error), 0.9) < 2.5 * NOISE
+
+
+def test_quadric_refuses_far_noisy_or_sparse_neighbourhoods():
+    # Eight rows beyond four rows of pulses the quadric's own noise exceeds a pulse's: no distance there.
+    range_m, _, surfaces, targets, owner = _bowl(0.0, NOISE)
+    out = quadric_ranges(range_m, surfaces, owner, targets, 12.0, NOISE)
+    assert np.isfinite(out[N // 2]).any() and np.isnan(out[N // 2 + 7][targets[N // 2 + 7]]).all()
+    # Residuals beyond twice the noise given, or fewer pulses than the fit needs: no distance.
+    range_m, _, surfaces, targets, owner = _bowl(0.0, 5 * NOISE)
+    assert np.isnan(quadric_ranges(range_m, surfaces, owner, targets, 12.0, NOISE)[targets]).all()
+    range_m, _, surfaces, targets, owner = _bowl(0.0, NOISE)
+    sparse = np.where(np.random.default_rng(3).random(surfaces.shape) < (MIN_QUADRIC_PULSES - 2) / 250, surfaces, 0)
+    assert np.isnan(quadric_ranges(range_m, sparse, owner, targets, 12.0, NOISE)[targets]).mean() > 0.5
