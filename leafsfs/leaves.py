@@ -191,7 +191,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
                  neck_ratio: float = 0.3, gain_dn: float | None = None, max_aspect: float = 4.0,
                  min_fill: float = 0.5, occluder_gap_m: float = 0.01, crease_angle_deg: float = 40.0,
                  min_piece_px: int = 3, min_leaf_width_m: float = MIN_LEAF_WIDTH_M,
-                 lobe_ratio: float = 0.15, rim_sigma: float = 0.0) -> Segmentation:
+                 lobe_ratio: float = 0.15, piece_ratio: float = 0.5, rim_sigma: float = 0.0) -> Segmentation:
     """Surfaces, mixed pulses and leaf regions of a scan.
 
     Parameters
@@ -294,6 +294,13 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         leaf the neck cut took off, and joins it
         (:func:`leafsfs.canopy.join_occluded`'s ``lobe_ratio``; needs
         ``occluder_gap_m`` > 0; 0: not joined).
+    piece_ratio : float
+        A leaf surface that touches another, holds at most this share of its
+        pulses and continues its plane near the cut (median absolute residual
+        at most 2 sigma) is a piece of that leaf split off by the neck cut,
+        a crease or the linking, and joins it
+        (:func:`leafsfs.canopy.join_occluded`'s ``piece_ratio``; needs
+        ``occluder_gap_m`` > 0; 0: not joined).
     rim_sigma : float
         The pulses linked into a surface's outline whose range lies more than
         this many of their range-noise standard deviations off the surface's
@@ -357,7 +364,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         # Surfaces no leaf on their own (a tip or lobe cut off by a twig) may join the leaf they were cut from.
         fragments = ~leaf & ~_border_labels(surfaces)
         fragments[0] = False
-        joined = join_occluded(surfaces, range_m, leaf, gap, 3 * sigma, 1.5 * gap, fragments, lobe_ratio)
+        joined = join_occluded(surfaces, range_m, leaf, gap, 3 * sigma, 1.5 * gap, fragments, lobe_ratio, piece_ratio)
         # A joined group the leaf tests refuse as a whole is not joined: a leaf and the branch piece behind its
         # twig part again (each keeps its own judgement); a group of two or more leaf surfaces more elongated than a
         # leaf is the pieces of one branch cut by what lies in front of it, and none is a leaf (two leaves joined

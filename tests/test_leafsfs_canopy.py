@@ -598,3 +598,22 @@ def test_a_leaf_of_thirty_pulses_at_a_coarse_step_is_one_region(incidence_deg, s
     assert 25 <= pixels.sum() <= 40
     region, cover = _best_region(labels, pixels)
     assert region > 0 and cover >= 0.75
+
+
+def test_join_occluded_joins_two_touching_leaf_surfaces_on_one_plane_and_not_two_leaves_at_an_angle():
+    rows, cols = np.mgrid[0:40, 0:70]
+    noise = np.random.default_rng(1).normal(0.0, 0.001, rows.shape)
+    labels = np.zeros(rows.shape, int)
+    labels[5:35, 5:40] = 1  # the blade: 1,050 pulses
+    labels[8:32, 40:55] = 2  # a piece of it split off (a neck or crease cut): 360 pulses, 34 %
+    leaf = np.array([False, True, True])
+    plane = 3.0 + 0.0005 * rows + 0.001 * cols + noise
+    range_m = np.where(labels > 0, plane, np.nan)  # nothing returns around them: the gap test cannot join them
+    out = join_occluded(labels, range_m, leaf, 6.0, 0.003, 9.0, piece_ratio=0.5)
+    assert (out[labels > 0] == 1).all()
+    assert (join_occluded(labels, range_m, leaf, 6.0, 0.003, 9.0)[labels == 2] == 2).all()  # piece_ratio 0
+    assert (join_occluded(labels, range_m, leaf, 6.0, 0.003, 9.0, piece_ratio=0.3)[labels == 2] == 2).all()
+    # a second leaf meeting the first at the cut but turned 30 deg from it (range steepening away from the cut)
+    turned = np.where(labels == 2, plane + np.tan(np.radians(30.0)) * 0.0009 * (cols - 39), plane)
+    out = join_occluded(labels, np.where(labels > 0, turned, np.nan), leaf, 6.0, 0.003, 9.0, piece_ratio=0.5)
+    assert (out[labels == 2] == 2).all()
