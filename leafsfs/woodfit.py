@@ -66,8 +66,8 @@ MIN_FLAT_TEST = 12
 MAX_RESIDUAL_SIGMA = 2.0
 #: Radius of a quadric fit's neighbourhood, in units of the circle's (:func:`wood_owner_range`). Measured with the
 #: truth on the mixed pulses that a surface not taken for a leaf owns (scored leaf pulses, outliers at each leaf's
-#: 3-sigma threshold against the dominant object's true surface; plane -> circle -> circle or quadric; script:
-#: a scratch truth-budget script, not kept): leafy tree at 0.018 deg, 14,749 pulses, 3,819 -> 3,808 ->
+#: 3-sigma threshold against the dominant object's true surface; plane -> circle -> circle or quadric; a scratch
+#: truth-budget script, not kept): leafy tree at 0.018 deg, 14,749 pulses, 3,819 -> 3,808 ->
 #: 3,650 (factor 1: 3,633; 2: 3,609); pear seed 7 at 3 m, 26,657 pulses, 6,810 -> 6,685 -> 6,030 (1: 6,195; 2:
 #: 5,997).
 QUADRIC_RADIUS_FACTOR = 1.5
