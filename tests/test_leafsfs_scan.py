@@ -346,6 +346,33 @@ def test_mixed_pulses_of_a_leaf_without_heights_take_the_leaf_planes_distance(le
     assert np.mean(result.range[pure] != scan.range[pure]) < 1e-3 and pure.sum() > 1000
 
 
+def test_mixed_pulses_of_a_leaf_take_the_mean_of_the_engine_and_the_leaf_planes_distance(leaf_scan, monkeypatch):
+    # The engine's surface and the plane of the leaf's own pure pulses both estimate the distance of a mixed pulse
+    # the leaf dominates; the pulse takes their mean. An engine made 1 cm too far leaves the flat leaf's mixed pulses
+    # half as far off (the plane is right), its pure pulses as measured.
+    module = sys.modules["leafsfs.reconstruct"]
+    engine = module.reconstruct_heights
+    bias = 0.01  # m (the frame's heights are distances near the leaf)
+
+    def biased(*args, **kwargs):
+        result = engine(*args, **kwargs)
+        result.height = result.height + bias
+        return result
+
+    monkeypatch.setattr(module, "reconstruct_heights", biased)
+    _, scan, calibration = leaf_scan
+    result = reconstruct(scan, variant="buffer", calibration=calibration)
+    leaf = scan.object_names.index("leaf")
+    measured = scan.range - scan.truth_range
+    mixed = (scan.truth_id == leaf) & (scan.mixed_fraction > 0.05) & (np.abs(measured) > 0.01) \
+        & (result.labels > 0) & result.outlier & ~result.removed
+    assert mixed.sum() > 100
+    error = (result.range - scan.truth_range)[mixed]
+    assert abs(np.median(error) - bias / 2) < 0.15 * bias
+    pure = (result.labels > 0) & (scan.mixed_fraction < 1e-3)
+    assert np.mean(result.range[pure] != scan.range[pure]) < 1e-3 and pure.sum() > 1000
+
+
 def test_a_mixed_pulse_that_no_surface_explains_is_removed(leaf_scan, leaf_result):
     # A one-pulse fragment 30 cm before the wall (a twig end: no surface, fewer pulses than a piece) ringed by
     # pulses half way between it and the wall: no pair of surfaces brackets them, their range proves them mixed
