@@ -401,6 +401,36 @@ def test_a_mixed_pulse_that_no_surface_explains_is_removed(leaf_scan, leaf_resul
     assert not kept.removed.any() and np.array_equal(kept.range[ring], scan.range[ring])
 
 
+def test_outline_pulses_mostly_off_their_leaf_take_part_of_the_engines_height(monkeypatch):
+    # The same kind of leaf (6 cm, 3 m, 35 deg, nothing behind) at 0.018 deg. Its outline pulses whose beam axis misses
+    # it are unreliable (rim shares) and take RIM_ENGINE_WEIGHT of the engine's height and the rest of their measured
+    # range: an engine biased 1 cm farther moves them by that weight of the bias, the leaf's pure pulses not at all.
+    scene = scenes.scene_from_spec({"objects": [
+        {"name": "leaf", "type": "leaf", "preset": "pear", "seed": 3, "length": 0.06, "material": "pear-leaf",
+         "pose": {"center": [3.0, 0, 0], "facing": "scanner", "incidence_deg": 35}}]})
+    setup = tlssim.setup_from_section({"window": {"theta_deg": [-0.8, 0.8], "psi_deg": [89.2, 90.8],
+                                                  "step_deg": 0.018}})
+    scan = tlssim.simulate(scene, setup, seed=0, progress=False)
+    calibration = simulated_calibration(scan.scanner.model)
+    module = sys.modules["leafsfs.reconstruct"]
+    engine, bias = module.reconstruct_heights, 0.01  # m
+
+    def biased(*args, **kwargs):
+        result = engine(*args, **kwargs)
+        result.height = result.height + bias
+        return result
+
+    plain = reconstruct(scan, variant="fused", calibration=calibration)
+    monkeypatch.setattr(module, "reconstruct_heights", biased)
+    shifted = reconstruct(scan, variant="fused", calibration=calibration)
+    off_axis = scan.valid & ~np.isfinite(scan.truth_range) & (plain.labels > 0) & plain.outlier & shifted.outlier
+    assert off_axis.sum() > 100
+    moved = np.median((shifted.range - plain.range)[off_axis])
+    assert moved == pytest.approx(module.RIM_ENGINE_WEIGHT * bias, rel=0.1)
+    pure = (plain.labels > 0) & (scan.mixed_fraction < 1e-3) & ~plain.outlier
+    assert np.array_equal(shifted.range[pure], plain.range[pure]) and pure.sum() > 500
+
+
 def test_outline_pulses_mostly_off_their_leaf_take_its_corrected_distance(monkeypatch):
     # A 6 cm pear leaf 3 m away at 35 deg incidence with nothing behind it, at the FARO protocol's 0.018 deg. The
     # pulses whose beam axis misses the leaf (truth range NaN) return the range of the lit part of their footprint,
