@@ -346,6 +346,33 @@ def test_mixed_pulses_of_a_leaf_without_heights_take_the_leaf_planes_distance(le
     assert np.mean(result.range[pure] != scan.range[pure]) < 1e-3 and pure.sum() > 1000
 
 
+def test_mixed_pulses_of_a_leaf_take_the_mean_of_the_engine_and_the_leaf_planes_distance(leaf_scan, monkeypatch):
+    # The engine's surface and the plane of the leaf's own pure pulses both estimate the distance of a mixed pulse
+    # the leaf dominates; the pulse takes their mean. An engine made 1 cm too far leaves the flat leaf's mixed pulses
+    # half as far off (the plane is right), its pure pulses as measured.
+    module = sys.modules["leafsfs.reconstruct"]
+    engine = module.reconstruct_heights
+    bias = 0.01  # m (the frame's heights are distances near the leaf)
+
+    def biased(*args, **kwargs):
+        result = engine(*args, **kwargs)
+        result.height = result.height + bias
+        return result
+
+    monkeypatch.setattr(module, "reconstruct_heights", biased)
+    _, scan, calibration = leaf_scan
+    result = reconstruct(scan, variant="buffer", calibration=calibration)
+    leaf = scan.object_names.index("leaf")
+    measured = scan.range - scan.truth_range
+    mixed = (scan.truth_id == leaf) & (scan.mixed_fraction > 0.05) & (np.abs(measured) > 0.01) \
+        & (result.labels > 0) & result.outlier & ~result.removed
+    assert mixed.sum() > 100
+    error = (result.range - scan.truth_range)[mixed]
+    assert abs(np.median(error) - bias / 2) < 0.15 * bias
+    pure = (result.labels > 0) & (scan.mixed_fraction < 1e-3)
+    assert np.mean(result.range[pure] != scan.range[pure]) < 1e-3 and pure.sum() > 1000
+
+
 def test_a_mixed_pulse_that_no_surface_explains_is_removed(leaf_scan, leaf_result):
     # A one-pulse fragment 30 cm before the wall (a twig end: no surface, fewer pulses than a piece) ringed by
     # pulses half way between it and the wall: no pair of surfaces brackets them, their range proves them mixed
@@ -372,6 +399,36 @@ def test_a_mixed_pulse_that_no_surface_explains_is_removed(leaf_scan, leaf_resul
     assert areas == pytest.approx([leaf.traits["area_m2"] for leaf in leaf_result.leaves], rel=1e-4)
     kept = reconstruct(scan, variant="buffer", params=SfsParams(unexplained="keep"), calibration=calibration)
     assert not kept.removed.any() and np.array_equal(kept.range[ring], scan.range[ring])
+
+
+def test_outline_pulses_mostly_off_their_leaf_take_part_of_the_engines_height(monkeypatch):
+    # The same kind of leaf (6 cm, 3 m, 35 deg, nothing behind) at 0.018 deg. Its outline pulses whose beam axis misses
+    # it are unreliable (rim shares) and take RIM_ENGINE_WEIGHT of the engine's height and the rest of their measured
+    # range: an engine biased 1 cm farther moves them by that weight of the bias, the leaf's pure pulses not at all.
+    scene = scenes.scene_from_spec({"objects": [
+        {"name": "leaf", "type": "leaf", "preset": "pear", "seed": 3, "length": 0.06, "material": "pear-leaf",
+         "pose": {"center": [3.0, 0, 0], "facing": "scanner", "incidence_deg": 35}}]})
+    setup = tlssim.setup_from_section({"window": {"theta_deg": [-0.8, 0.8], "psi_deg": [89.2, 90.8],
+                                                  "step_deg": 0.018}})
+    scan = tlssim.simulate(scene, setup, seed=0, progress=False)
+    calibration = simulated_calibration(scan.scanner.model)
+    module = sys.modules["leafsfs.reconstruct"]
+    engine, bias = module.reconstruct_heights, 0.01  # m
+
+    def biased(*args, **kwargs):
+        result = engine(*args, **kwargs)
+        result.height = result.height + bias
+        return result
+
+    plain = reconstruct(scan, variant="fused", calibration=calibration)
+    monkeypatch.setattr(module, "reconstruct_heights", biased)
+    shifted = reconstruct(scan, variant="fused", calibration=calibration)
+    off_axis = scan.valid & ~np.isfinite(scan.truth_range) & (plain.labels > 0) & plain.outlier & shifted.outlier
+    assert off_axis.sum() > 100
+    moved = np.median((shifted.range - plain.range)[off_axis])
+    assert moved == pytest.approx(module.RIM_ENGINE_WEIGHT * bias, rel=0.1)
+    pure = (plain.labels > 0) & (scan.mixed_fraction < 1e-3) & ~plain.outlier
+    assert np.array_equal(shifted.range[pure], plain.range[pure]) and pure.sum() > 500
 
 
 def test_outline_pulses_mostly_off_their_leaf_take_its_corrected_distance(monkeypatch):
