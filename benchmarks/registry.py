@@ -373,7 +373,7 @@ def _scanner_view(scan, mask, params: dict) -> dict:
     out = {**params, "viewpoint": params.get("viewpoint") or tuple(position.tolist())}
     if out.get("footprint_m") is None:
         distance = float(np.median(np.linalg.norm(scan.xyz[mask] - position, axis=1)))
-        out["footprint_m"] = float(min(footprint_axes_m(scan.scanner.assumed_model(), distance, 0.0)))
+        out["footprint_m"] = float(min(footprint_axes_m(scan.scanner.assumed_model, distance, 0.0)))
     return out
 
 
