@@ -723,7 +723,15 @@ def bound_by_footprint(records: list[dict], bounds: list[list[float]]) -> None:
     gave it) to its bound from the points' spread across the line of sight (:func:`woody.footprint.lateral_radii`,
     m; one list per record), in place. Resolved sections keep their circles: applied to them too, the bound cut
     partly occluded stems (a simulated leafless apple-like tree's 2.3 cm stem at 1.3 m by 14-21 %). Runs after
-    the pipe model; a later pass of it (:func:`woody.trunk.follow_tree`) only shrinks radii, so the bound holds."""
+    the pipe model; a later pass of it (:func:`woody.trunk.follow_tree`) only shrinks radii, so the bound holds.
+
+    Parameters
+    ----------
+    records : list of dict
+        Branch records (``sections`` as ``(start, end, radius)``, m; ``reliable`` per section, absent: resolved).
+    bounds : list of list of float
+        Radius bound of each section of each record, m (infinite: none).
+    """
     for record, limits in zip(records, bounds):
         judged = record.get("reliable", [True] * len(limits))
         record["sections"] = [(a, e, r if ok else min(r, limit))
