@@ -339,17 +339,19 @@ def _register_woody() -> None:
         return VariantOutput(scan.xyz, {"cylinders": result.cylinders()}, {"tuboids": len(result.tuboids)})
 
     def cylinders(scan, mask, **params):
-        result = woody.follow_cylinders(scan.xyz[mask], **params)
+        result = woody.follow_cylinders(scan.xyz[mask], **_scanner_view(scan, mask, params))
         return VariantOutput(scan.xyz, {"cylinders": result.cylinders()}, {"branches": len(result.branches)})
 
     def cylinders_trunk(scan, mask, **params):
         from woody.trunk import follow_tree
 
-        result = follow_tree(scan.xyz[mask], **params)
+        result = follow_tree(scan.xyz[mask], **_scanner_view(scan, mask, params))
         return VariantOutput(scan.xyz, {"cylinders": result.cylinders()}, {"branches": len(result.branches)})
 
-    follow = {k: v for k, v in dataclasses.asdict(woody.FollowParams()).items()
-              if v is None or isinstance(v, (bool, int, float, str))}
+    # The scan knows its scanner: its position and the beam's footprint bound the radii (woody.footprint), as STEP
+    # gets the scanner's position; a number for footprint_m overrides it (0: off).
+    follow = {**{k: v for k, v in dataclasses.asdict(woody.FollowParams()).items()
+                 if v is None or isinstance(v, (bool, int, float, str))}, "footprint_m": None}
     register_variant(Variant("step", "woody", step, {"cell_m": 0.02, "radius_step_m": 0.01, "r_min_m": 0.02,
                                                      "r_max_m": 0.30},
                              "STEP tuboids (Ravaglia et al. 2017: point-normal Hough, open active contours)",
@@ -359,6 +361,20 @@ def _register_woody() -> None:
     register_variant(Variant("cylinders-trunk", "woody", cylinders_trunk, follow,
                              "cylinder following with the trunk followed first from the ground up by stacked circle "
                              "fits (woody.trunk.follow_tree)", target="wood"))
+
+
+def _scanner_view(scan, mask, params: dict) -> dict:
+    """``params`` with the scan's scanner position as ``viewpoint`` and, where ``footprint_m`` is None, the scanner
+    model's beam diameter (``tlssim.beam.footprint_axes_m`` at normal incidence) at the median range of the
+    points, m."""
+    from tlssim.beam import footprint_axes_m
+
+    position = np.asarray(scan.pose.position, float)
+    out = {**params, "viewpoint": params.get("viewpoint") or tuple(position.tolist())}
+    if out.get("footprint_m") is None:
+        distance = float(np.median(np.linalg.norm(scan.xyz[mask] - position, axis=1)))
+        out["footprint_m"] = float(min(footprint_axes_m(scan.scanner.assumed_model, distance, 0.0)))
+    return out
 
 
 _register_builtins()

@@ -1,0 +1,84 @@
+"""The radius bound from the points' spread across the line of sight less the beam footprint."""
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from woody.footprint import MIN_POINTS, lateral_radii, lateral_radius
+
+VIEW = np.array([0.0, 0.0, 0.5])  # the scanner, 4 m from a vertical axis at x = 4
+
+
+def _one_sided(radius, footprint, noise, count=4000, seed=0):
+    """A vertical branch of ``radius`` at x = 4 m seen along x: each pulse's lateral offset evenly over the
+    branch's width widened by the footprint, its point on the central ray at the surface's range (the widened
+    edges at the silhouette's range) plus range noise along x."""
+    rng = np.random.default_rng(seed)
+    y = rng.uniform(-(radius + footprint / 2), radius + footprint / 2, count)
+    depth = np.sqrt(np.clip(radius**2 - y**2, 0.0, None))
+    x = 4.0 - depth + rng.normal(0.0, noise, count)
+    return np.c_[x, y, rng.uniform(0.0, 1.0, count)]
+
+
+@pytest.mark.parametrize("radius", [0.0003, 0.002, 0.01, 0.05])
+def test_the_bound_recovers_the_radius_of_a_widened_branch(radius):
+    points = _one_sided(radius, 0.005, 0.0)
+    assert lateral_radius(points, [4, 0, 0], [4, 0, 1], VIEW, 0.005) == pytest.approx(radius, abs=3e-4, rel=0.02)
+
+
+def test_range_noise_along_the_line_of_sight_does_not_widen_the_bound():
+    clean = lateral_radius(_one_sided(0.001, 0.005, 0.0), [4, 0, 0], [4, 0, 1], VIEW, 0.005)
+    noisy = lateral_radius(_one_sided(0.001, 0.005, 0.004), [4, 0, 0], [4, 0, 1], VIEW, 0.005)
+    assert noisy == pytest.approx(clean, abs=1e-9)
+
+
+def test_a_spread_under_the_footprint_gives_zero_and_too_few_points_or_an_end_on_axis_no_bound():
+    points = _one_sided(0.0, 0.005, 0.003)
+    assert lateral_radius(points, [4, 0, 0], [4, 0, 1], VIEW, 0.008) == 0.0
+    assert lateral_radius(points[:MIN_POINTS - 1], [4, 0, 0], [4, 0, 1], VIEW, 0.005) == np.inf
+    assert lateral_radius(points, [3, 0, 0.5], [5, 0, 0.5], VIEW, 0.005) == np.inf  # axis along the view
+
+
+def test_sections_take_every_point_near_their_axis_whichever_branch_holds_it():
+    points = _one_sided(0.02, 0.005, 0.001)
+    tree = cKDTree(points)
+    sections = [([4.0, 0.0, 0.1], [4.0, 0.0, 0.5], 0.02), ([4.0, 0.0, 0.5], [4.0, 0.0, 0.9], 0.02),
+                ([4.0, 1.0, 0.1], [4.0, 1.0, 0.5], 0.02)]  # the last one where there are no points
+    out = lateral_radii(sections, points, tree, VIEW, 0.005)
+    assert out[0] == pytest.approx(0.02, rel=0.03) and out[1] == pytest.approx(0.02, rel=0.03)
+    assert out[2] == np.inf
+
+
+def test_follow_cylinders_is_unchanged_without_a_footprint_and_never_wider_with_one(y_tree):
+    from woody import follow_cylinders
+    from woody.synthetic import sample_cylinders
+
+    points = sample_cylinders(y_tree, 1e4, seed=2).points
+    plain = follow_cylinders(points)
+    same = follow_cylinders(points, viewpoint=(0.0, 0.0, 0.0))  # no footprint: the bound is off
+    bounded = follow_cylinders(points, viewpoint=(-4.0, 0.0, 1.0), footprint_m=0.005)
+    assert [b["sections"] for b in same.branches] == [b["sections"] for b in plain.branches]
+    for b, p in zip(bounded.branches, plain.branches):
+        assert all(s[2] <= q[2] + 1e-12 for s, q in zip(b["sections"], p["sections"]))
+    assert bounded.volume <= plain.volume
+
+
+def test_invalid_scanner_settings_are_refused():
+    from woody import FollowParams, WoodyError
+
+    with pytest.raises(WoodyError, match="footprint_m"):
+        FollowParams(footprint_m=-0.001)
+    with pytest.raises(WoodyError, match="viewpoint"):
+        FollowParams(viewpoint=(0.0, 1.0))
+
+
+def test_only_the_sections_the_points_do_not_resolve_take_the_bound():
+    from woody.cylinders import bound_by_footprint
+
+    records = [{"sections": [([0, 0, 0], [0, 0, 1], 0.05), ([0, 0, 1], [0, 0, 2], 0.04)], "reliable": [True, False]},
+               {"sections": [([0, 0, 2], [0, 0, 2.1], 0.003)]}]  # no verdict: resolved
+    bound_by_footprint(records, [[0.01, 0.01], [0.001]])
+    assert [s[2] for s in records[0]["sections"]] == [0.05, 0.01]
+    assert records[1]["sections"][0][2] == 0.003
+    bound_by_footprint(records, [[np.inf, np.inf], [np.inf]])  # no bound: radii kept
+    assert [s[2] for s in records[0]["sections"]] == [0.05, 0.01]
