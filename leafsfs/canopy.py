@@ -795,11 +795,6 @@ def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndar
         Range tolerance of the plane tests, m.
     local_px : float
         Reach of the planes fitted near the cut, pixels (0: whole parts' planes only).
-    piece_ratio : float
-        Largest share of a touching candidate's pulses another candidate joined on its plane holds (0: none;
-        assumption: 0.5, the larger part is the blade; with :data:`PIECE_TOLERANCE`, chosen with the truth on the
-        touching leaf surfaces of the leafy tree and pear seed 7 at 0.018 deg: 7 pairs of pieces of one leaf joined,
-        2 leaf-and-wood pairs, both on the pear).
     fragments : ndarray of bool, optional
         Surfaces that may join one candidate (index = label), e.g. the
         surfaces that are no leaves and do not touch the window's border.
@@ -807,6 +802,11 @@ def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndar
         Largest share of a touching candidate's pulses a fragment joined on its plane holds (0: none; assumption:
         0.15, leaf lobes cut at a neck on the leafy tree held 2-13 % of their blade, the twigs and branches the
         neck cut off leaves 10-66 % of them).
+    piece_ratio : float
+        Largest share of a touching candidate's pulses another candidate joined on its plane holds (0: none;
+        assumption: 0.5, the larger part is the blade; with :data:`PIECE_TOLERANCE`, chosen with the truth on the
+        touching leaf surfaces of the leafy tree and pear seed 7 at 0.018 deg: 7 pairs of pieces of one leaf joined,
+        2 leaf-and-wood pairs, both on the pear).
 
     Returns
     -------
