@@ -80,7 +80,7 @@ LONE_TAIL_SIGMA = 4.0
 #: are weighted equally (an assumption, not fitted). Measured with the truth on the scored pulses of the leafy tree
 #: and pear seed 7 at 3 m, 0.018 deg (``fused``, 3-sigma outliers left, before -> after; weights 0.3 / 0.7 of the
 #: engine gave smaller gains on both): 13,477 -> 13,024 and 22,922 -> 21,906, of which leaf-leaf pulses -283 / -717;
-#: the engine's height alone 0 net, the plane alone +149 / not measured (script ``budget_leafleaf.py``, round 16).
+#: the engine's height alone 0 net, the plane alone +149 / not measured (a scratch truth-budget script, round 16).
 ENGINE_OWNER_WEIGHT = 0.5
 #: Weight of the engine's height in the corrected distance of an outline pulse mostly off its leaf
 #: (:data:`RIM_PARTIAL_SHARE`); the rest goes to its measured range. That range is the lit part's centroid's, off the
@@ -88,7 +88,7 @@ ENGINE_OWNER_WEIGHT = 0.5
 #: least accurate at the outline; the two errors are largely independent. Chosen on the scored pulses of the leafy
 #: tree and pear seed 7 at 3 m, 0.018 deg (``fused``, truth, 3-sigma outliers left, the engine alone -> this weight):
 #: 0.5: 13,477 -> 13,047 and 22,922 -> 22,395; 2/3: 12,943 and 22,126; 0.75: 12,992 and 22,195; the good points
-#: damaged among these pulses (1,163 and 1,696 with the engine alone) fall (script ``budget_leafleaf.py``, round 16).
+#: damaged among these pulses (1,163 and 1,696 with the engine alone) fall (a scratch truth-budget script, round 16).
 RIM_ENGINE_WEIGHT = 2.0 / 3.0
 
 
