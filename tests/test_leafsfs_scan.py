@@ -1,6 +1,7 @@
 """PROP-SFS on scans: local frame, simulated single and clustered leaves, outputs, CLI and errors."""
 
 import copy
+import functools
 import json
 import sys
 
@@ -401,17 +402,24 @@ def test_a_mixed_pulse_that_no_surface_explains_is_removed(leaf_scan, leaf_resul
     assert not kept.removed.any() and np.array_equal(kept.range[ring], scan.range[ring])
 
 
-def test_outline_pulses_mostly_off_their_leaf_take_part_of_the_engines_height(monkeypatch):
-    # The same kind of leaf (6 cm, 3 m, 35 deg, nothing behind) at 0.018 deg. Its outline pulses whose beam axis misses
-    # it are unreliable (rim shares) and take RIM_ENGINE_WEIGHT of the engine's height and the rest of their measured
-    # range: an engine biased 1 cm farther moves them by that weight of the bias, the leaf's pure pulses not at all.
+@functools.lru_cache(maxsize=None)
+def _outline_leaf():
+    """A 6 cm pear leaf 3 m away at 35 deg incidence with nothing behind it, scanned at 0.018 deg: the scene, its
+    scan and the simulated scanner's calibration (shared by the outline tests, which do not modify them)."""
     scene = scenes.scene_from_spec({"objects": [
         {"name": "leaf", "type": "leaf", "preset": "pear", "seed": 3, "length": 0.06, "material": "pear-leaf",
          "pose": {"center": [3.0, 0, 0], "facing": "scanner", "incidence_deg": 35}}]})
     setup = tlssim.setup_from_section({"window": {"theta_deg": [-0.8, 0.8], "psi_deg": [89.2, 90.8],
                                                   "step_deg": 0.018}})
     scan = tlssim.simulate(scene, setup, seed=0, progress=False)
-    calibration = simulated_calibration(scan.scanner.model)
+    return scene, scan, simulated_calibration(scan.scanner.model)
+
+
+def test_outline_pulses_mostly_off_their_leaf_take_part_of_the_engines_height(monkeypatch):
+    # The same kind of leaf (6 cm, 3 m, 35 deg, nothing behind) at 0.018 deg. Its outline pulses whose beam axis misses
+    # it are unreliable (rim shares) and take RIM_ENGINE_WEIGHT of the engine's height and the rest of their measured
+    # range: an engine biased 1 cm farther moves them by that weight of the bias, the leaf's pure pulses not at all.
+    _, scan, calibration = _outline_leaf()
     module = sys.modules["leafsfs.reconstruct"]
     engine, bias = module.reconstruct_heights, 0.01  # m
 
@@ -436,13 +444,7 @@ def test_outline_pulses_mostly_off_their_leaf_take_its_corrected_distance(monkey
     # pulses whose beam axis misses the leaf (truth range NaN) return the range of the lit part of their footprint,
     # off the axis. In a canopy the edge test does not flag all of them; here they are made to look pure (part of
     # the leaf's surface): their intensity deficit alone (leafsfs.canopy.rim_shares) must mark them unreliable.
-    scene = scenes.scene_from_spec({"objects": [
-        {"name": "leaf", "type": "leaf", "preset": "pear", "seed": 3, "length": 0.06, "material": "pear-leaf",
-         "pose": {"center": [3.0, 0, 0], "facing": "scanner", "incidence_deg": 35}}]})
-    setup = tlssim.setup_from_section({"window": {"theta_deg": [-0.8, 0.8], "psi_deg": [89.2, 90.8],
-                                                  "step_deg": 0.018}})
-    scan = tlssim.simulate(scene, setup, seed=0, progress=False)
-    calibration = simulated_calibration(scan.scanner.model)
+    scene, scan, calibration = _outline_leaf()
     module = sys.modules["leafsfs.reconstruct"]
     segment = module.segment_scan
     off_axis = scan.valid & ~np.isfinite(scan.truth_range)
