@@ -15,6 +15,8 @@
   :mod:`benchmarks.experiments`;
 - ``tlsbench reproduce [NAME ...] [--list] [--quick]`` reproduces the sources' published tables and figures
   (:mod:`benchmarks.reproduce`), writes ``reproduction.html`` and ends with ``N/M rows within tolerance``;
+- ``tlsbench budget --suite S [--case NAME] [--variant V]`` splits the outliers a leaf variant leaves on one
+  case by their truth and by what the variant did (:mod:`benchmarks.budget`);
 - ``tlsbench list`` shows suites, variants, scene generators and sweeps.
 """
 
@@ -157,6 +159,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_experiment_parsers(sub)
     add_reproduce_parser(sub)
+
+    p = sub.add_parser("budget", help="where the outliers a leaf variant leaves on one case come from (by truth)")
+    p.add_argument("--suite", required=True, help=f"built-in suite ({', '.join(suite_names())}) or suite file")
+    p.add_argument("--case", default=None, help="case name (default: the suite's only case)")
+    p.add_argument("--variant", default="fused", help="leaf variant (default fused)")
+    p.add_argument("--threshold", choices=("auto", "1cm"), default="auto",
+                   help="outlier threshold: auto = 3 sigma of the leaf's range noise (default), or 1cm")
+    p.add_argument("--top", type=int, default=12, help="largest groups of outliers left to list (default 12)")
+    p.add_argument("--json", action="store_true", help="print the budget as JSON")
+    p.set_defaults(func=cmd_budget)
 
     p = sub.add_parser("list", help="list suites, variants, scene generators and sweeps")
     p.set_defaults(func=cmd_list)
@@ -352,6 +364,21 @@ def cmd_history(args) -> int:
     plot_history(points, args.metric, f"{args.metric} of suite {args.suite}" + (f", case {args.case}" if args.case
                                                                                else "")).savefig(path, dpi=100)
     print(f"chart: {path}")
+    return 0
+
+
+def cmd_budget(args) -> int:
+    from benchmarks.budget import case_budget, format_budget
+
+    cases = load_suite(args.suite).cases
+    names = [case.name for case in cases]
+    if args.case is None and len(cases) != 1:
+        raise BenchError(f"the suite has {len(cases)} cases; name one with --case: {', '.join(names)}")
+    if args.case is not None and args.case not in names:
+        raise BenchError(f"no case {args.case!r} in the suite; cases: {', '.join(names)}")
+    case = cases[0] if args.case is None else cases[names.index(args.case)]
+    budget = case_budget(case, args.variant, args.threshold)
+    print(json.dumps(budget, indent=1) if args.json else format_budget(budget, args.top))
     return 0
 
 
