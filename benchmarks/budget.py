@@ -13,7 +13,10 @@ a pulse in two leaves' masks counts twice) falls in one group by
 
 Each group counts its pulses, its outliers before and after (at the case's threshold: ``auto`` = 3 σ of the leaf's
 range noise, or ``1cm``), the good points the variant damaged (an inlier moved off the surface) and the good points
-it lost (an inlier removed). The totals are the pooled counts behind the case's ROP.
+it lost (an inlier removed), and its share of the case's ROP as the benchmark computes it: the mean over the
+leaves of each leaf's ROP, so a group's ``rop_before`` and ``rop_after`` are its outliers divided by its leaf's
+pulses (kept pulses after) and by the number of leaves, and they sum to the case's mean ROPs. A leaf with few pulses
+weighs as much as a large one: the pooled counts and the ROP shares can rank the groups differently.
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ ACTIONS = ("kept", "moved", "removed")
 PLACES = ("its leaf's region", "another region", "no region")
 #: Counts of a group, in output order.
 COUNTS = ("pulses", "outliers_before", "outliers_after", "good_damaged", "good_lost")
+#: Shares of the case's mean per-leaf ROP before and after.
+SHARES = ("rop_before", "rop_after")
 
 
 def mixtures(leaf: scoring.LeafTruth, object_types: list[str]) -> np.ndarray:
@@ -80,10 +85,10 @@ def tally(leaves: list[scoring.LeafTruth], xyz: list[np.ndarray], object_types: 
     Returns
     -------
     list of dict
-        One per non-empty group: ``mixture``, ``action``, ``place`` (None without ``places``) and the
-        :data:`COUNTS`, sorted by outliers after, most first.
+        One per non-empty group: ``mixture``, ``action``, ``place`` (None without ``places``), the
+        :data:`COUNTS` and the :data:`SHARES`, sorted by share of the ROP after, largest first.
     """
-    groups = defaultdict(lambda: np.zeros(len(COUNTS), dtype=np.int64))
+    groups = defaultdict(lambda: np.zeros(len(COUNTS) + len(SHARES)))
     for k, (leaf, points) in enumerate(zip(leaves, xyz)):
         if threshold not in leaf.taus:
             raise BenchError(f"unknown outlier threshold {threshold!r}; allowed: {sorted(leaf.taus)}")
@@ -93,13 +98,16 @@ def tally(leaves: list[scoring.LeafTruth], xyz: list[np.ndarray], object_types: 
         before, after = np.abs(leaf.distance) > tau, kept & (np.abs(distance) > tau)
         action = np.where(~kept, 2, np.where(moved, 1, 0))
         place = places[k] if places is not None else np.full(len(action), -1)
-        counts = np.stack([np.ones_like(before), before, after, ~before & after, ~before & ~kept], axis=1)
-        for key, values in zip(zip(mixtures(leaf, object_types), action, place), counts.astype(np.int64)):
+        weights = len(leaves) * np.array([len(before), max(int(kept.sum()), 1)], dtype=float)
+        counts = np.stack([np.ones_like(before), before, after, ~before & after, ~before & ~kept,
+                           before / weights[0], after / weights[1]], axis=1)
+        for key, values in zip(zip(mixtures(leaf, object_types), action, place), counts.astype(float)):
             groups[key] += values
     rows = [{"mixture": str(mix), "action": ACTIONS[a], "place": PLACES[p] if p >= 0 else None,
-             **dict(zip(COUNTS, map(int, values)))} for (mix, a, p), values in groups.items()]
-    return sorted(rows, key=lambda row: (-row["outliers_after"], -row["outliers_before"], row["mixture"],
-                                         row["action"], row["place"] or ""))
+             **dict(zip(COUNTS, map(int, values[:len(COUNTS)]))), **dict(zip(SHARES, values[len(COUNTS):]))}
+            for (mix, a, p), values in groups.items()]
+    return sorted(rows, key=lambda row: (-row["rop_after"], -row["outliers_after"], -row["outliers_before"],
+                                         row["mixture"], row["action"], row["place"] or ""))
 
 
 def _places(leaf: scoring.LeafTruth, labels: np.ndarray) -> np.ndarray:
@@ -126,7 +134,8 @@ def case_budget(case: Case, variant_name: str, threshold: str = "auto") -> dict:
     -------
     dict
         ``case``, ``variant``, ``threshold``, ``scope``, ``n_leaves``, ``groups`` (:func:`tally`) and ``totals``
-        (the :data:`COUNTS` summed, and the pooled ``rop_reduction``).
+        (the :data:`COUNTS` and :data:`SHARES` summed, ``rop_reduction`` from the shares, as the benchmark's, and
+        ``pooled_rop_reduction`` from the counts).
 
     Raises
     ------
@@ -162,19 +171,25 @@ def case_budget(case: Case, variant_name: str, threshold: str = "auto") -> dict:
     else:
         xyz = [np.asarray(variant(leaf.scan, leaf.mask).xyz) for leaf in leaves]
     groups = tally(leaves, xyz, [obj.type for obj in scene.objects], threshold, places)
-    totals = {key: sum(row[key] for row in groups) for key in COUNTS}
+    totals = {key: sum(row[key] for row in groups) for key in COUNTS + SHARES}
     kept = totals["pulses"] - sum(row["pulses"] for row in groups if row["action"] == "removed")
-    rop_before = totals["outliers_before"] / totals["pulses"]
-    rop_after = totals["outliers_after"] / kept if kept else 0.0
-    totals["rop_reduction"] = 1.0 - rop_after / rop_before if rop_before > 0 else float("nan")
+    pooled_before = totals["outliers_before"] / totals["pulses"]
+    pooled_after = totals["outliers_after"] / kept if kept else 0.0
+    totals["rop_reduction"] = _reduction(totals["rop_before"], totals["rop_after"])
+    totals["pooled_rop_reduction"] = _reduction(pooled_before, pooled_after)
     return {"case": case.name, "variant": variant_name, "threshold": threshold, "scope": variant.scope,
             "n_leaves": len(leaves), "groups": groups, "totals": totals}
 
 
+def _reduction(before: float, after: float) -> float:
+    """1 - after / before, NaN without outliers before."""
+    return 1.0 - after / before if before > 0 else float("nan")
+
+
 def format_budget(budget: dict, top: int = 12) -> str:
-    """The budget as text: a table by mixture (its outliers before and after; of those left, how many the variant
-    kept at their measured point and how many it moved; the outliers it removed; the good points it damaged and
-    lost), then the largest groups of outliers left.
+    """The budget as text: a table by mixture (its outliers before and after, its share of the ROP after; of the
+    outliers left, how many the variant kept at their measured point and how many it moved; the outliers it
+    removed; the good points it damaged and lost), then the groups with the largest shares of the ROP after.
 
     Parameters
     ----------
@@ -184,27 +199,30 @@ def format_budget(budget: dict, top: int = 12) -> str:
         Groups listed in the second table.
     """
     groups, totals = budget["groups"], budget["totals"]
-    left = max(totals["outliers_after"], 1)
+    rop_after = totals["rop_after"] or 1.0
     lines = [f"case {budget['case']}, variant {budget['variant']} ({budget['scope']} scope), "
-             f"{budget['n_leaves']} leaves, threshold {budget['threshold']}: {totals['pulses']:,} scored pulses, "
-             f"outliers {totals['outliers_before']:,} before, {totals['outliers_after']:,} after "
-             f"(pooled ROP reduction {totals['rop_reduction']:.3f}); good points damaged "
-             f"{totals['good_damaged']:,}, lost {totals['good_lost']:,}", "",
-             f"{'mixture':24s} {'pulses':>9s} {'before':>8s} {'after':>8s} {'% left':>7s} {'left kept':>10s} "
+             f"{budget['n_leaves']} leaves, threshold {budget['threshold']}: ROP {totals['rop_before']:.4f} -> "
+             f"{totals['rop_after']:.4f} (mean over the leaves; reduction {totals['rop_reduction']:.3f}); "
+             f"{totals['pulses']:,} scored pulses, outliers {totals['outliers_before']:,} -> "
+             f"{totals['outliers_after']:,} (pooled reduction {totals['pooled_rop_reduction']:.3f}); good points "
+             f"damaged {totals['good_damaged']:,}, lost {totals['good_lost']:,}", "",
+             f"{'mixture':24s} {'pulses':>9s} {'before':>8s} {'after':>8s} {'% of ROP':>9s} {'left kept':>10s} "
              f"{'left moved':>10s} {'removed':>8s} {'damaged':>8s} {'lost':>7s}"]
-    by_mixture = defaultdict(lambda: defaultdict(int))
+    by_mixture = defaultdict(lambda: defaultdict(float))
     for row in groups:
         acc = by_mixture[row["mixture"]]
-        for key in COUNTS:
+        for key in COUNTS + SHARES:
             acc[key] += row[key]
         acc[row["action"]] += row["outliers_after"] if row["action"] != "removed" else row["outliers_before"]
-    for mixture, acc in sorted(by_mixture.items(), key=lambda item: (-item[1]["outliers_after"], item[0])):
+    for mixture, acc in sorted(by_mixture.items(), key=lambda item: (-item[1]["rop_after"], item[0])):
+        acc = {key: value if key in SHARES else int(value) for key, value in acc.items()}
         lines.append(f"{mixture:24s} {acc['pulses']:9,d} {acc['outliers_before']:8,d} {acc['outliers_after']:8,d} "
-                     f"{100 * acc['outliers_after'] / left:6.1f}% {acc['kept']:10,d} {acc['moved']:10,d} "
-                     f"{acc['removed']:8,d} {acc['good_damaged']:8,d} {acc['good_lost']:7,d}")
-    lines += ["", f"largest groups of outliers left (of {totals['outliers_after']:,}):"]
+                     f"{100 * acc['rop_after'] / rop_after:8.1f}% {acc.get('kept', 0):10,d} "
+                     f"{acc.get('moved', 0):10,d} {acc.get('removed', 0):8,d} {acc['good_damaged']:8,d} "
+                     f"{acc['good_lost']:7,d}")
+    lines += ["", "largest shares of the ROP after (share, outliers left, group):"]
     for row in [row for row in groups if row["outliers_after"] > 0][:top]:
         where = f", {row['place']}" if row["place"] else ""
-        lines.append(f"  {row['outliers_after']:8,d} {100 * row['outliers_after'] / left:5.1f}%  "
+        lines.append(f"  {100 * row['rop_after'] / rop_after:5.1f}% {row['outliers_after']:8,d}  "
                      f"{row['mixture']}, {row['action']}{where}")
     return "\n".join(lines)

@@ -10,7 +10,7 @@ from benchmarks.suite import parse_suite
 
 SUITE = {"name": "budget", "cases": [
     {"name": "plate", "scene": {"generator": "plate-leaf", "distance_m": 3.0}},
-    {"name": "edge", "scene": {"builtin": "knife-edge"}, "targets": ["plate"]},
+    {"name": "cluster", "scene": {"builtin": "leaf-cluster"}, "scanner": {"step_deg": 0.1}},
 ]}
 
 
@@ -20,12 +20,16 @@ def cases():
 
 
 def pooled_counts(case, variant: str, threshold: str) -> dict:
-    """Pulses, outliers before and after summed over the case's targets from the benchmark's own rows."""
+    """Pulses, outliers before and after summed over the case's targets, and their mean ROPs, from the benchmark's
+    own rows."""
     (row,) = runner.case_rows(case.to_dict(), runner.variant_specs(registry.resolve([variant])))
     assert row["error"] is None
     suffix = "" if threshold == "auto" else "_" + threshold
-    totals = {"pulses": 0, "outliers_before": 0, "outliers_after": 0.0}
-    for score in row["metrics"]["targets"]:
+    targets = row["metrics"]["targets"]
+    totals = {"pulses": 0, "outliers_before": 0, "outliers_after": 0.0,
+              "rop_before": sum(score["rop_before" + suffix] for score in targets) / len(targets),
+              "rop_after": sum(score["rop_after" + suffix] for score in targets) / len(targets)}
+    for score in targets:
         n, n_out = score["n_points"], score["n_outliers" + suffix]
         lost = score["good_points_lost" + suffix] * (n - n_out) if n > n_out else 0.0
         removed = score["outliers_removed" + suffix] * n_out if n_out else 0.0
@@ -35,7 +39,7 @@ def pooled_counts(case, variant: str, threshold: str) -> dict:
     return totals
 
 
-@pytest.mark.parametrize("name, variant, threshold", [("plate", "raw", "auto"), ("edge", "stray-point", "auto"),
+@pytest.mark.parametrize("name, variant, threshold", [("plate", "raw", "auto"), ("cluster", "stray-point", "auto"),
                                                       ("plate", "fused", "1cm")])
 def test_totals_are_the_scores_pooled_counts(cases, name, variant, threshold):
     budget = case_budget(cases[name], variant, threshold)
@@ -44,6 +48,8 @@ def test_totals_are_the_scores_pooled_counts(cases, name, variant, threshold):
     assert totals["pulses"] == expected["pulses"]
     assert totals["outliers_before"] == expected["outliers_before"] > 0
     assert totals["outliers_after"] == pytest.approx(expected["outliers_after"], abs=1e-6)
+    assert totals["rop_before"] == pytest.approx(expected["rop_before"], rel=1e-9)
+    assert totals["rop_after"] == pytest.approx(expected["rop_after"], rel=1e-9, abs=1e-12)
     assert {row["action"] for row in budget["groups"]} <= set(ACTIONS)
     keys = [(row["mixture"], row["action"], row["place"]) for row in budget["groups"]]
     assert len(keys) == len(set(keys))  # groups partition the pulses
@@ -72,6 +78,6 @@ def test_refusals_name_what_is_allowed(cases, tmp_path, capsys):
     path = tmp_path / "suite.yaml"
     path.write_text(yaml.safe_dump(SUITE))
     assert cli.main(["budget", "--suite", str(path)]) == 2
-    assert "name one with --case: plate, edge" in capsys.readouterr().err
+    assert "name one with --case: plate, cluster" in capsys.readouterr().err
     assert cli.main(["budget", "--suite", str(path), "--case", "nope"]) == 2
     assert "no case 'nope'" in capsys.readouterr().err
