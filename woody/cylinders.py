@@ -119,6 +119,12 @@ test trees (spec Part D; each a documented departure in the default mode):
   (:mod:`woody.footprint`): the pipe model gave the twigs of a simulated
   leafless apple-like tree, 0.01-3 mm against a 4.9 mm footprint, about
   three times their radius, also from the true tree's own resolved limbs;
+  and a section the points resolve takes, where narrower, the circle of
+  its points whose beam lay wholly on it (the facing side, within
+  ``r - D / 2`` of the axis across the line of sight;
+  :func:`woody.footprint.facing_radius`): the points near a silhouette lie
+  outside the surface and widened a simulated apple-like tree's stem
+  circles by 0.5-1.9 mm;
 - clean-up (strict mode, additions): branches with fewer than
   ``min_branch_points`` points are given back to their parents (a stalled
   root to its largest child); a branch whose axis midpoint lies inside an
@@ -274,7 +280,10 @@ class FollowParams:
         axis across the line of sight less the footprint
         (:mod:`woody.footprint`), a bound that holds at any point spacing
         and needs no assumption about the tree's form, where the pipe
-        model gives twigs thinner than the beam about 3 times their radius.
+        model gives twigs thinner than the beam about 3 times their radius;
+        and a resolved section is at most as wide as the circle of its
+        points whose beam lay wholly on it
+        (:func:`woody.footprint.facing_radius`).
     """
 
     free_seed: tuple = APPLE_FREE_SEED

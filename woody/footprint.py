@@ -15,6 +15,9 @@ without the pipe model's assumption about the tree's form: on a simulated
 leafless apple-like tree (FARO LS880 model, 0.036 deg, 4 m, footprint
 4.9 mm) the twigs' points spread over 5.7 / 6.7 / 8.3 / 12.0 mm for true
 diameters of 0.5 / 1.4 / 2.9 / 6.5 mm (median per class).
+
+The same widening pulls the circle of a resolved branch out: :func:`facing_radius` refits it to the points whose
+beam lay wholly on the branch.
 """
 
 from __future__ import annotations
