@@ -131,8 +131,8 @@ def facing_radius(points: np.ndarray, start, end, radius: float, viewpoint, foot
     footprint) lies wholly on the branch and its point on the surface; nearer the silhouette the beam is partly
     off the branch and the point, placed on the central ray at the branch's range, lies outside the surface
     (by up to ``D / 2``). A circle fitted to all the points is pulled out by them: on a simulated leafless
-    apple-like tree (FARO LS880 model, 4 m, footprint 4.9 mm) the stem's circles lay 0.7-1.3 mm behind its axis
-    and 0.5-1.9 mm too wide while the points facing the scanner within 60 deg lay within 0.3 mm of the surface.
+    apple-like tree (FARO LS880 model, 4 m, footprint 4.9 mm) the stem's circles lay 0.7-2.2 mm behind its axis
+    and 0.5-2.0 mm too wide while the points facing the scanner within 30 deg lay -0.2 to +0.5 mm from its surface.
     Here the circle is refitted to the points on the side facing the scanner whose lateral offset from the axis
     is at most ``r - D / 2``: with the axis' lateral position kept (the silhouettes widen it symmetrically),
     its depth and the radius by Gauss-Newton from the section's circle, fitted to the median point of each of
@@ -161,11 +161,10 @@ def facing_radius(points: np.ndarray, start, end, radius: float, viewpoint, foot
 
     Examples
     --------
-    The facing half of a 20 mm circle whose points within 2 mm of each silhouette lie 2 mm out, footprint 4 mm:
-    the refit gives the true radius, a fit to all the points would not.
+    The facing half of a 20 mm circle widened by a 4 mm footprint (the points up to 2 mm beyond each silhouette
+    at the silhouette's range), its circle fitted 1 mm too wide: the refit gives the true radius.
 
     >>> x = np.linspace(-0.022, 0.022, 89)
-    >>> r = np.where(np.abs(x) > 0.018, np.abs(x), 0.020)
     >>> y = -np.sqrt(np.maximum(0.020 ** 2 - np.minimum(np.abs(x), 0.020) ** 2, 0.0))
     >>> pts = np.c_[4.0 + np.tile(y, 5), np.tile(x, 5), np.repeat(np.linspace(0.0, 0.1, 5), 89)]
     >>> round(facing_radius(pts, [4, 0, -0.01], [4, 0, 0.11], 0.021, [0, 0, 0.05], 0.004) * 1e3, 1)
