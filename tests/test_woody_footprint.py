@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from woody.footprint import MIN_POINTS, lateral_radii, lateral_radius
+from woody.cylfit import fit_circle
+from woody.footprint import MIN_POINTS, facing_radius, lateral_radii, lateral_radius
 
 VIEW = np.array([0.0, 0.0, 0.5])  # the scanner, 4 m from a vertical axis at x = 4
 
@@ -82,3 +83,38 @@ def test_only_the_sections_the_points_do_not_resolve_take_the_bound():
     assert records[1]["sections"][0][2] == 0.003
     bound_by_footprint(records, [[np.inf, np.inf], [np.inf]])  # no bound: radii kept
     assert [s[2] for s in records[0]["sections"]] == [0.05, 0.01]
+
+
+@pytest.mark.parametrize("radius", [0.01, 0.02, 0.05])
+def test_the_facing_refit_removes_the_silhouettes_widening(radius):
+    points = _one_sided(radius, 0.005, 0.001, count=2000)
+    _, everything = fit_circle(points[:, :2] - [4.0, 0.0])
+    assert everything > radius + 2e-4  # the points beyond the silhouette pull a circle of all of them out
+    refit = facing_radius(points, [4, 0, 0], [4, 0, 1], everything, VIEW, 0.005)
+    assert abs(refit - radius) < 0.5 * abs(everything - radius)
+    assert refit == pytest.approx(radius, abs=3e-4)
+
+
+def test_the_facing_refit_leaves_short_arcs_hidden_sides_and_end_on_axes_alone():
+    points = _one_sided(0.02, 0.005, 0.001, count=2000)
+    assert facing_radius(points, [4, 0, 0], [4, 0, 1], 0.008, VIEW, 0.005) == np.inf  # arc under +-45 deg
+    assert facing_radius(points[points[:, 1] > -0.01], [4, 0, 0], [4, 0, 1], 0.021, VIEW, 0.005) == np.inf
+    assert facing_radius(points[:MIN_POINTS - 1], [4, 0, 0], [4, 0, 1], 0.021, VIEW, 0.005) == np.inf
+    assert facing_radius(points, [3, 0, 0.5], [5, 0, 0.5], 0.021, VIEW, 0.005) == np.inf
+
+
+def test_the_facing_refit_only_shrinks_resolved_sections():
+    from woody.cylinders import refit_facing
+
+    stem = _one_sided(0.02, 0.005, 0.001, count=2000)
+    twig = _one_sided(0.02, 0.005, 0.001, count=2000, seed=1) + [0.0, 0.5, 0.0]
+    points = np.r_[stem, twig]
+    labels = np.r_[np.zeros(len(stem), int), np.ones(len(twig), int)]
+    records = [{"id": 0, "sections": [([4, 0, 0], [4, 0, 1], 0.022)], "reliable": [True]},
+               {"id": 1, "sections": [([4, 0.5, 0], [4, 0.5, 1], 0.022)], "reliable": [False]}]
+    refit_facing(records, points, labels, VIEW, 0.005)
+    assert records[0]["sections"][0][2] == pytest.approx(0.02, abs=3e-4)
+    assert records[1]["sections"][0][2] == 0.022  # judged unresolved: the pipe model's radius stands
+    records[0]["sections"] = [([4, 0, 0], [4, 0, 1], 0.015)]
+    refit_facing(records, points, labels, VIEW, 0.005)
+    assert records[0]["sections"][0][2] == 0.015  # never wider
