@@ -15,9 +15,10 @@ pulses that :func:`leafsfs.leaves.link_components` joins by plausible
 steps). Their distances at a mixed pulse are extrapolated from a local
 least-squares plane of their own pulses nearest to it, a third of the band
 inside their border (the outermost pulses of a surface may still hold a
-little of the other one). A pulse within the range noise of a surface is
-that surface's own; otherwise its pair of surfaces is the nearest pair (in
-pixels) whose extrapolated distances bracket the measured one. The pulse
+little of the other one). A pulse's pair of surfaces is the nearest pair (in
+pixels) whose extrapolated distances bracket the measured one; a pulse
+within the range noise of a surface is that surface's own instead, unless
+that pair gives most of its power to another surface. The pulse
 belongs to the surface that returned most of its power (``w >= 0.5``):
 that is the surface the issue's outlier definition judges it against, and
 the one whose distance it should be given.
@@ -421,11 +422,15 @@ def _attribute(images: _Images, targets: np.ndarray, *, reach_px: int, band_px: 
             better = brackets & (cost < best)
             best[better] = cost[better]
             choice[better] = (a, b)
-    # A pulse within the noise of a surface is that surface's own (the nearest such one), whatever brackets it.
+    # A pulse within the noise of a surface is that surface's own (the nearest such one), unless the nearest pair
+    # bracketing it gives most of its power to another surface: a pulse on the far side of a leaf's edge mixed with a
+    # branch behind can fall within the noise of a third surface's (another leaf's, another branch piece's) plane
+    # extrapolated across the gap, while the pair beside it explains its range.
     with np.errstate(invalid="ignore"):
         close = np.abs(measured[:, None] - rng) <= tolerance_m
-    alone = close.any(axis=1)
-    choice[alone] = np.stack([np.argmax(close, axis=1)[alone], np.full(alone.sum(), -1)], axis=1)
+    nearest = np.argmax(close, axis=1)
+    alone = close.any(axis=1) & ~_dominated_elsewhere(lab, rng, measured, choice, nearest)
+    choice[alone] = np.stack([nearest[alone], np.full(alone.sum(), -1)], axis=1)
     rows = np.arange(n)[:, None]
     pair = np.where(choice >= 0, lab[rows, choice], 0)
     picked = np.where((choice >= 0)[..., None], values[rows, choice], np.nan)
@@ -435,6 +440,37 @@ def _attribute(images: _Images, targets: np.ndarray, *, reach_px: int, band_px: 
     share = np.clip(share, 0.0, 1.0)
     unique, pair, picked, share = unique[found], pair[found], picked[found], share[found]
     return _Pairs(unique, pair, picked[..., 0], picked[..., 1], share, np.where(share >= 0.5, pair[:, 0], pair[:, 1]))
+
+
+def _dominated_elsewhere(label: np.ndarray, range_m: np.ndarray, measured: np.ndarray, choice: np.ndarray,
+                         candidate: np.ndarray) -> np.ndarray:
+    """Pulses whose chosen bracketing pair gives most of their power to a surface other than ``candidate``'s.
+
+    Parameters
+    ----------
+    label : ndarray of int, (n, k)
+        Candidate surfaces of each pulse.
+    range_m : ndarray, (n, k)
+        Their distances extrapolated to the pulse, m.
+    measured : ndarray, (n,)
+        The pulses' ranges, m.
+    choice : ndarray of int, (n, 2)
+        Columns of the bracketing pair (-1: none).
+    candidate : ndarray of int, (n,)
+        Column of the surface tested.
+
+    Returns
+    -------
+    ndarray of bool, (n,)
+        True where a pair brackets the pulse and its dominant member (power share at least one half) is not
+        ``label[candidate]``.
+    """
+    rows = np.arange(len(measured))
+    a, b = np.maximum(choice[:, 0], 0), np.maximum(choice[:, 1], 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        share = (measured - range_m[rows, b]) / (range_m[rows, a] - range_m[rows, b])
+    dominant = np.where(share >= 0.5, label[rows, a], label[rows, b])
+    return (choice[:, 1] >= 0) & (dominant != label[rows, candidate])
 
 
 def _empty(surfaces: np.ndarray) -> MixedPulses:

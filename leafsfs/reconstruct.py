@@ -29,7 +29,7 @@ from leafsfs.params import VARIANTS, SfsParams
 from leafsfs.preprocess import resolve_calibration, scan_alpha
 from leafsfs.surfacetails import surface_tails
 from leafsfs.traits import BAND_MAX_BACKGROUND_SPREAD_DN, background_spread, leaf_traits, mixed_band
-from leafsfs.woodfit import wood_owner_range
+from leafsfs.woodfit import wood_fitted_range
 from tlssim.scan import Scan, grid_to_xyz
 
 #: Smallest leaf region reconstructed, pixels (smaller regions are skipped and listed).
@@ -369,7 +369,9 @@ class _Regions:
         pulses, the geometric share on its mixed pulses, 0 elsewhere).
     background : ndarray of bool, 2-D
         Mixed pulses given to the surface that dominates them (not a leaf,
-        or a thin part attached to one).
+        or a thin part attached to one), and the edge pulses within the
+        range noise of one wood-shaped surface given its circle's or
+        quadric's distance (:func:`leafsfs.woodfit.wood_fitted_range`).
     unreliable : ndarray of bool, 2-D
         Valid pulses whose range straddles two surfaces (or none), and the
         outline pulses of a leaf with most of their footprint off it
@@ -575,6 +577,12 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
     # median share 0.07, true 0.07), and their area elements are large at grazing.
     with_thin, thin = dataclasses.replace(mixed, thin=np.zeros_like(mixed.thin)), mixed.thin
     partial = np.zeros(scan.shape, dtype=bool)
+    fitted = wood_fitted_range(mixed, scan.range, scan.theta, scan.psi, alpha, segmentation.leaf_surfaces,
+                               segmentation.band_px, segmentation.noise_m)
+    # An edge pulse within the range noise of one wood-shaped surface is that surface's, yet it lies where the
+    # branch turns away from the beam: its circle (or quadric) there gives its distance, as for the branch's mixed
+    # pulses (the plane it was judged against stops short by millimetres).
+    on_wood = valid & (mixed.surfaces == 0) & (mixed.pair[..., 1] == 0) & np.isfinite(fitted)
     if labels is None:
         labels = segmentation.leaves
         extents = mixed.extents()
@@ -593,6 +601,7 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
         # Mixed pulses dominated by a surface that is not a leaf (the wall behind) take its distance; so do those of
         # a thin part attached to a leaf (a petiole), at the distance where it is attached when it dominates them.
         background = unreliable & (mixed.owner > 0) & (~np.isin(mixed.owner, segmentation.leaf_surfaces) | mixed.thin)
+        background |= on_wood
         # An outline pulse with part of its footprint off the leaf and nothing behind: its range is that of the lit
         # part's centroid, off the beam's axis (biased on a tilted leaf), and its intensity deficit is no incidence.
         unreliable |= valid & partial & (labels > 0)
@@ -609,12 +618,11 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
             own = rim_shares(labels == k, scan.intensity, gain, segmentation.footprint_px)
             own = np.where(_mixes_in_range(labels == k, mixed.pair == main, segmentation.footprint_px), 1.0, own)
             shares.add(k, whole, np.where(paired, with_thin.share_of(main, gain), own))
-            background |= unreliable & (labels == k) & (mixed.owner > 0) & (mixed.owner != main)
+            background |= (unreliable | on_wood) & (labels == k) & (mixed.owner > 0) & (mixed.owner != main)
         labels = np.where(background, 0, labels)
-    owner_range = np.where(unreliable & (mixed.owner > 0),
-                           wood_owner_range(mixed, scan.range, scan.theta, scan.psi, alpha, segmentation.leaf_surfaces,
-                                            segmentation.band_px, segmentation.noise_m), np.nan)
-    out_range[background] = owner_range[background]
+    owner_range = np.where(unreliable & (mixed.owner > 0), np.where(np.isfinite(fitted), fitted, mixed.owner_range()),
+                           np.nan)
+    out_range[background] = np.where(on_wood, fitted, owner_range)[background]
     labels = np.where(valid, labels, 0)
     if given and not labels.any():
         raise SfsError("no leaf pixel with a valid return: the mask selects none")

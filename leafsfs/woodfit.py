@@ -89,6 +89,8 @@ def wood_owner_range(mixed: MixedPulses, range_m: np.ndarray, theta: np.ndarray,
                      alpha: np.ndarray | None, leaf_surfaces: np.ndarray, band_px: int, noise_m: float) -> np.ndarray:
     """:meth:`MixedPulses.owner_range` with the mixed pulses of wood-shaped surfaces on their circle where one fits.
 
+    :func:`wood_fitted_range` where it gives a distance, the owner's plane elsewhere.
+
     Parameters
     ----------
     mixed : MixedPulses
@@ -109,6 +111,39 @@ def wood_owner_range(mixed: MixedPulses, range_m: np.ndarray, theta: np.ndarray,
     ndarray, 2-D
         Owner distance per pulse, m (NaN where no pair was found).
     """
+    fitted = wood_fitted_range(mixed, range_m, theta, psi, alpha, leaf_surfaces, band_px, noise_m)
+    return np.where(np.isfinite(fitted), fitted, mixed.owner_range())
+
+
+def wood_fitted_range(mixed: MixedPulses, range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray,
+                      alpha: np.ndarray | None, leaf_surfaces: np.ndarray, band_px: int, noise_m: float) -> np.ndarray:
+    """Distance of the wood-shaped owner of each mixed pulse from its circle, else its quadric (NaN where neither fits).
+
+    The pulses are those with a pair (or within the range tolerance of one
+    surface) that are not ``thin`` and whose owner is wood-shaped
+    (:func:`wood_labels`) and no leaf; a fit is kept where it still explains
+    the pulse's range (module docstring).
+
+    Parameters
+    ----------
+    mixed : MixedPulses
+        The scan's mixed-pulse attribution.
+    range_m, theta, psi : ndarray, 2-D
+        Scan grids (m, rad).
+    alpha : ndarray, 2-D, optional
+        Intensity-derived incidence, rad.
+    leaf_surfaces : ndarray of int
+        Labels of the surfaces taken for leaves (never wood).
+    band_px : int
+        The mixed band's width, pixels: the radius of the neighbourhood fitted is at least that (and 8).
+    noise_m : float
+        Range noise, m (sigma).
+
+    Returns
+    -------
+    ndarray, 2-D
+        Fitted owner distance per pulse, m (NaN where no circle or quadric fits).
+    """
     planar = mixed.owner_range()
     step = angular_step(theta, psi)
     wood = wood_labels(mixed.surfaces, range_m, theta, psi, step, alpha)
@@ -116,7 +151,7 @@ def wood_owner_range(mixed: MixedPulses, range_m: np.ndarray, theta: np.ndarray,
     wood[0] = False
     targets = (mixed.surfaces == 0) & ~mixed.thin & wood[mixed.owner] & np.isfinite(planar)
     if not targets.any():
-        return planar
+        return np.full(range_m.shape, np.nan)
     radius = max(8.0, float(band_px))
     circle = cylinder_ranges(range_m, mixed.surfaces, mixed.owner, targets, step, radius, noise_m)
     # The circle must still explain the pulse: its range between the circle's and the pair's other surface's (within
@@ -135,7 +170,7 @@ def wood_owner_range(mixed: MixedPulses, range_m: np.ndarray, theta: np.ndarray,
     on_circle = explains(circle)
     quadric = quadric_ranges(range_m, mixed.surfaces, mixed.owner, targets & ~on_circle, QUADRIC_RADIUS_FACTOR * radius,
                              noise_m)
-    return np.where(on_circle, circle, np.where(explains(quadric), quadric, planar))
+    return np.where(on_circle, circle, np.where(explains(quadric), quadric, np.nan))
 
 
 def wood_labels(surfaces: np.ndarray, range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, step_rad: float,

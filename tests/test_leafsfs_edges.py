@@ -54,6 +54,24 @@ def test_a_pulse_within_the_noise_of_a_surface_is_its_own():
     assert mixed.owner[40, 40] == 1 and not mixed.straddling[40, 40] and mixed.share_of(1)[40, 40] == 1.0
 
 
+def test_a_pulse_within_the_noise_of_a_third_surface_keeps_the_pair_that_brackets_it():
+    # The plate's edge before the wall, and a piece 1.6875 m away beyond the edge (a twig before the wall): the
+    # mixed pulses 2 px outside the plate's last pure column (plate share 0.8125) lie at the piece's distance, but
+    # the plate and the wall beside them bracket their range and the plate dominates them.
+    rows, cols = np.mgrid[0:60, 0:80]
+    share = np.clip(0.5 + (39.5 - cols) / 8.0, 0.0, 1.0)
+    range_m = share * 1.5 + (1 - share) * 2.5
+    surfaces = np.where(share == 1.0, 1, np.where(share == 0.0, 2, 0))
+    range_m[20:41, 46:49] = 1.6875
+    surfaces[20:41, 46:49] = 3
+    mixed = attribute_mixed(range_m, surfaces, 12, tolerance_m=0.003)
+    at = (slice(22, 39), 37)
+    assert np.all(np.abs(range_m[at] - 1.6875) < 1e-9)
+    assert np.array_equal(np.sort(mixed.pair[at], axis=1), np.tile([1, 2], (17, 1)))
+    assert np.all(mixed.owner[at] == 1) and mixed.straddling[at].all()
+    assert np.allclose(mixed.share_of(1)[at], 0.8125, atol=1e-6)
+
+
 def test_the_range_proves_mixed_the_pulses_between_a_nearer_and_a_farther_one():
     # plate 1.5 m before a wall 2.5 m, an 8 px edge profile (12.5 cm per pulse), 1 mm noise, 5 sigma steps
     rng = np.random.default_rng(2)

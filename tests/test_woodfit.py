@@ -5,7 +5,7 @@ import math
 import numpy as np
 
 from leafsfs.edges import attribute_mixed
-from leafsfs.woodfit import MIN_QUADRIC_PULSES, cylinder_ranges, quadric_ranges, wood_owner_range
+from leafsfs.woodfit import MIN_QUADRIC_PULSES, cylinder_ranges, quadric_ranges, wood_fitted_range, wood_owner_range
 
 STEP = math.radians(0.018)
 N = 120
@@ -74,6 +74,20 @@ def test_branch_mixed_pulses_land_on_the_cylinder():
     assert np.median(new[at_wall]) < 0.5 * np.median(old[at_wall])
     # Beside the leaf's edge, on the branch's front, the wood part lands on the branch within the noise.
     assert np.median(new[~at_wall]) < NOISE
+
+
+def test_edge_pulses_within_the_noise_of_the_branch_land_on_its_cylinder():
+    # Unlinked pulses at the branch's edge whose range lies within the noise of its plane are its own (no pair):
+    # their circle distance lies nearer the branch than their measured range; pulses of the leaf get none.
+    range_m, surfaces, theta, psi = _scene()
+    mixed = attribute_mixed(range_m, surfaces, BAND, tolerance_m=3 * NOISE)
+    alone = (surfaces == 0) & (mixed.pair[..., 0] == 2) & (mixed.pair[..., 1] == 0)
+    fitted = wood_fitted_range(mixed, range_m, theta, psi, None, np.array([1]), BAND, NOISE)
+    on = alone & np.isfinite(fitted)
+    assert on.sum() >= 0.5 * alone.sum() > 20
+    rows = np.nonzero(on)[0].astype(float)
+    assert np.median(_off_branch(fitted[on], rows)) < np.median(_off_branch(range_m[on], rows))
+    assert np.isnan(fitted[mixed.owner == 1]).all()
 
 
 def test_flat_strip_keeps_its_plane():
