@@ -18,7 +18,7 @@ from leafsfs.frame import local_frame
 from leafsfs.grid import PixelGrid, local_planes, local_planes_of
 from leafsfs.leaves import segment_leaves
 from leafsfs.preprocess import scan_alpha
-from leafsfs.reconstruct import plausible
+from leafsfs.reconstruct import ENGINE_OWNER_EQUAL_DEG, engine_owner_weight, nearest_incidence, plausible
 from leafsfs.synthetic import LambertCalibration
 from tlssim.pattern import beam_frame
 
@@ -471,3 +471,29 @@ def test_outline_pulses_mostly_off_their_leaf_take_its_corrected_distance(monkey
     moved = {share: result.outlier[outline].mean() for share, result in results.items()}
     assert moved[module.RIM_PARTIAL_SHARE] > 0.5 and moved[module.RIM_PARTIAL_SHARE] > moved[0.0] + 0.2
     assert off[module.RIM_PARTIAL_SHARE].sum() < 0.5 * off[0.0].sum()
+
+
+def test_engine_owner_weight_is_the_inverse_variance_weight_of_a_secant_growing_plane_error():
+    # Engine error constant, plane error proportional to the secant, equal at ENGINE_OWNER_EQUAL_DEG: the engine's
+    # inverse-variance weight is 1 / (1 + (cos i / cos i0)^2): one half at i0, rising monotonically towards grazing.
+    angles = np.radians(np.arange(0.0, 90.0, 5.0))
+    weight = engine_owner_weight(angles)
+    assert np.all(np.diff(weight) > 0) and np.all((weight > 0) & (weight < 1))
+    assert engine_owner_weight(np.radians([ENGINE_OWNER_EQUAL_DEG]))[0] == pytest.approx(0.5)
+    sigma_engine, sigma_plane = 1.0, np.cos(np.radians(ENGINE_OWNER_EQUAL_DEG)) / np.cos(angles)
+    assert weight == pytest.approx(sigma_plane ** 2 / (sigma_plane ** 2 + sigma_engine ** 2))
+    assert engine_owner_weight(np.array([np.nan]))[0] == pytest.approx(0.5)  # unknown incidence: equal weights
+
+
+def test_nearest_incidence_takes_the_mean_of_the_reliable_pulses_next_to_each_pulse():
+    # Two reliable blocks at 20 and 70 deg with a gap between them: every pulse of the gap takes the mean incidence
+    # of the block it is nearest to (a pure pulse's window mean; the gap's own alpha is ignored).
+    alpha = np.full((12, 30), np.radians(85.0))
+    alpha[:, :10], alpha[:, 20:] = np.radians(20.0), np.radians(70.0)
+    reliable = np.zeros(alpha.shape, dtype=bool)
+    reliable[:, :10] = reliable[:, 20:] = True
+    gap = ~reliable
+    got = np.degrees(nearest_incidence(alpha, reliable, gap))
+    cols = np.nonzero(gap)[1]
+    assert got[cols < 15] == pytest.approx(20.0) and got[cols >= 15] == pytest.approx(70.0)
+    assert np.isnan(nearest_incidence(alpha, np.zeros_like(reliable), gap)).all() and len(got) == gap.sum()
