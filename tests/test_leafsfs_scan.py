@@ -347,10 +347,11 @@ def test_mixed_pulses_of_a_leaf_without_heights_take_the_leaf_planes_distance(le
     assert np.mean(result.range[pure] != scan.range[pure]) < 1e-3 and pure.sum() > 1000
 
 
-def test_mixed_pulses_of_a_leaf_take_the_mean_of_the_engine_and_the_leaf_planes_distance(leaf_scan, monkeypatch):
+def test_mixed_pulses_of_a_leaf_weigh_the_engine_and_the_leaf_planes_distance_by_incidence(leaf_scan, monkeypatch):
     # The engine's surface and the plane of the leaf's own pure pulses both estimate the distance of a mixed pulse
-    # the leaf dominates; the pulse takes their mean. An engine made 1 cm too far leaves the flat leaf's mixed pulses
-    # half as far off (the plane is right), its pure pulses as measured.
+    # the leaf dominates; the pulse takes the engine's height with engine_owner_weight of the leaf's incidence beside
+    # it, the plane's distance with the rest. An engine made 1 cm too far leaves the flat leaf's mixed pulses off by
+    # that weight of the bias (the plane is right), its pure pulses as measured.
     module = sys.modules["leafsfs.reconstruct"]
     engine = module.reconstruct_heights
     bias = 0.01  # m (the frame's heights are distances near the leaf)
@@ -369,7 +370,8 @@ def test_mixed_pulses_of_a_leaf_take_the_mean_of_the_engine_and_the_leaf_planes_
         & (result.labels > 0) & result.outlier & ~result.removed
     assert mixed.sum() > 100
     error = (result.range - scan.truth_range)[mixed]
-    assert abs(np.median(error) - bias / 2) < 0.15 * bias
+    weight = np.median(engine_owner_weight(scan.incidence[mixed]))  # the leaf is flat: its true incidence
+    assert 0.05 < weight < 0.95 and abs(np.median(error) - weight * bias) < 0.15 * bias
     pure = (result.labels > 0) & (scan.mixed_fraction < 1e-3)
     assert np.mean(result.range[pure] != scan.range[pure]) < 1e-3 and pure.sum() > 1000
 
