@@ -73,7 +73,7 @@ RIM_MIXED_SIGMA = 3.5
 #: lone straddling pulse takes that plane's range (farther, it lies on another surface than that plane's).
 LONE_TAIL_SIGMA = 4.0
 #: Incidence at which the engine's height and the owner surface's extrapolated distance are weighted equally in the
-#: corrected distance of a leaf's mixed pulse paired with two surfaces (:func:`engine_owner_weight`), rad. Both
+#: corrected distance of a leaf's mixed pulse paired with two surfaces (:func:`engine_owner_weight`), deg. Both
 #: estimate the owner's distance at the pulse: the engine propagates the leaf's surface from its interior (least
 #: accurate at its outline, where its mixed pulses lie), the plane extrapolates the surface's pure pulses next to
 #: the pulse (off where the surface curves). Round 16 weighted them equally everywhere (13,477 -> 13,024 and
@@ -326,8 +326,8 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
     # owner surface's extrapolated distance, the engine weighing more where the leaf turns to grazing next to it.
     both = regions.paired & (regions.labels > 0) & grids.corrected & np.isfinite(regions.owner_range)
     if both.any():
-        weight = engine_owner_weight(nearest_incidence(alpha, (regions.labels > 0) & ~regions.unreliable & np.isfinite(alpha),
-                                                       both))
+        leaf_pure = (regions.labels > 0) & ~regions.unreliable & np.isfinite(alpha)
+        weight = engine_owner_weight(nearest_incidence(alpha, leaf_pure, both))
         grids.range[both] = weight * grids.range[both] + (1 - weight) * regions.owner_range[both]
     # An outline pulse mostly off its leaf and corrected by the engine: between the engine's height and its measured
     # range (RIM_ENGINE_WEIGHT).
