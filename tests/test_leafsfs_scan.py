@@ -18,7 +18,7 @@ from leafsfs.frame import local_frame
 from leafsfs.grid import PixelGrid, local_planes, local_planes_of
 from leafsfs.leaves import segment_leaves
 from leafsfs.preprocess import scan_alpha
-from leafsfs.reconstruct import plausible
+from leafsfs.reconstruct import ENGINE_OWNER_EQUAL_DEG, engine_owner_weight, nearest_incidence, plausible
 from leafsfs.synthetic import LambertCalibration
 from tlssim.pattern import beam_frame
 
@@ -347,10 +347,11 @@ def test_mixed_pulses_of_a_leaf_without_heights_take_the_leaf_planes_distance(le
     assert np.mean(result.range[pure] != scan.range[pure]) < 1e-3 and pure.sum() > 1000
 
 
-def test_mixed_pulses_of_a_leaf_take_the_mean_of_the_engine_and_the_leaf_planes_distance(leaf_scan, monkeypatch):
+def test_mixed_pulses_of_a_leaf_weigh_the_engine_and_the_leaf_planes_distance_by_incidence(leaf_scan, monkeypatch):
     # The engine's surface and the plane of the leaf's own pure pulses both estimate the distance of a mixed pulse
-    # the leaf dominates; the pulse takes their mean. An engine made 1 cm too far leaves the flat leaf's mixed pulses
-    # half as far off (the plane is right), its pure pulses as measured.
+    # the leaf dominates; the pulse takes the engine's height with engine_owner_weight of the leaf's incidence beside
+    # it, the plane's distance with the rest. An engine made 1 cm too far leaves the flat leaf's mixed pulses off by
+    # that weight of the bias (the plane is right), its pure pulses as measured.
     module = sys.modules["leafsfs.reconstruct"]
     engine = module.reconstruct_heights
     bias = 0.01  # m (the frame's heights are distances near the leaf)
@@ -369,7 +370,8 @@ def test_mixed_pulses_of_a_leaf_take_the_mean_of_the_engine_and_the_leaf_planes_
         & (result.labels > 0) & result.outlier & ~result.removed
     assert mixed.sum() > 100
     error = (result.range - scan.truth_range)[mixed]
-    assert abs(np.median(error) - bias / 2) < 0.15 * bias
+    weight = np.median(engine_owner_weight(scan.incidence[mixed]))  # the leaf is flat: its true incidence
+    assert 0.05 < weight < 0.95 and abs(np.median(error) - weight * bias) < 0.15 * bias
     pure = (result.labels > 0) & (scan.mixed_fraction < 1e-3)
     assert np.mean(result.range[pure] != scan.range[pure]) < 1e-3 and pure.sum() > 1000
 
@@ -471,3 +473,29 @@ def test_outline_pulses_mostly_off_their_leaf_take_its_corrected_distance(monkey
     moved = {share: result.outlier[outline].mean() for share, result in results.items()}
     assert moved[module.RIM_PARTIAL_SHARE] > 0.5 and moved[module.RIM_PARTIAL_SHARE] > moved[0.0] + 0.2
     assert off[module.RIM_PARTIAL_SHARE].sum() < 0.5 * off[0.0].sum()
+
+
+def test_engine_owner_weight_is_the_inverse_variance_weight_of_a_secant_growing_plane_error():
+    # Engine error constant, plane error proportional to the secant, equal at ENGINE_OWNER_EQUAL_DEG: the engine's
+    # inverse-variance weight is 1 / (1 + (cos i / cos i0)^2): one half at i0, rising monotonically towards grazing.
+    angles = np.radians(np.arange(0.0, 90.0, 5.0))
+    weight = engine_owner_weight(angles)
+    assert np.all(np.diff(weight) > 0) and np.all((weight > 0) & (weight < 1))
+    assert engine_owner_weight(np.radians([ENGINE_OWNER_EQUAL_DEG]))[0] == pytest.approx(0.5)
+    sigma_engine, sigma_plane = 1.0, np.cos(np.radians(ENGINE_OWNER_EQUAL_DEG)) / np.cos(angles)
+    assert weight == pytest.approx(sigma_plane ** 2 / (sigma_plane ** 2 + sigma_engine ** 2))
+    assert engine_owner_weight(np.array([np.nan]))[0] == pytest.approx(0.5)  # unknown incidence: equal weights
+
+
+def test_nearest_incidence_takes_the_mean_of_the_reliable_pulses_next_to_each_pulse():
+    # Two reliable blocks at 20 and 70 deg with a gap between them: every pulse of the gap takes the mean incidence
+    # of the block it is nearest to (a pure pulse's window mean; the gap's own alpha is ignored).
+    alpha = np.full((12, 30), np.radians(85.0))
+    alpha[:, :10], alpha[:, 20:] = np.radians(20.0), np.radians(70.0)
+    reliable = np.zeros(alpha.shape, dtype=bool)
+    reliable[:, :10] = reliable[:, 20:] = True
+    gap = ~reliable
+    got = np.degrees(nearest_incidence(alpha, reliable, gap))
+    cols = np.nonzero(gap)[1]
+    assert got[cols < 15] == pytest.approx(20.0) and got[cols >= 15] == pytest.approx(70.0)
+    assert np.isnan(nearest_incidence(alpha, np.zeros_like(reliable), gap)).all() and len(got) == gap.sum()
