@@ -347,6 +347,11 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
             tails &= np.abs(grids.range - plane) <= LONE_TAIL_SIGMA * regions.noise
         grids.range[tails] = plane[tails]
         grids.corrected |= tails
+        # A pulse of no surface within the attribution's tolerance of one surface's extrapolated distance
+        # (:func:`leafsfs.edges.attribute_mixed`: that surface's own) and in no leaf region takes that distance.
+        near = valid & (regions.labels == 0) & ~grids.corrected & np.isfinite(regions.near_range)
+        grids.range[near] = regions.near_range[near]
+        grids.corrected |= near
     # A pulse whose range proves it mixed and that no surface corrected lies between two surfaces and on neither.
     removed = regions.mixed & ~grids.corrected & (params.unexplained == "remove")
     grids.range[removed] = np.nan
@@ -394,6 +399,9 @@ class _Regions:
         Unreliable pulses of no surface paired with two surfaces (their range straddles them).
     partial : ndarray of bool, 2-D
         Outline pulses of a leaf region with most of their footprint off it (:data:`RIM_PARTIAL_SHARE`; unreliable).
+    near_range : ndarray, 2-D
+        Pulses of no surface within the attribution's tolerance of one surface (not a thin part's): that surface's
+        distance extrapolated to them from its pure pulses, m (NaN elsewhere).
     noise : ndarray, 2-D, or float
         Each pulse's range noise (:func:`leafsfs.canopy.pulse_noise`), m.
     band : _Shares
@@ -413,6 +421,7 @@ class _Regions:
     ownerless: np.ndarray
     paired: np.ndarray
     partial: np.ndarray
+    near_range: np.ndarray
     noise: np.ndarray | float
     band: "_Shares"
 
@@ -627,8 +636,10 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
         ownerless = unreliable & (mixed.pair[..., 1] > 0) & (off_half < OWNER_MARGIN) \
             & (off_half * step < OWNER_TOLERANCE_M)
     paired = unreliable & (mixed.surfaces == 0) & (mixed.pair[..., 1] > 0)
+    alone = valid & (mixed.surfaces == 0) & (mixed.pair[..., 0] > 0) & (mixed.pair[..., 1] == 0) & ~mixed.thin
+    near_range = np.where(alone, mixed.pair_range[..., 0], np.nan)
     return _Regions(labels, shares, background, unreliable, out_range, owner_range, proven, thin, ownerless, paired,
-                    valid & partial & (labels > 0),
+                    valid & partial & (labels > 0), near_range,
                     pulse_noise(segmentation.noise_m, scan.intensity, gain), band)
 
 
