@@ -72,14 +72,6 @@ RIM_MIXED_SIGMA = 3.5
 #: Largest offset from the plane of the reliable pulses around it, in its modelled range-noise deviations, at which a
 #: lone straddling pulse takes that plane's range (farther, it lies on another surface than that plane's).
 LONE_TAIL_SIGMA = 4.0
-#: Offset from its surface's extrapolated distance, in its modelled range-noise deviations, beyond which a pulse of
-#: no surface within the attribution's tolerance of that one (``_Regions.near_range``) and in no leaf region takes
-#: that distance; nearer, it is consistent with that surface and keeps its range (a move within the noise would make
-#: a good pulse a candidate of the ``fused-stray`` rule, which removes moved pulses). Measured with the truth on the
-#: leafy tree at 0.018 deg (``fused``, scored leaf pulses, 3-sigma outliers left pooled / good pulses damaged / good
-#: pulses moved that the stray-point rule flags): none moved 12,289 / 1,373 / 0; every one 12,073 / 1,501 / 187;
-#: beyond 1 deviation 12,103 / 1,458 / 53; beyond 2 12,157 / 1,400 / 11 (round 17, a scratch truth what-if).
-NEAR_SIGMA = 1.0
 #: Incidence at which the engine's height and the owner surface's extrapolated distance are weighted equally in the
 #: corrected distance of a leaf's mixed pulse paired with two surfaces (:func:`engine_owner_weight`), deg. Both
 #: estimate the owner's distance at the pulse: the engine propagates the leaf's surface from its interior (least
@@ -362,14 +354,6 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
             tails &= np.abs(grids.range - plane) <= LONE_TAIL_SIGMA * regions.noise
         grids.range[tails] = plane[tails]
         grids.corrected |= tails
-        # A pulse of no surface within the attribution's tolerance of one surface's extrapolated distance
-        # (:func:`leafsfs.edges.attribute_mixed`: that surface's own) and in no leaf region takes that distance where
-        # it lies more than NEAR_SIGMA of its noise deviations off it.
-        with np.errstate(invalid="ignore"):
-            near = valid & (regions.labels == 0) & ~grids.corrected \
-                & (np.abs(grids.range - regions.near_range) > NEAR_SIGMA * regions.noise)
-        grids.range[near] = regions.near_range[near]
-        grids.corrected |= near
     # A pulse whose range proves it mixed and that no surface corrected lies between two surfaces and on neither.
     removed = regions.mixed & ~grids.corrected & (params.unexplained == "remove")
     grids.range[removed] = np.nan
@@ -419,9 +403,6 @@ class _Regions:
         Unreliable pulses of no surface paired with two surfaces (their range straddles them).
     partial : ndarray of bool, 2-D
         Outline pulses of a leaf region with most of their footprint off it (:data:`RIM_PARTIAL_SHARE`; unreliable).
-    near_range : ndarray, 2-D
-        Pulses of no surface within the attribution's tolerance of one surface (not a thin part's): that surface's
-        distance extrapolated to them from its pure pulses, m (NaN elsewhere).
     noise : ndarray, 2-D, or float
         Each pulse's range noise (:func:`leafsfs.canopy.pulse_noise`), m.
     band : _Shares
@@ -441,7 +422,6 @@ class _Regions:
     ownerless: np.ndarray
     paired: np.ndarray
     partial: np.ndarray
-    near_range: np.ndarray
     noise: np.ndarray | float
     band: "_Shares"
 
@@ -723,10 +703,8 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
         ownerless = unreliable & (mixed.pair[..., 1] > 0) & (off_half < OWNER_MARGIN) \
             & (off_half * step < OWNER_TOLERANCE_M)
     paired = unreliable & (mixed.surfaces == 0) & (mixed.pair[..., 1] > 0)
-    alone = valid & (mixed.surfaces == 0) & (mixed.pair[..., 0] > 0) & (mixed.pair[..., 1] == 0) & ~mixed.thin
-    near_range = np.where(alone, mixed.pair_range[..., 0], np.nan)
     return _Regions(labels, shares, background, unreliable, out_range, owner_range, proven, thin, ownerless, paired,
-                    valid & partial & (labels > 0), near_range,
+                    valid & partial & (labels > 0),
                     pulse_noise(segmentation.noise_m, scan.intensity, gain), band)
 
 

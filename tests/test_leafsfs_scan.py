@@ -404,29 +404,6 @@ def test_a_mixed_pulse_that_no_surface_explains_is_removed(leaf_scan, leaf_resul
     assert not kept.removed.any() and np.array_equal(kept.range[ring], scan.range[ring])
 
 
-def test_a_pulse_within_the_noise_of_a_surface_it_is_cut_off_from_takes_that_surfaces_distance(leaf_scan):
-    # A wall pulse 4 mm too far whose 9 x 9 neighbourhood returned nothing: too small a piece to be a surface and no
-    # plane around it to test its noise against (surface_tails), but within the attribution's tolerance of the wall's
-    # distance extrapolated to it: that surface's own pulse. With inliers="refine" it takes that distance (within
-    # 0.5 mm of the truth); with "keep" its measured range.
-    _, scan, calibration = leaf_scan
-    scan = copy.copy(scan)
-    scan.range, scan.intensity = scan.range.copy(), scan.intensity.copy()
-    wall = np.isfinite(scan.range) & (np.abs(scan.range - 2.5) < 0.01)
-    far = np.argwhere(ndimage.distance_transform_edt(wall) > 12)
-    i, j = far[len(far) // 2]
-    hole = np.zeros(scan.shape, bool)
-    hole[i - 4:i + 5, j - 4:j + 5] = True
-    hole[i, j] = False
-    scan.range[hole], scan.intensity[hole] = np.nan, np.nan
-    scan.range[i, j] = scan.truth_range[i, j] + 0.004
-    refine, keep = (reconstruct(scan, variant="buffer", params=SfsParams(inliers=mode), calibration=calibration)
-                    for mode in ("refine", "keep"))
-    assert refine.labels[i, j] == 0 and abs(refine.range[i, j] - scan.truth_range[i, j]) < 5e-4
-    assert refine.outlier[i, j] and not refine.removed[i, j]
-    assert keep.range[i, j] == scan.range[i, j]
-
-
 @functools.lru_cache(maxsize=None)
 def _outline_leaf():
     """A 6 cm pear leaf 3 m away at 35 deg incidence with nothing behind it, scanned at 0.018 deg: the scene, its
