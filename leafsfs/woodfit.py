@@ -64,7 +64,7 @@ MIN_PULSES = 5
 MIN_FLAT_TEST = 12
 #: Largest RMS residual of a circle fit, in range-noise sigmas.
 MAX_RESIDUAL_SIGMA = 2.0
-#: Radius of a quadric fit's neighbourhood, in units of the circle's (:func:`wood_owner_range`). Measured with the
+#: Radius of a quadric fit's neighbourhood, in units of the circle's (:func:`wood_fitted_range`). Measured with the
 #: truth on the mixed pulses that a surface not taken for a leaf owns (scored leaf pulses, outliers at each leaf's
 #: 3-sigma threshold against the dominant object's true surface; plane -> circle -> circle or quadric; a scratch
 #: truth-budget script, not kept): leafy tree at 0.018 deg, 14,749 pulses, 3,819 -> 3,808 ->
@@ -83,36 +83,6 @@ CHUNK = 4096
 #: matrices hold six times that. Without it the orchard window at 0.018 deg peaked at 6.4 GB (3.2 GB before the
 #: quadric): near the scanner a disc holds thousands of pulses.
 TABLE_CELLS = 2 ** 20
-
-
-def wood_owner_range(mixed: MixedPulses, range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray,
-                     alpha: np.ndarray | None, leaf_surfaces: np.ndarray, band_px: int, noise_m: float) -> np.ndarray:
-    """:meth:`MixedPulses.owner_range` with the mixed pulses of wood-shaped surfaces on their circle where one fits.
-
-    :func:`wood_fitted_range` where it gives a distance, the owner's plane elsewhere.
-
-    Parameters
-    ----------
-    mixed : MixedPulses
-        The scan's mixed-pulse attribution.
-    range_m, theta, psi : ndarray, 2-D
-        Scan grids (m, rad).
-    alpha : ndarray, 2-D, optional
-        Intensity-derived incidence, rad.
-    leaf_surfaces : ndarray of int
-        Labels of the surfaces taken for leaves (never wood).
-    band_px : int
-        The mixed band's width, pixels: the radius of the neighbourhood fitted is at least that (and 8).
-    noise_m : float
-        Range noise, m (sigma).
-
-    Returns
-    -------
-    ndarray, 2-D
-        Owner distance per pulse, m (NaN where no pair was found).
-    """
-    fitted = wood_fitted_range(mixed, range_m, theta, psi, alpha, leaf_surfaces, band_px, noise_m)
-    return np.where(np.isfinite(fitted), fitted, mixed.owner_range())
 
 
 def wood_fitted_range(mixed: MixedPulses, range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray,

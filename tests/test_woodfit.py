@@ -5,7 +5,7 @@ import math
 import numpy as np
 
 from leafsfs.edges import attribute_mixed
-from leafsfs.woodfit import MIN_QUADRIC_PULSES, cylinder_ranges, quadric_ranges, wood_fitted_range, wood_owner_range
+from leafsfs.woodfit import MIN_QUADRIC_PULSES, cylinder_ranges, quadric_ranges, wood_fitted_range
 
 STEP = math.radians(0.018)
 N = 120
@@ -63,8 +63,9 @@ def test_branch_mixed_pulses_land_on_the_cylinder():
     mixed = attribute_mixed(range_m, surfaces, BAND, tolerance_m=3 * NOISE)
     owned = (surfaces == 0) & (mixed.owner == 2)
     assert owned.sum() > 300
-    circle = wood_owner_range(mixed, range_m, theta, psi, None, np.array([1]), BAND, NOISE)
     plane = mixed.owner_range()
+    fitted = wood_fitted_range(mixed, range_m, theta, psi, None, np.array([1]), BAND, NOISE)
+    circle = np.where(np.isfinite(fitted), fitted, plane)
     rows = np.nonzero(owned)[0].astype(float)
     behind = np.where(mixed.pair[..., 1] > 0, mixed.pair_range[..., 0] + mixed.pair_range[..., 1], 0)[owned]
     at_wall = behind > DIST + WALL - 0.05  # the branch's silhouettes against the wall (not the leaf's edge)
