@@ -43,6 +43,36 @@ ARC_BINS = 8
 BIN_POINTS = 3
 
 
+def section_frame(start, end, viewpoint) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Unit vectors of a section seen from the scanner: its axis, the depth (the line of sight without its part
+    along the axis, away from the scanner) and the lateral direction across both.
+
+    Parameters
+    ----------
+    start, end : array_like, (3,)
+        Section axis ends, m.
+    viewpoint : array_like, (3,)
+        Scanner position, m.
+
+    Returns
+    -------
+    tuple of ndarray or None
+        ``(axis, depth, across)``; None for a section of zero length or an axis along the line of sight.
+    """
+    start, end = np.asarray(start, float), np.asarray(end, float)
+    length = float(np.linalg.norm(end - start))
+    if length == 0:
+        return None
+    axis = (end - start) / length
+    view = 0.5 * (start + end) - np.asarray(viewpoint, float)
+    depth = view - (view @ axis) * axis
+    norm = float(np.linalg.norm(depth))
+    if norm < 1e-6 * float(np.linalg.norm(view)):
+        return None
+    depth = depth / norm
+    return axis, depth, np.cross(axis, depth)
+
+
 def lateral_radius(points: np.ndarray, start, end, viewpoint, footprint_m: float) -> float:
     """Radius bound of one section from its points' spread across the line of sight.
 
@@ -76,15 +106,10 @@ def lateral_radius(points: np.ndarray, start, end, viewpoint, footprint_m: float
     points = np.asarray(points, float)
     if len(points) < MIN_POINTS:
         return float("inf")
-    start, end = np.asarray(start, float), np.asarray(end, float)
-    axis = end - start
-    length = float(np.linalg.norm(axis))
-    view = 0.5 * (start + end) - np.asarray(viewpoint, float)
-    across = np.cross(axis / length if length > 0 else axis, view)
-    norm = float(np.linalg.norm(across))
-    if length == 0 or norm < 1e-6 * float(np.linalg.norm(view)):
+    frame = section_frame(start, end, viewpoint)
+    if frame is None:
         return float("inf")
-    spread = float(np.sqrt(12.0 * np.var(points @ (across / norm))))
+    spread = float(np.sqrt(12.0 * np.var(points @ frame[2])))
     return max(0.0, 0.5 * (spread - footprint_m))
 
 
@@ -174,18 +199,11 @@ def facing_radius(points: np.ndarray, start, end, radius: float, viewpoint, foot
     half = radius - 0.5 * footprint_m
     if len(points) < MIN_POINTS or not half >= radius * np.sin(np.radians(MIN_ARC_DEG)):
         return float("inf")
-    start, end = np.asarray(start, float), np.asarray(end, float)
-    length = float(np.linalg.norm(end - start))
-    if length == 0:
+    frame = section_frame(start, end, viewpoint)
+    if frame is None:
         return float("inf")
-    axis = (end - start) / length
-    view = 0.5 * (start + end) - np.asarray(viewpoint, float)
-    depth = view - (view @ axis) * axis
-    if float(np.linalg.norm(depth)) < 1e-6 * float(np.linalg.norm(view)):
-        return float("inf")
-    depth /= np.linalg.norm(depth)
-    across = np.cross(axis, depth)
-    rel = points - start
+    _, depth, across = frame
+    rel = points - np.asarray(start, float)
     x, y = rel @ across, rel @ depth
     keep = (np.abs(x) <= half) & (y < 0)
     edges = np.linspace(-half, half, ARC_BINS + 1)
