@@ -129,10 +129,14 @@ class SfsParams:
         whose range proves it mixed (:func:`leafsfs.edges.bracketed`):
         ``keep`` its measured distance, which lies between two surfaces and
         on neither, or ``remove`` it (NaN in the corrected scan, flagged an
-        outlier and ``removed``). ``remove`` also removes a corrected pulse
+        outlier and ``removed``); a pulse whose neighbours share its range
+        within the noise (``leafsfs.reconstruct.PIECE_MIN_LINKED``: a piece
+        of a surface) is kept. ``remove`` also removes a corrected pulse
         that no surface owns: its two surfaces share its power within
-        ``leafsfs.reconstruct.OWNER_MARGIN`` of one half and its range lies
-        within ``OWNER_TOLERANCE_M`` of their midpoint.
+        ``leafsfs.reconstruct.OWNER_MARGIN`` of one half, its range lies
+        within ``OWNER_TOLERANCE_M`` of their midpoint and farther than
+        ``OWNER_BAND_SIGMA`` noise deviations from both
+        (:func:`leafsfs.reconstruct.no_owner`).
     """
 
     n_smooth: int = 20

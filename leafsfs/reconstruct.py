@@ -545,6 +545,49 @@ class _Skipped(Exception):
     """A leaf region that cannot be reconstructed; the message says why."""
 
 
+def no_owner(mixed, range_m: np.ndarray, noise_m: np.ndarray | float) -> np.ndarray:
+    """Pulses paired with two surfaces that neither owns: an even split of their power, off both surfaces' noise.
+
+    A pulse whose power share lies within :data:`OWNER_MARGIN` of one half
+    and whose range lies within :data:`OWNER_TOLERANCE_M` of the midpoint of
+    its pair's extrapolated distances has no owner, unless its range lies
+    within :data:`OWNER_BAND_SIGMA` of its range-noise deviations of either
+    surface's distance (then it is a good point of that surface, whichever
+    one owns it).
+
+    Parameters
+    ----------
+    mixed : leafsfs.edges.MixedPulses
+        The pairs, power shares and extrapolated distances (m) of the mixed pulses.
+    range_m : ndarray, 2-D
+        Measured ranges, m.
+    noise_m : ndarray or float
+        Each pulse's range noise (:func:`leafsfs.canopy.pulse_noise`), m.
+
+    Returns
+    -------
+    ndarray of bool, 2-D
+
+    Examples
+    --------
+    Two surfaces 10 mm apart, a pulse half way (5 mm from each): ownerless
+    with 1 mm of noise, a good point of either surface with 3 mm.
+
+    >>> from leafsfs.edges import MixedPulses
+    >>> one = np.ones((1, 1))
+    >>> mixed = MixedPulses(0 * one.astype(int), np.array([[[1, 2]]]), 0.5 * one, np.array([[[1.0, 1.01]]]),
+    ...                     np.full((1, 1, 2), np.nan), one.astype(int), 0 * one.astype(bool))
+    >>> bool(no_owner(mixed, 1.005 * one, 0.001)[0, 0]), bool(no_owner(mixed, 1.005 * one, 0.003)[0, 0])
+    (True, False)
+    """
+    with np.errstate(invalid="ignore"):
+        off_half = np.abs(mixed.share - 0.5)
+        step = np.abs(mixed.pair_range[..., 0] - mixed.pair_range[..., 1])
+        nearer = np.fmin(np.abs(range_m - mixed.pair_range[..., 0]), np.abs(range_m - mixed.pair_range[..., 1]))
+        return (mixed.pair[..., 1] > 0) & (off_half < OWNER_MARGIN) & (off_half * step < OWNER_TOLERANCE_M) \
+            & ~(nearer <= OWNER_BAND_SIGMA * np.asarray(noise_m, dtype=float))
+
+
 def linked_neighbours(range_m: np.ndarray, noise_m: np.ndarray | float, sigma: float) -> np.ndarray:
     """How many of each pulse's 8 neighbours have a range within ``sigma * sqrt(2)`` of its range-noise deviation.
 
@@ -764,16 +807,8 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
     # The band is three footprint radii: a mixed pulse has a nearer and a farther pulse within one radius.
     proven = unreliable & bracketed(scan.range, max(1, segmentation.band_px // 3),
                                     MIXED_PROOF_SIGMA * segmentation.noise_m)
-    with np.errstate(invalid="ignore"):
-        off_half = np.abs(mixed.share - 0.5)
-        step = np.abs(mixed.pair_range[..., 0] - mixed.pair_range[..., 1])
-        ownerless = unreliable & (mixed.pair[..., 1] > 0) & (off_half < OWNER_MARGIN) \
-            & (off_half * step < OWNER_TOLERANCE_M)
-    # A pulse within the noise of either surface of its pair is a good point of that surface, not ownerless.
     noise = pulse_noise(segmentation.noise_m, scan.intensity, gain)
-    with np.errstate(invalid="ignore"):
-        nearer = np.fmin(np.abs(scan.range - mixed.pair_range[..., 0]), np.abs(scan.range - mixed.pair_range[..., 1]))
-        ownerless &= ~(nearer <= OWNER_BAND_SIGMA * noise)
+    ownerless = unreliable & no_owner(mixed, scan.range, noise)
     paired = unreliable & (mixed.surfaces == 0) & (mixed.pair[..., 1] > 0)
     return _Regions(labels, shares, background, unreliable, out_range, owner_range, proven, thin, ownerless, paired,
                     valid & partial & (labels > 0), noise, band)

@@ -18,7 +18,9 @@ from leafsfs.frame import local_frame
 from leafsfs.grid import PixelGrid, local_planes, local_planes_of
 from leafsfs.leaves import segment_leaves
 from leafsfs.preprocess import scan_alpha
-from leafsfs.reconstruct import ENGINE_OWNER_EQUAL_DEG, engine_owner_weight, nearest_incidence, plausible
+from leafsfs.edges import MixedPulses
+from leafsfs.reconstruct import (ENGINE_OWNER_EQUAL_DEG, OWNER_BAND_SIGMA, PIECE_LINK_SIGMA, PIECE_MIN_LINKED,
+                                  engine_owner_weight, linked_neighbours, nearest_incidence, no_owner, plausible)
 from leafsfs.synthetic import LambertCalibration
 from tlssim.pattern import beam_frame
 
@@ -402,6 +404,69 @@ def test_a_mixed_pulse_that_no_surface_explains_is_removed(leaf_scan, leaf_resul
     assert areas == pytest.approx([leaf.traits["area_m2"] for leaf in leaf_result.leaves], rel=1e-4)
     kept = reconstruct(scan, variant="buffer", params=SfsParams(unexplained="keep"), calibration=calibration)
     assert not kept.removed.any() and np.array_equal(kept.range[ring], scan.range[ring])
+
+
+def test_a_piece_of_pulses_that_share_their_range_is_not_removed(leaf_scan, leaf_result):
+    # A 3 x 3 piece 15 cm before the wall (a hidden leaf's visible piece, too small to be a surface) beside a
+    # one-pulse fragment 30 cm before it: the bracket test takes the piece for mixed pulses (a nearer and a farther
+    # pulse within its window) and no surface explains it, but the piece's pulses share their range with their
+    # neighbours within the noise: those with at least PIECE_MIN_LINKED such neighbours (its centre and the middles
+    # of its sides) are kept, its corners (3 neighbours) go; with the ring of the test above, every pulse went.
+    _, scan, calibration = leaf_scan
+    scan = copy.copy(scan)
+    scan.range = scan.range.copy()
+    wall = np.isfinite(scan.range) & (np.abs(scan.range - 2.5) < 0.01)
+    far = ndimage.distance_transform_edt(wall) > 12
+    i, j = np.argwhere(far)[len(np.argwhere(far)) // 2]
+    piece = np.zeros(scan.shape, bool)
+    piece[i - 1:i + 2, j - 1:j + 2] = True
+    scan.range[piece] = scan.range[i, j] - 0.15
+    scan.range[i - 1, j + 3] -= 0.3
+    result = reconstruct(scan, variant="buffer", calibration=calibration)
+    corners = np.zeros(scan.shape, bool)
+    corners[i - 1:i + 2:2, j - 1:j + 2:2] = True
+    assert not result.removed[piece & ~corners].any() and result.removed[corners].all()
+    assert np.array_equal(result.range[piece & ~corners], scan.range[piece & ~corners])
+    assert np.array_equal(result.removed & ~piece & ~(np.arange(scan.shape[1]) == j + 3)[None, :],
+                          leaf_result.removed & ~piece & ~(np.arange(scan.shape[1]) == j + 3)[None, :])
+
+
+def test_linked_neighbours_holds_a_noisy_plane_together_and_not_a_ramp_across_an_edge():
+    # Pulses of one plane with Gaussian noise sigma: each neighbour lies within 2 sqrt(2) sigma of the pulse with
+    # probability 0.954, but the differences share the pulse's own noise, so a pulse in the tail of its own noise
+    # (beyond about 2 sigma: 5 % of them) loses most of its links at once; nearly all the others keep at least
+    # PIECE_MIN_LINKED (here 98.6 % of the pulses in all). Across an edge the footprint's share, hence the range, changes by more than the noise from pulse to
+    # pulse (here 2 cm per pixel across, constant along): only the 2 neighbours along the edge are linked.
+    rng = np.random.default_rng(0)
+    sigma = 0.002
+    plane = 2.0 + 0.0004 * np.arange(60)[:, None] + 0.0002 * np.arange(60)[None, :] \
+        + rng.normal(0, sigma, (60, 60))
+    count = linked_neighbours(plane, sigma, PIECE_LINK_SIGMA)[1:-1, 1:-1]
+    assert np.mean(count >= PIECE_MIN_LINKED) > 0.97
+    ramp = 2.0 + 0.02 * np.arange(60)[None, :] + np.zeros((60, 1)) + rng.normal(0, sigma, (60, 60))
+    count = linked_neighbours(ramp, sigma, PIECE_LINK_SIGMA)[1:-1, 1:-1]
+    assert count.max() <= 2 and np.mean(count >= PIECE_MIN_LINKED) == 0
+    # no return: no link
+    plane[5, 5] = np.nan
+    assert linked_neighbours(plane, sigma, PIECE_LINK_SIGMA)[5, 5] == 0
+
+
+def test_no_owner_spares_an_even_split_within_the_noise_of_a_surface():
+    # Two surfaces 12 mm apart and pulses at power shares 0.5, 0.45 and 0.7 of the first: the midpoint lies 6 mm
+    # from each surface, an ownerless pulse when the noise is 1 mm, a good point of either surface within
+    # OWNER_BAND_SIGMA deviations when it is 4 mm; a share of 0.7 has an owner whatever the noise.
+    shares = np.array([[0.5, 0.45, 0.7]])
+    near, far = 2.0, 2.012
+    measured = far + shares * (near - far)
+    pair = np.broadcast_to(np.array([1, 2]), (1, 3, 2))
+    pair_range = np.broadcast_to(np.array([near, far]), (1, 3, 2))
+    mixed = MixedPulses(np.zeros((1, 3), int), pair.copy(), shares, pair_range.copy(), np.full((1, 3, 2), np.nan),
+                        np.where(shares >= 0.5, 1, 2), np.zeros((1, 3), bool))
+    assert no_owner(mixed, measured, 0.001).tolist() == [[True, True, False]]
+    assert 0.006 <= OWNER_BAND_SIGMA * 0.004
+    assert not no_owner(mixed, measured, 0.004).any()
+    # per-pulse noise: only the first pulse is noisy
+    assert no_owner(mixed, measured, np.array([[0.004, 0.001, 0.001]])).tolist() == [[False, True, False]]
 
 
 @functools.lru_cache(maxsize=None)
