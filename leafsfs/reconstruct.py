@@ -81,6 +81,11 @@ OWNER_BAND_SIGMA = 2.0
 #: round 18): the removed good points have a median of 6 such neighbours (within 3 sqrt(2) deviations), the removed
 #: outliers 1; none kept 0.6814 / 0.7811 / 1.27 %; at least 4 of 8 within 2 sqrt(2) 0.6787 / 0.7803 / 0.86 %; 5:
 #: 0.6805 / 0.7812 / 0.95 %; 6: 0.6812 / 0.7812 / 1.08 %; at least 5 within 3 sqrt(2) 0.6789 / 0.7798 / 0.87 %.
+#: With :data:`OWNER_BAND_SIGMA`, in the benchmark (``fused``, 0.018 deg, before -> after, 3 sigma / 1 cm / good
+#: points lost): leafy tree 0.6804 / 0.8081 / 0.42 % -> 0.6795 / 0.8070 / 0.30 %; pear seed 23 at 4 m 0.7198 /
+#: 0.8309 / 0.57 % -> 0.7203 / 0.8312 / 0.41 %; seed 41 at 5 m 0.6756 / 0.7914 / 0.47 % -> 0.6756 / 0.7913 / 0.38 %;
+#: not tuned on: seed 101 at 3.5 m 0.7358 / 0.8513 / 0.62 % -> 0.7355 / 0.8511 / 0.51 %, seed 173 at 4 m with a
+#: wall 0.7412 / 0.8154 / 0.62 % -> 0.7412 / 0.8154 / 0.56 %; found leaves, false ones and traits unchanged.
 PIECE_MIN_LINKED = 5
 PIECE_LINK_SIGMA = 2.0
 #: Smallest automatic outlier threshold, m (the issue's tau floor, tls-physics §7.10).
