@@ -316,6 +316,73 @@ def rim_mixed(range_m: np.ndarray, surfaces: np.ndarray, noise_m: np.ndarray | f
     return out
 
 
+def grow_outline(labels: np.ndarray, range_m: np.ndarray, candidates: np.ndarray, pure: np.ndarray,
+                 noise_m: np.ndarray | float, radius_px: float, factor: float = 3.0) -> np.ndarray:
+    """Leaf regions grown over the unpaired pulses at their outline that lie on their smooth surface.
+
+    A pulse at a leaf's outline whose footprint is partly off the leaf with
+    nothing returning behind it (sky, or a surface too far to mix with it in
+    range) returns the range of its lit part: near the leaf's surface, yet
+    off the half-disc planes of :func:`edge_pulses` by a little more than
+    the noise on a tilted leaf, so it is linked into no surface, and no pair
+    of surfaces brackets it. It is the leaf's all the same: it joins the
+    region when it lies within ``radius_px`` of it and within ``factor``
+    noise standard deviations of the region's Gaussian-weighted local plane
+    (:func:`leafsfs.grid.gaussian_planes`, sigma ``1.5 radius_px``, as
+    :func:`rim_mixed`), extrapolated from the region's pure pulses. Where two
+    regions qualify the pulse joins the one it lies nearer to in noise units.
+
+    Parameters
+    ----------
+    labels : ndarray of int, 2-D
+        Leaf region per pulse (0: none).
+    range_m : ndarray, 2-D
+        Ranges, m (NaN: no return).
+    candidates : ndarray of bool, 2-D
+        Pulses that may join a region (unlinked and unpaired).
+    pure : ndarray of bool, 2-D
+        The regions' pulses their planes are fitted to.
+    noise_m : ndarray or float
+        Range noise standard deviation (per pulse or one for all), m.
+    radius_px : float
+        How far outside a region its outline pulses may lie, pixels (about a
+        footprint radius; at least 1).
+    factor : float
+        Tolerance, in noise standard deviations.
+
+    Returns
+    -------
+    ndarray of int, 2-D
+        ``labels`` with the grown pulses labelled.
+    """
+    radius = max(1.0, float(radius_px))
+    reach = int(math.ceil(radius))
+    noise = np.broadcast_to(np.asarray(noise_m, dtype=float), range_m.shape)
+    todo = candidates & (labels == 0) & np.isfinite(range_m)
+    best = np.full(range_m.shape, np.inf)
+    out = labels.copy()
+    if not todo.any():
+        return out
+    for k, box in enumerate(ndimage.find_objects(labels), start=1):
+        if box is None:
+            continue
+        box = tuple(slice(max(s.start - reach, 0), min(s.stop + reach, n)) for s, n in zip(box, range_m.shape))
+        inside = labels[box] == k
+        near = todo[box] & (ndimage.distance_transform_edt(~inside) <= radius)
+        if not near.any():
+            continue
+        known = inside & pure[box]
+        if known.sum() < MIN_CORE_PULSES:
+            continue
+        height, _, fitted = gaussian_planes(np.where(known, range_m[box], 0.0), known, 1.5 * radius)
+        with np.errstate(invalid="ignore"):
+            off = np.abs(range_m[box] - height) / noise[box]
+        take = near & fitted & (off <= factor) & (off < best[box])
+        out[box][take] = k
+        best[box][take] = off[take]
+    return out
+
+
 #: Rows of the scan whose local planes :func:`crease_pulses` fits at once (memory: about 1 kB per pixel).
 CREASE_STRIP_ROWS = 256
 

@@ -28,8 +28,8 @@ import numpy as np
 from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 
-from leafsfs.canopy import (MIN_LEAF_WIDTH_M, dark_surfaces, edge_pulses, join_occluded, narrow_surfaces,
-                            principal_spreads, pulse_noise, rim_mixed, shifted, split_creases, split_necks,
+from leafsfs.canopy import (MIN_LEAF_WIDTH_M, dark_surfaces, edge_pulses, grow_outline, join_occluded,
+                            narrow_surfaces, principal_spreads, pulse_noise, rim_mixed, shifted, split_creases, split_necks,
                             wood_surfaces)
 from leafsfs.edges import MixedPulses, attribute_mixed, band_pixels
 from leafsfs.errors import SfsError
@@ -191,7 +191,8 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
                  neck_ratio: float = 0.3, gain_dn: float | None = None, max_aspect: float = 4.0,
                  min_fill: float = 0.5, occluder_gap_m: float = 0.01, crease_angle_deg: float = 40.0,
                  min_piece_px: int = 3, min_leaf_width_m: float = MIN_LEAF_WIDTH_M,
-                 lobe_ratio: float = 0.15, piece_ratio: float = 0.5, rim_sigma: float = 0.0) -> Segmentation:
+                 lobe_ratio: float = 0.15, piece_ratio: float = 0.5, rim_sigma: float = 0.0,
+                 grow_sigma: float = 0.0) -> Segmentation:
     """Surfaces, mixed pulses and leaf regions of a scan.
 
     Parameters
@@ -307,6 +308,12 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         core (:func:`leafsfs.canopy.rim_mixed`, footprint radius margin) are
         mixed: they leave their surface before the mixed pulses are
         attributed (0: none leave).
+    grow_sigma : float
+        A leaf region takes the pulses within a footprint radius
+        (``footprint_px / 2``) of it that no surface holds or pairs and that
+        lie within this many of their range-noise standard deviations of its
+        local plane (:func:`leafsfs.canopy.grow_outline`: outline pulses
+        partly off the leaf with nothing behind; 0: none).
     """
     valid = np.isfinite(range_m)
     if not valid.any():
@@ -400,8 +407,12 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     leaf_surfaces = np.nonzero(leaf)[0]
     relabel = np.zeros(len(leaf), dtype=int)
     relabel[leaf_surfaces] = np.arange(1, len(leaf_surfaces) + 1)
-    return Segmentation(np.where(mixed.thin, 0, relabel[mixed.owner]), leaf_surfaces, mixed, footprint_px, band,
-                        sigma, reach_m)
+    leaves = np.where(mixed.thin, 0, relabel[mixed.owner])
+    if grow_sigma > 0:
+        unpaired = valid & (mixed.surfaces == 0) & (mixed.pair[..., 0] == 0)
+        leaves = grow_outline(leaves, range_m, unpaired, mixed.surfaces > 0, pulse_noise(sigma, intensity, gain_dn),
+                              footprint_px / 2, grow_sigma)
+    return Segmentation(leaves, leaf_surfaces, mixed, footprint_px, band, sigma, reach_m)
 
 
 def _rejoin_background(cut: np.ndarray, surfaces: np.ndarray, border: np.ndarray, leaf: np.ndarray) -> np.ndarray:

@@ -95,6 +95,9 @@ OUTLIER_FLOOR_M = 0.002
 #: (`fused`, whole scan, mean per-leaf ROP reduction 3 sigma / good points lost): none 0.649 / 0.59 %; 3 sigma
 #: 0.659 / 0.73 %; 3.5 sigma 0.657 / 0.61 %; 4 sigma 0.656 / 0.59 %.
 RIM_MIXED_SIGMA = 3.5
+#: Residual against a leaf region's local plane (in the pulse's range-noise standard deviations) within which an
+#: unlinked, unpaired pulse at its outline joins it (:func:`leafsfs.canopy.grow_outline`; 0: none join).
+OUTLINE_GROW_SIGMA = 3.0
 #: Largest offset from the plane of the reliable pulses around it, in its modelled range-noise deviations, at which a
 #: lone straddling pulse takes that plane's range (farther, it lies on another surface than that plane's).
 LONE_TAIL_SIGMA = 4.0
@@ -750,7 +753,7 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
     given = labels is not None
     gain = float(scan.scanner.assumed_model.log_gain_dn)  # the recorded model's, else the default preset's
     segmentation = segment_scan(scan.range, scan.theta, scan.psi, alpha, intensity=scan.intensity, gain_dn=gain,
-                                rim_sigma=RIM_MIXED_SIGMA)
+                                rim_sigma=RIM_MIXED_SIGMA, grow_sigma=OUTLINE_GROW_SIGMA)
     mixed = segmentation.mixed
     unreliable = valid & mixed.straddling
     out_range = scan.range.copy()

@@ -10,7 +10,7 @@ from scipy import ndimage
 import scenes
 import tlssim
 from leafsfs import SfsError, reconstruct
-from leafsfs.canopy import (crease_pulses, dark_surfaces, edge_pulses, join_occluded, narrow_surfaces, plane_fits,
+from leafsfs.canopy import (crease_pulses, dark_surfaces, edge_pulses, grow_outline, join_occluded, narrow_surfaces, plane_fits,
                             rim_mixed, rim_shares, shifted, split_creases, split_necks, visibility, wood_surfaces)
 from leafsfs.leaves import range_noise
 from leafsfs.leaves import segment_scan
@@ -81,6 +81,39 @@ def test_rim_mixed_flags_outline_pulses_off_their_surface_not_pure_ones():
     bowl = 2.0 + 1e-5 * ((rows - 30) ** 2 + (cols - 30) ** 2) + 0.0015 * rng.standard_normal(rows.shape)
     assert rim_mixed(bowl, surfaces, 0.0015, 2.0)[inside].mean() < 0.01
     assert not rim_mixed(mixed, np.zeros_like(surfaces), 0.0015, 2.0).any()
+
+
+def test_grow_outline_takes_unpaired_outline_pulses_on_the_region_plane_only():
+    rng = np.random.default_rng(5)
+    rows, cols = np.mgrid[0:60, 0:60]
+    noise = 0.0015
+    # a tilted round leaf 2 m away (region 1) and, beside it, a second one 5 cm behind (region 2)
+    range_m = 2.0 + 0.002 * rows + 0.001 * cols + noise * rng.standard_normal(rows.shape)
+    inside = (rows - 30) ** 2 + (cols - 20) ** 2 <= 12 ** 2
+    other = (rows - 30) ** 2 + (cols - 48) ** 2 <= 8 ** 2
+    range_m = np.where(other, range_m + 0.05, range_m)
+    labels = np.where(inside, 1, np.where(other, 2, 0))
+    depth_out = ndimage.distance_transform_edt(labels == 0)
+    ring = (labels == 0) & (depth_out <= 2) & ~(ndimage.distance_transform_edt(~other) <= 2)
+    ring &= ndimage.distance_transform_edt(~inside) <= 2
+    far = (labels == 0) & (ndimage.distance_transform_edt(~inside) > 3)
+    off = ring & (cols < 20)  # half the ring lies 10 sigma behind the leaf's plane (a mixed pulse)
+    measured = np.where(off, range_m + 10 * noise, range_m)
+    candidates = labels == 0
+    grown = grow_outline(labels, measured, candidates, labels > 0, noise, 2.0)
+    assert (grown[ring & ~off] == 1).mean() > 0.95  # on the plane within the noise: joined
+    assert not grown[off].any()  # off the plane: left out
+    assert not grown[far].any()  # beyond a footprint radius: left out
+    assert (grown[labels > 0] == labels[labels > 0]).all()  # the regions keep their pulses
+    assert (grown[~candidates & (labels == 0)] == 0).all()
+    # pulses only a candidate may join; none when no pulse is a candidate
+    assert (grow_outline(labels, measured, np.zeros_like(candidates), labels > 0, noise, 2.0) == labels).all()
+    # region 2's outline pulses join it where they lie on its plane (5 cm behind region 1's), not on region 1's
+    ring2 = (labels == 0) & (ndimage.distance_transform_edt(~other) <= 1.5)
+    behind = np.where(ring2, range_m + 0.05, measured)
+    grown = grow_outline(labels, behind, candidates, labels > 0, noise, 2.0)
+    assert (grown[ring2] == 2).mean() > 0.95
+    assert not (grow_outline(labels, measured, candidates, labels > 0, noise, 2.0)[ring2] == 2).any()
 
 
 def _roof_and_cup(noise_m=0.0015, seed=2):

@@ -288,11 +288,13 @@ def test_refine_pulls_the_noise_tails_onto_their_neighbours_plane_whatever_the_s
     pure = (refine.labels == leaf.label) & (scan.mixed_fraction < 1e-3)
     moved = pure & (refine.range != scan.range)
     before, after = (np.abs(r - scan.truth_range) for r in (scan.range, refine.range))
-    # 693 of 14,551 pure pulses moved, median error 4.0 -> 0.14 mm; beyond the threshold 49 -> 1 (a noisy pure pulse
-    # the straddle detector flags, which takes the wrong surface: 16.9 mm at row 41, col 81).
+    # 693 of 14,551 pure pulses moved, median error 4.0 -> 0.14 mm; beyond the threshold 49 -> 0-1 (a noisy pure
+    # pulse the straddle detector flags, which takes the wrong surface: 16.9 mm at row 41, col 81). Since round 18
+    # the region also holds its unpaired outline pulses on its plane (leafsfs.canopy.grow_outline: 6 here), flagged
+    # straddling: the engine corrects them, and under this wrong calibration 4 of them take its surface 8-12 mm off.
     assert 0.01 * pure.sum() < moved.sum() < 0.1 * pure.sum()
     assert np.median(after[moved]) < 0.2 * np.median(before[moved])
-    assert np.sum(after[pure] > threshold) <= 2 and np.sum(before[pure] > threshold) > 20
+    assert np.sum(after[pure] > threshold) <= 5 and np.sum(before[pure] > threshold) > 20
     truth = {name: np.quantile(np.abs(r.range - scan.truth_range)[pure], 0.9)
              for name, r in (("refine", refine), ("replace", replace), ("measured", refine.scan))}
     # measured p90 errors: 3.0 mm measured, 2.6 mm refine, 10.0 mm replace
