@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 
-from leafsfs.edges import attribute_mixed
+from leafsfs.edges import MixedPulses, attribute_mixed
 from leafsfs.woodfit import MIN_PULSES, MIN_QUADRIC_PULSES, cylinder_ranges, quadric_ranges, twig_ranges, \
     wood_fitted_range
 
@@ -194,3 +194,29 @@ def test_twig_refuses_owners_with_enough_pulses_for_a_fit_or_none():
     assert np.isnan(twig_ranges(range_m, cores, owner, targets, 4.0)[targets]).all()
     range_m, cores, owner, targets = _twig(2)
     assert np.isnan(twig_ranges(range_m, cores, owner, targets, 0.5)[targets]).all()
+
+
+def test_paired_twig_pulse_takes_the_twig_median_a_lone_one_keeps_its_range():
+    # A twig of four pure pulses (too few for a circle or a quadric) before a wall: its mixed pulse paired with the
+    # wall takes the twig's median range; a pulse within the noise of the twig alone gets nothing (it keeps its
+    # measured range in the pipeline).
+    rng = np.random.default_rng(5)
+    range_m = WALL + rng.normal(0, NOISE, (N, N))
+    surfaces = np.full((N, N), 3)  # the wall
+    surfaces[55:66, 55:66] = 0  # around the twig: mixed or unlinked
+    twig = (slice(60, 62), slice(58, 60))
+    surfaces[twig] = 2
+    range_m[twig] = DIST + rng.normal(0, NOISE, (2, 2))
+    pair, share = np.zeros((N, N, 2), dtype=int), np.full((N, N), np.nan)
+    pair_range = np.full((N, N, 2), np.nan)
+    owner = np.where(surfaces > 0, surfaces, 0)
+    paired, alone = (60, 61), (61, 61)
+    range_m[paired] = 0.7 * DIST + 0.3 * WALL
+    pair[paired], share[paired], pair_range[paired], owner[paired] = (2, 3), 0.7, (DIST - 0.01, WALL), 2
+    range_m[alone] = DIST + 0.002
+    pair[alone], share[alone], pair_range[alone], owner[alone] = (2, 0), 1.0, (DIST + 0.002, np.nan), 2
+    mixed = MixedPulses(surfaces, pair, share, pair_range, np.full((N, N, 2), np.nan), owner, np.zeros((N, N), bool))
+    theta, psi = np.meshgrid(np.arange(N) * STEP, math.pi / 2 + (np.arange(N) - N / 2) * STEP)
+    fitted = wood_fitted_range(mixed, range_m, theta, psi, None, np.array([], dtype=int), BAND, NOISE)
+    assert abs(fitted[paired] - np.median(range_m[twig])) < 1e-12
+    assert np.isnan(fitted[alone])
