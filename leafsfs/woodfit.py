@@ -35,7 +35,14 @@ around the pulse gives its distance (:func:`quadric_ranges`): the plane of
 :func:`leafsfs.edges.attribute_mixed` ignores the curvature of a branch
 turning away from the beam (or a leaf surface taken for wood curling away),
 and stops short by a few millimetres. It is kept where it fits the pulses
-within the noise and passes the same bracket test as the circle.
+within the noise and passes the same bracket test as the circle. For a
+pulse paired with another surface (which takes its owner's plane distance
+where nothing fits) a quadric over :data:`WIDE_QUADRIC_FACTOR` times the
+neighbourhood's radius is tried next the same way (a branch piece cut
+short on one side by a nearer leaf has few pulses near the pulse), then,
+for an owner with fewer than :data:`MIN_PULSES` pure pulses within
+:data:`TWIG_RADIUS_FACTOR` times that radius (a twig a few footprints
+wide), their median (:func:`twig_ranges`), with the same bracket test.
 
 Assumption: the pixel spacing is ``r * step`` along both grid axes (a
 panoramic grid's horizontal spacing shrinks by ``sin(zenith)``, under 2 %
@@ -45,6 +52,7 @@ within 11 deg of the horizon).
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 
@@ -77,6 +85,15 @@ MIN_QUADRIC_PULSES = 12
 #: beyond its pulses amplifies their noise; here it stays within one pulse's noise). Same measure as above: 0.5:
 #: 3,727 / 6,239; 1: 3,650 / 6,030; 2: 3,771 / 6,164; no limit: 4,243 / 6,835.
 MAX_QUADRIC_SPREAD = 1.0
+#: Radius of the second, wider quadric fit, in units of the circle's neighbourhood (tried where neither the circle nor
+#: the first quadric fits). Measured as above, with the truth: outliers among all scored pulses of the leafy tree at
+#: 0.018 deg (main 3322899, pooled, 11,866 left; a scratch what-if, not kept), on every target: factor 2: 11,862;
+#: 3: 11,825. Pear seed 7 at 3 m (19,225): 3: 19,143.
+WIDE_QUADRIC_FACTOR = 3.0
+#: Radius of a twig's neighbourhood (:func:`twig_ranges`), in units of the circle's. Same measure, with the wider
+#: quadric: factor 1: 11,783; 2: 11,768 (pear seed 7: 19,126; 19,105). Both on the paired pulses only (the module
+#: docstring): tree 11,781, pear 19,114.
+TWIG_RADIUS_FACTOR = 2.0
 #: Targets fitted per batch (bounds the memory of the neighbourhood tables).
 CHUNK = 4096
 #: Most cells of a batch's neighbourhood tables (targets x the widest target's pulses): the quadric's design
@@ -87,7 +104,8 @@ TABLE_CELLS = 2 ** 20
 
 def wood_fitted_range(mixed: MixedPulses, range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray,
                       alpha: np.ndarray | None, leaf_surfaces: np.ndarray, band_px: int, noise_m: float) -> np.ndarray:
-    """Distance of the wood-shaped owner of each mixed pulse from its circle, else its quadric (NaN where neither fits).
+    """Distance of the wood-shaped owner of each mixed pulse from its circle, else its quadric, else a wider quadric,
+    else its twig's median (NaN where none fits).
 
     The pulses are those with a pair (or within the range tolerance of one
     surface) that are not ``thin`` and whose owner is wood-shaped
@@ -112,7 +130,7 @@ def wood_fitted_range(mixed: MixedPulses, range_m: np.ndarray, theta: np.ndarray
     Returns
     -------
     ndarray, 2-D
-        Fitted owner distance per pulse, m (NaN where no circle or quadric fits).
+        Fitted owner distance per pulse, m (NaN where nothing fits).
     """
     planar = mixed.owner_range()
     step = angular_step(theta, psi)
@@ -137,10 +155,20 @@ def wood_fitted_range(mixed: MixedPulses, range_m: np.ndarray, theta: np.ndarray
                 & (range_m <= np.fmax(fitted, other) + tolerance) \
                 & (np.abs(range_m - fitted) <= np.abs(range_m - other) + tolerance * (mixed.pair[..., 1] == 0))
 
-    on_circle = explains(circle)
-    quadric = quadric_ranges(range_m, mixed.surfaces, mixed.owner, targets & ~on_circle, QUADRIC_RADIUS_FACTOR * radius,
-                             noise_m)
-    return np.where(on_circle, circle, np.where(explains(quadric), quadric, np.nan))
+    fitted = np.where(explains(circle), circle, np.nan)
+    quadric = quadric_ranges(range_m, mixed.surfaces, mixed.owner, targets & np.isnan(fitted),
+                             QUADRIC_RADIUS_FACTOR * radius, noise_m)
+    fitted = np.where(np.isnan(fitted) & explains(quadric), quadric, fitted)
+    # A pulse paired with another surface is moved to its owner's distance even where nothing fits (the plane): there
+    # a quadric of a wider neighbourhood (a branch piece cut short on one side by a nearer leaf has few pulses near
+    # the pulse), else the median of a twig's few pulses, is tried. A pulse of one surface keeps its measured range
+    # where nothing fits, as before: moving it would expose a good point to the stray-point rule of ``fused-stray``.
+    paired = targets & (mixed.pair[..., 1] > 0)
+    quadric = quadric_ranges(range_m, mixed.surfaces, mixed.owner, paired & np.isnan(fitted),
+                             WIDE_QUADRIC_FACTOR * radius, noise_m)
+    fitted = np.where(np.isnan(fitted) & explains(quadric), quadric, fitted)
+    twig = twig_ranges(range_m, mixed.surfaces, mixed.owner, paired & np.isnan(fitted), TWIG_RADIUS_FACTOR * radius)
+    return np.where(np.isnan(fitted) & explains(twig), twig, fitted)
 
 
 def wood_labels(surfaces: np.ndarray, range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, step_rad: float,
@@ -259,6 +287,47 @@ def quadric_ranges(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, ta
             rms = np.sqrt((w * residual ** 2).sum(axis=1) / (n - len(columns)))
             ok = (n >= MIN_QUADRIC_PULSES) & (rms <= MAX_RESIDUAL_SIGMA * noise_m) & (spread <= MAX_QUADRIC_SPREAD)
         out[r, c] = np.where(ok, zbar + coef[:, 0], np.nan)
+    return out
+
+
+def twig_ranges(range_m: np.ndarray, cores: np.ndarray, owner: np.ndarray, targets: np.ndarray,
+                radius_px: float) -> np.ndarray:
+    """Median range of the owner's core pulses around each target whose owner has too few of them for a circle.
+
+    A twig a few footprints wide has fewer than :data:`MIN_PULSES` pure
+    pulses near its mixed pulses: a plane through them extrapolates their
+    noise (and the twig's curvature) over the lever to the pulse, while
+    the twig's depth across it varies by no more than its radius (under
+    about 5 mm for a twig of 1 cm). Their median is the distance
+    (assumption: the twig's axis runs nearly across the beam within the
+    neighbourhood, so its range along it varies by less than the noise).
+
+    Parameters
+    ----------
+    range_m : ndarray, 2-D
+        Measured ranges, m (NaN = no return).
+    cores : ndarray of int, 2-D
+        Surface labels of the pulses trusted as pure (0: none).
+    owner : ndarray of int, 2-D
+        Surface that returned most of each pulse's power (0: unknown).
+    targets : ndarray of bool, 2-D
+        The pulses to give their owner's distance.
+    radius_px : float
+        Radius of the neighbourhood, pixels.
+
+    Returns
+    -------
+    ndarray, 2-D
+        Median range (m) where 1 to ``MIN_PULSES - 1`` core pulses of the owner lie within ``radius_px`` (NaN
+        elsewhere: a circle or quadric is fitted there, or none can be).
+    """
+    out = np.full(range_m.shape, np.nan)
+    for r, c, w, z, _, _ in _neighbourhoods(range_m, cores, owner, targets, radius_px):
+        n = w.sum(axis=1)
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # rows without a pulse: NaN
+            median = np.nanmedian(np.where(w > 0, z, np.nan), axis=1)
+        out[r, c] = np.where((n >= 1) & (n < MIN_PULSES), median, np.nan)
     return out
 
 

@@ -4,8 +4,9 @@ import math
 
 import numpy as np
 
-from leafsfs.edges import attribute_mixed
-from leafsfs.woodfit import MIN_QUADRIC_PULSES, cylinder_ranges, quadric_ranges, wood_fitted_range
+from leafsfs.edges import MixedPulses, attribute_mixed
+from leafsfs.woodfit import MIN_PULSES, MIN_QUADRIC_PULSES, cylinder_ranges, quadric_ranges, twig_ranges, \
+    wood_fitted_range
 
 STEP = math.radians(0.018)
 N = 120
@@ -159,3 +160,63 @@ def test_quadric_refuses_far_noisy_or_sparse_neighbourhoods():
     range_m, _, surfaces, targets, owner = _bowl(0.0, NOISE)
     sparse = np.where(np.random.default_rng(3).random(surfaces.shape) < (MIN_QUADRIC_PULSES - 2) / 250, surfaces, 0)
     assert np.isnan(quadric_ranges(range_m, sparse, owner, targets, 12.0, NOISE)[targets]).mean() > 0.5
+
+
+def _twig(pulses, seed=4):
+    """A twig seen across at ``DIST`` with ``pulses`` pure pulses (label 1) scattered within 3 px of a target pulse at
+    the grid's centre, noise ``NOISE``; returns the range image, the cores, the owner image and the target."""
+    rng = np.random.default_rng(seed)
+    range_m = DIST + rng.normal(0, NOISE, (N, N))
+    cores = np.zeros((N, N), dtype=int)
+    ring = [(dr, dc) for dr in range(-3, 4) for dc in range(-3, 4) if 0 < dr * dr + dc * dc <= 9]
+    for k in rng.choice(len(ring), pulses, replace=False):
+        cores[N // 2 + ring[k][0], N // 2 + ring[k][1]] = 1
+    targets = np.zeros((N, N), dtype=bool)
+    targets[N // 2, N // 2] = True
+    range_m[N // 2, N // 2] = DIST + 0.05  # the target mixes the twig with what lies behind it
+    return range_m, cores, np.where(targets, 1, cores), targets
+
+
+def test_twig_takes_the_median_of_its_few_pulses():
+    # 1..MIN_PULSES-1 pulses of the owner around the target: their median (within the noise of the twig's range,
+    # not the target's own mixed range).
+    for pulses in range(1, MIN_PULSES):
+        range_m, cores, owner, targets = _twig(pulses)
+        out = twig_ranges(range_m, cores, owner, targets, 4.0)
+        assert abs(out[targets][0] - np.median(range_m[cores == 1])) < 1e-12
+        assert abs(out[targets][0] - DIST) < 3 * NOISE
+        assert np.isnan(out[~targets]).all()
+
+
+def test_twig_refuses_owners_with_enough_pulses_for_a_fit_or_none():
+    # MIN_PULSES or more pulses: a circle or quadric decides there; none within the radius: nothing to take.
+    range_m, cores, owner, targets = _twig(MIN_PULSES)
+    assert np.isnan(twig_ranges(range_m, cores, owner, targets, 4.0)[targets]).all()
+    range_m, cores, owner, targets = _twig(2)
+    assert np.isnan(twig_ranges(range_m, cores, owner, targets, 0.5)[targets]).all()
+
+
+def test_paired_twig_pulse_takes_the_twig_median_a_lone_one_keeps_its_range():
+    # A twig of four pure pulses (too few for a circle or a quadric) before a wall: its mixed pulse paired with the
+    # wall takes the twig's median range; a pulse within the noise of the twig alone gets nothing (it keeps its
+    # measured range in the pipeline).
+    rng = np.random.default_rng(5)
+    range_m = WALL + rng.normal(0, NOISE, (N, N))
+    surfaces = np.full((N, N), 3)  # the wall
+    surfaces[55:66, 55:66] = 0  # around the twig: mixed or unlinked
+    twig = (slice(60, 62), slice(58, 60))
+    surfaces[twig] = 2
+    range_m[twig] = DIST + rng.normal(0, NOISE, (2, 2))
+    pair, share = np.zeros((N, N, 2), dtype=int), np.full((N, N), np.nan)
+    pair_range = np.full((N, N, 2), np.nan)
+    owner = np.where(surfaces > 0, surfaces, 0)
+    paired, alone = (60, 61), (61, 61)
+    range_m[paired] = 0.7 * DIST + 0.3 * WALL
+    pair[paired], share[paired], pair_range[paired], owner[paired] = (2, 3), 0.7, (DIST - 0.01, WALL), 2
+    range_m[alone] = DIST + 0.002
+    pair[alone], share[alone], pair_range[alone], owner[alone] = (2, 0), 1.0, (DIST + 0.002, np.nan), 2
+    mixed = MixedPulses(surfaces, pair, share, pair_range, np.full((N, N, 2), np.nan), owner, np.zeros((N, N), bool))
+    theta, psi = np.meshgrid(np.arange(N) * STEP, math.pi / 2 + (np.arange(N) - N / 2) * STEP)
+    fitted = wood_fitted_range(mixed, range_m, theta, psi, None, np.array([], dtype=int), BAND, NOISE)
+    assert abs(fitted[paired] - np.median(range_m[twig])) < 1e-12
+    assert np.isnan(fitted[alone])
