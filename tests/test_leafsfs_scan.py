@@ -380,16 +380,22 @@ def test_mixed_pulses_of_a_leaf_weigh_the_engine_and_the_leaf_planes_distance_by
     assert np.mean(result.range[pure] != scan.range[pure]) < 1e-3 and pure.sum() > 1000
 
 
-def test_a_mixed_pulse_that_no_surface_explains_is_removed(leaf_scan, leaf_result):
-    # A one-pulse fragment 30 cm before the wall (a twig end: no surface, fewer pulses than a piece) ringed by
-    # pulses half way between it and the wall: no pair of surfaces brackets them, their range proves them mixed
-    # (the fragment nearer, the wall farther): they are removed. The fragment's own pulse is kept, as is the leaf.
+def _scan_to_edit_far_on_the_wall(leaf_scan):
+    """A copy of the leaf scan whose ranges may be edited, its calibration, and a wall pulse more than 12 pulses
+    from anything but the wall (2.5 m)."""
     _, scan, calibration = leaf_scan
     scan = copy.copy(scan)
     scan.range = scan.range.copy()
     wall = np.isfinite(scan.range) & (np.abs(scan.range - 2.5) < 0.01)
     far = ndimage.distance_transform_edt(wall) > 12
-    i, j = np.argwhere(far)[len(np.argwhere(far)) // 2]
+    return scan, calibration, tuple(np.argwhere(far)[len(np.argwhere(far)) // 2])
+
+
+def test_a_mixed_pulse_that_no_surface_explains_is_removed(leaf_scan, leaf_result):
+    # A one-pulse fragment 30 cm before the wall (a twig end: no surface, fewer pulses than a piece) ringed by
+    # pulses half way between it and the wall: no pair of surfaces brackets them, their range proves them mixed
+    # (the fragment nearer, the wall farther): they are removed. The fragment's own pulse is kept, as is the leaf.
+    scan, calibration, (i, j) = _scan_to_edit_far_on_the_wall(leaf_scan)
     ring = np.zeros(scan.shape, bool)
     ring[i - 1:i + 2, j - 1:j + 2] = True
     ring[i, j] = False
@@ -414,12 +420,7 @@ def test_a_piece_of_pulses_that_share_their_range_is_not_removed(leaf_scan, leaf
     # pulse within its window) and no surface explains it, but the piece's pulses share their range with their
     # neighbours within the noise: those with at least PIECE_MIN_LINKED such neighbours (its centre and the middles
     # of its sides) are kept, its corners (3 neighbours) go; with the ring of the test above, every pulse went.
-    _, scan, calibration = leaf_scan
-    scan = copy.copy(scan)
-    scan.range = scan.range.copy()
-    wall = np.isfinite(scan.range) & (np.abs(scan.range - 2.5) < 0.01)
-    far = ndimage.distance_transform_edt(wall) > 12
-    i, j = np.argwhere(far)[len(np.argwhere(far)) // 2]
+    scan, calibration, (i, j) = _scan_to_edit_far_on_the_wall(leaf_scan)
     piece = np.zeros(scan.shape, bool)
     piece[i - 1:i + 2, j - 1:j + 2] = True
     scan.range[piece] = scan.range[i, j] - 0.15
