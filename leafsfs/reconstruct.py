@@ -387,7 +387,7 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
     # unless its neighbours share its range within the noise (a piece of a surface too small to be one).
     removed = regions.mixed & ~grids.corrected & (params.unexplained == "remove")
     if removed.any():
-        removed &= linked_neighbours(scan.range, regions.noise, PIECE_LINK_SIGMA) < PIECE_MIN_LINKED
+        removed &= linked_neighbours(scan.range, regions.noise, PIECE_LINK_SIGMA, at=removed) < PIECE_MIN_LINKED
     grids.range[removed] = np.nan
     grids.corrected |= removed
     # A corrected pulse whose pair of surfaces share its power about equally: no surface owns it.
@@ -596,7 +596,8 @@ def no_owner(mixed, range_m: np.ndarray, noise_m: np.ndarray | float) -> np.ndar
             & ~(nearer <= OWNER_BAND_SIGMA * np.asarray(noise_m, dtype=float))
 
 
-def linked_neighbours(range_m: np.ndarray, noise_m: np.ndarray | float, sigma: float) -> np.ndarray:
+def linked_neighbours(range_m: np.ndarray, noise_m: np.ndarray | float, sigma: float,
+                      at: np.ndarray | None = None) -> np.ndarray:
     """How many of each pulse's 8 neighbours have a range within ``sigma * sqrt(2)`` of its range-noise deviation.
 
     Two pulses of one smooth surface a pixel apart differ by their noise
@@ -613,11 +614,14 @@ def linked_neighbours(range_m: np.ndarray, noise_m: np.ndarray | float, sigma: f
         Each pulse's range noise (:func:`leafsfs.canopy.pulse_noise`), m.
     sigma : float
         The bound, in deviations of the difference.
+    at : ndarray of bool, 2-D, optional
+        The pulses to count for (default: all); memory follows their number,
+        not the scan's.
 
     Returns
     -------
-    ndarray of int, 2-D
-        0..8 per pulse (0 where it has no return).
+    ndarray of uint8, 2-D
+        0..8 per pulse (0 where it has no return or is not counted).
 
     Examples
     --------
@@ -625,18 +629,25 @@ def linked_neighbours(range_m: np.ndarray, noise_m: np.ndarray | float, sigma: f
     >>> linked_neighbours(r, 0.001, 2.0)
     array([[3, 4, 2],
            [4, 6, 0],
-           [2, 0, 1]])
+           [2, 0, 1]], dtype=uint8)
     """
-    bound = sigma * np.sqrt(2.0) * np.broadcast_to(np.asarray(noise_m, dtype=float), range_m.shape)
-    padded = np.pad(range_m.astype(float), 1, constant_values=np.nan)
     rows, cols = range_m.shape
-    count = np.zeros(range_m.shape, dtype=int)
-    with np.errstate(invalid="ignore"):
-        for di in (-1, 0, 1):
-            for dj in (-1, 0, 1):
-                if di or dj:
-                    count += np.abs(padded[1 + di:1 + di + rows, 1 + dj:1 + dj + cols] - range_m) <= bound
-    return count
+    r, c = np.nonzero(np.ones(range_m.shape, bool) if at is None else at)
+    value = range_m[r, c].astype(float)
+    bound = sigma * np.sqrt(2.0) * np.broadcast_to(np.asarray(noise_m, dtype=float), range_m.shape)[r, c]
+    count = np.zeros(len(r), dtype=np.uint8)
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            if di or dj:
+                rr, cc = r + di, c + dj
+                inside = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
+                neighbour = np.full(len(r), np.nan)
+                neighbour[inside] = range_m[rr[inside], cc[inside]]
+                with np.errstate(invalid="ignore"):
+                    count += np.abs(neighbour - value) <= bound
+    out = np.zeros(range_m.shape, dtype=np.uint8)
+    out[r, c] = count
+    return out
 
 
 def engine_owner_weight(incidence: np.ndarray) -> np.ndarray:

@@ -451,7 +451,12 @@ def test_linked_neighbours_holds_a_noisy_plane_together_and_not_a_ramp_across_an
     assert count.max() <= 2 and np.mean(count >= PIECE_MIN_LINKED) == 0
     # no return: no link
     plane[5, 5] = np.nan
-    assert linked_neighbours(plane, sigma, PIECE_LINK_SIGMA)[5, 5] == 0
+    full = linked_neighbours(plane, sigma, PIECE_LINK_SIGMA)
+    assert full[5, 5] == 0
+    # counted at some pulses only (the scan's corners and borders among them): the same counts there, 0 elsewhere
+    at = rng.random(plane.shape) < 0.2
+    at[[0, 0, -1, -1], [0, -1, 0, -1]] = True
+    assert np.array_equal(linked_neighbours(plane, sigma, PIECE_LINK_SIGMA, at=at), np.where(at, full, 0))
 
 
 def test_no_owner_spares_an_even_split_within_the_noise_of_a_surface():
