@@ -29,8 +29,8 @@ from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 
 from leafsfs.canopy import (MIN_LEAF_WIDTH_M, dark_surfaces, edge_pulses, grow_outline, join_occluded,
-                            narrow_surfaces, principal_spreads, pulse_noise, rim_mixed, shifted, split_creases, split_necks,
-                            wood_surfaces)
+                            narrow_surfaces, principal_spreads, pulse_noise, rim_mixed, shifted, split_creases,
+                            split_necks, wood_surfaces)
 from leafsfs.edges import MixedPulses, attribute_mixed, band_pixels
 from leafsfs.errors import SfsError
 from tlssim.pattern import beam_frame
@@ -320,6 +320,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         raise SfsError("the scan has no valid pixels (no returns) to segment")
     sigma = range_noise(range_m) if noise_m is None else noise_m
     sigma = sigma if np.isfinite(sigma) and sigma > 0 else NOISE_FLOOR_M
+    noise = pulse_noise(sigma, intensity, gain_dn)
     step = angular_step(theta, psi)
     linked = range_m
     footprint = edge_radius_m / (float(np.nanmedian(range_m)) * step)
@@ -328,7 +329,6 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         limit = math.radians(max_slope_deg)
         slope = np.tan(limit if alpha is None else
                        np.minimum(np.nan_to_num(alpha, nan=limit) + math.radians(alpha_margin_deg), limit))
-        noise = pulse_noise(sigma, intensity, gain_dn)
         edges = edge_pulses(range_m, radius, noise, edge_factor, max_slope=slope, spacing_m=range_m * step)
         linked = np.where(edges, np.nan, range_m)
     component = link_components(linked, theta, psi, alpha, max_slope_deg=max_slope_deg,
@@ -362,7 +362,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         surfaces = _rejoin_background(surfaces, origin, border, leaf)
     if crease_angle_deg > 0:
         # A leaf surface that creases cut into parts is two leaves touching, or a leaf and a branch: judged again.
-        surfaces, cut = split_creases(surfaces, range_m, leaf, range_m * step, pulse_noise(sigma, intensity, gain_dn),
+        surfaces, cut = split_creases(surfaces, range_m, leaf, range_m * step, noise,
                                       crease_angle_deg, piece_px)
         if cut:
             leaf = leaves_of(surfaces)
@@ -399,7 +399,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         leaf = np.concatenate([leaf, np.zeros(max(int(surfaces.max()) + 1 - len(leaf), 0), dtype=bool)])
     footprint_px = max(1.0, 2 * footprint)
     if rim_sigma > 0:
-        rim = rim_mixed(range_m, surfaces, pulse_noise(sigma, intensity, gain_dn), footprint_px / 2, rim_sigma)
+        rim = rim_mixed(range_m, surfaces, noise, footprint_px / 2, rim_sigma)
         surfaces = np.where(rim, 0, surfaces)
         reach = band_pixels(reach_m, range_m, surfaces, step) if reach_m > 0 else 0
     mixed = attribute_mixed(range_m, surfaces, band, intensity, tolerance_m=3 * sigma,
@@ -410,8 +410,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     leaves = np.where(mixed.thin, 0, relabel[mixed.owner])
     if grow_sigma > 0:
         unpaired = valid & (mixed.surfaces == 0) & (mixed.pair[..., 0] == 0)
-        leaves = grow_outline(leaves, range_m, unpaired, mixed.surfaces > 0, pulse_noise(sigma, intensity, gain_dn),
-                              footprint_px / 2, grow_sigma)
+        leaves = grow_outline(leaves, range_m, unpaired, mixed.surfaces > 0, noise, footprint_px / 2, grow_sigma)
     return Segmentation(leaves, leaf_surfaces, mixed, footprint_px, band, sigma, reach_m)
 
 

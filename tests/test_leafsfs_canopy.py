@@ -10,8 +10,9 @@ from scipy import ndimage
 import scenes
 import tlssim
 from leafsfs import SfsError, reconstruct
-from leafsfs.canopy import (crease_pulses, dark_surfaces, edge_pulses, grow_outline, join_occluded, narrow_surfaces, plane_fits,
-                            rim_mixed, rim_shares, shifted, split_creases, split_necks, visibility, wood_surfaces)
+from leafsfs.canopy import (crease_pulses, dark_surfaces, edge_pulses, grow_outline, join_occluded, narrow_surfaces,
+                            plane_fits, rim_mixed, rim_shares, shifted, split_creases, split_necks, visibility,
+                            wood_surfaces)
 from leafsfs.leaves import range_noise
 from leafsfs.leaves import segment_scan
 from leafsfs.preprocess import scan_alpha

@@ -438,8 +438,9 @@ def test_linked_neighbours_holds_a_noisy_plane_together_and_not_a_ramp_across_an
     # Pulses of one plane with Gaussian noise sigma: each neighbour lies within 2 sqrt(2) sigma of the pulse with
     # probability 0.954, but the differences share the pulse's own noise, so a pulse in the tail of its own noise
     # (beyond about 2 sigma: 5 % of them) loses most of its links at once; nearly all the others keep at least
-    # PIECE_MIN_LINKED (here 98.6 % of the pulses in all). Across an edge the footprint's share, hence the range, changes by more than the noise from pulse to
-    # pulse (here 2 cm per pixel across, constant along): only the 2 neighbours along the edge are linked.
+    # PIECE_MIN_LINKED (here 98.6 % of the pulses in all). Across an edge the footprint's share, hence the range,
+    # changes by more than the noise from pulse to pulse (here 2 cm per pixel across, constant along): only the 2
+    # neighbours along the edge are linked.
     rng = np.random.default_rng(0)
     sigma = 0.002
     plane = 2.0 + 0.0004 * np.arange(60)[:, None] + 0.0002 * np.arange(60)[None, :] \
