@@ -119,6 +119,10 @@ test trees (spec Part D; each a documented departure in the default mode):
   (:mod:`woody.footprint`): the pipe model gave the twigs of a simulated
   leafless apple-like tree, 0.01-3 mm against a 4.9 mm footprint, about
   three times their radius, also from the true tree's own resolved limbs;
+  and at most half the width its points' count gives the silhouette
+  (``count spacing^2 / length``) less the footprint
+  (:func:`woody.footprint.silhouette_radius`): the spread spans the gaps of
+  a section fitted across several twigs side by side, the count does not;
   and a section the points resolve takes, where narrower, the circle of
   its points whose beam lay wholly on it (the facing side, within
   ``r - D / 2`` of the axis across the line of sight;
@@ -280,7 +284,9 @@ class FollowParams:
         axis across the line of sight less the footprint
         (:mod:`woody.footprint`), a bound that holds at any point spacing
         and needs no assumption about the tree's form, where the pipe
-        model gives twigs thinner than the beam about 3 times their radius;
+        model gives twigs thinner than the beam about 3 times their radius,
+        and at most half the silhouette width their count gives less the
+        footprint (:func:`woody.footprint.silhouette_radius`);
         and a resolved section is at most as wide as the circle of its
         points whose beam lay wholly on it
         (:func:`woody.footprint.facing_radius`).
@@ -556,7 +562,8 @@ def _follow(points: np.ndarray, params: FollowParams, progress: bool, timings: d
     records, labels = _records(branches, params, len(points), spacing)
     if params.mode == "strict":
         # The bounds from the points near each fitted section (the pipe model's radii would reach fewer of them).
-        bounds = [lateral_radii(r["sections"], points, tree, params.viewpoint, params.footprint_m) for r in records] \
+        bounds = [lateral_radii(r["sections"], points, tree, params.viewpoint, params.footprint_m, spacing)
+                  for r in records] \
             if params.footprint_m > 0 and params.viewpoint is not None else None
         apply_pipe_model(records)
         if bounds is not None:
@@ -730,10 +737,11 @@ def apply_pipe_model(records: list[dict]) -> None:
 
 def bound_by_footprint(records: list[dict], bounds: list[list[float]]) -> None:
     """Cut the radius of each section the points do not resolve (``record["reliable"]`` False: the pipe model
-    gave it) to its bound from the points' spread across the line of sight (:func:`woody.footprint.lateral_radii`,
-    m; one list per record), in place. Resolved sections keep their circles: applied to them too, the bound cut
-    partly occluded stems (a simulated leafless apple-like tree's 2.3 cm stem at 1.3 m by 14-21 %). Runs after
-    the pipe model; a later pass of it (:func:`woody.trunk.follow_tree`) only shrinks radii, so the bound holds.
+    gave it) to its bound from the points' spread across the line of sight and their count
+    (:func:`woody.footprint.lateral_radii`, m; one list per record), in place. Resolved sections keep their
+    circles: applied to them too, the bound cut partly occluded stems (a simulated leafless apple-like tree's
+    2.3 cm stem at 1.3 m by 14-21 %). Runs after the pipe model; a later pass of it
+    (:func:`woody.trunk.follow_tree`) only shrinks radii, so the bound holds.
 
     Parameters
     ----------
