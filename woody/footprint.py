@@ -195,10 +195,10 @@ def silhouette_radius(along_m, length_m: float, spacing_m: float, footprint_m: f
 
     Examples
     --------
-    A 4 mm twig under a 5 mm footprint at 2 mm spacing: (4 + 5) / 2 = 4.5 points per 2 mm of length, 9 per
+    A 4 mm twig under a 5 mm footprint at 2 mm spacing: (4 + 5) / 2 = 4.5 points per 2 mm of length, 9 in each
     4 mm stretch; radius 2 mm.
 
-    >>> along = np.repeat(np.arange(0.0, 0.1, 0.002), 4.5 * 2)[::2] + 1e-4
+    >>> along = np.repeat(np.arange(0.001, 0.1, 0.004), 9)
     >>> round(silhouette_radius(along, 0.1, 0.002, 0.005) * 1e3, 2)
     2.0
     """
