@@ -614,7 +614,7 @@ def _records(branches: list[Branch], params: FollowParams, count: int,
         if any(clamped):
             own = _on_circle(fitted, b.coords[b.points])
             restored = [c and cov and ok for c, cov, ok in zip(clamped, covered, own)]
-            if params.pipe_model:
+            if params.pipe_model and params.footprint_m > 0 and params.viewpoint is not None:
                 released = released_clamps(clamped, restored)
             records[-1]["sections"] = [f if k or x else s for f, s, k, x in
                                        zip(fitted, records[-1]["sections"], restored, released)]
@@ -734,7 +734,10 @@ def released_clamps(clamped: list[bool], restored: list[bool]) -> list[bool]:
     error too (a leader followed as a chain of fragments under a thin piece: on the quick suite's leafy tree at
     0.08 deg, 16-17 mm sections of one leader alternated with 4.0 mm ones, the parent's radius). They take their
     fitted radii judged unresolved: the pipe model from the nearest resolved section (the branch's own) and the
-    footprint's bounds size them. No section is released in a branch none of whose sections is restored.
+    footprint's bounds size them. No section is released in a branch none of whose sections is restored, nor
+    without the footprint's bounds (no scanner position or footprint): sized by the pipe model alone, released
+    sections widened a real cloud's model (aRchi Tree_1, ``tlsbench experiment woody-real``) from +8.2 to
+    +23.0 % volume against its TreeQSM reference.
 
     Parameters
     ----------
