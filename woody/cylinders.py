@@ -289,7 +289,10 @@ class FollowParams:
         footprint (:func:`woody.footprint.silhouette_radius`);
         and a resolved section is at most as wide as the circle of its
         points whose beam lay wholly on it
-        (:func:`woody.footprint.facing_radius`).
+        (:func:`woody.footprint.facing_radius`). With these bounds, a
+        branch one of whose sections shows it wider than its parent
+        releases its other sections from the parent's radius
+        (:func:`released_clamps`): the only rule here that can widen.
     """
 
     free_seed: tuple = APPLE_FREE_SEED
