@@ -147,11 +147,29 @@ def test_the_count_of_twigs_side_by_side_adds_their_widths_not_the_gap_between_t
     assert count == pytest.approx(0.002 + 0.002 + 0.005 / 2, abs=0.002)  # ((2 r + D) + (2 r + D) - D) / 2
 
 
-def test_stretches_hidden_whole_are_left_out_and_short_sections_give_no_bound():
-    points = _grid(0.004, 0.005, 0.002)
+@pytest.mark.parametrize("radius", [0.0005, 0.004])
+def test_a_branch_hidden_whole_over_less_than_half_its_length_stays_bounded_over_more_gets_no_bound(radius):
+    points = _grid(radius, 0.005, 0.002)
     whole = silhouette_radius(points[:, 2], 1.0, 0.002, 0.005)
     seen = points[(points[:, 2] % 0.1) < 0.06]  # 4 cm of every 10 cm hidden
     assert silhouette_radius(seen[:, 2], 1.0, 0.002, 0.005) == pytest.approx(whole, abs=0.001)
+    seen = points[(points[:, 2] % 0.1) < 0.04]  # 6 cm of every 10 cm hidden
+    assert silhouette_radius(seen[:, 2], 1.0, 0.002, 0.005) == np.inf
+
+
+def test_a_stem_seen_in_slivers_over_less_than_half_its_length_keeps_its_radius():
+    # A 12 mm stem behind a plate that leaves 4 cm of every 10 cm open, and there only its silhouette's outer
+    # 9 mm (the plate's edge): the slivers undercount the silhouette.
+    points = _grid(0.012, 0.005, 0.002)
+    slivers = points[((points[:, 2] % 0.1) < 0.04) & (points[:, 1] > 0.006)]
+    assert silhouette_radius(slivers[:, 2], 1.0, 0.002, 0.005) == np.inf
+    # Counted over its seen stretches alone, the bound would cut the stem.
+    first = slivers[slivers[:, 2] < 0.04, 2]
+    assert silhouette_radius(first, 0.04, 0.002, 0.005) < 0.012 - 0.002
+
+
+def test_short_sections_and_sections_without_points_give_no_bound():
+    points = _grid(0.004, 0.005, 0.002)
     assert silhouette_radius(points[:, 2] * 0.001, SLICE_SPACINGS * 0.002 * 0.9, 0.002, 0.005) == np.inf
     assert silhouette_radius([], 1.0, 0.002, 0.005) == np.inf
 

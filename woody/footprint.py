@@ -163,19 +163,23 @@ def lateral_radii(sections: list[tuple], points: np.ndarray, tree: cKDTree, view
 
 
 def silhouette_radius(along_m, length_m: float, spacing_m: float, footprint_m: float) -> float:
-    """Radius bound of one section from how many points the seen stretches of its length hold.
+    """Radius bound of one section from how many points the stretches of its length hold.
 
     A pulse returns when its beam touches the branch (the widening of :func:`lateral_radius`), so the branch's
     silhouette across the line of sight, ``2 r + D`` wide, holds about ``(2 r + D) / s`` points per length ``s``
     along it at the scan's point spacing ``s``. Counted over stretches of :data:`SLICE_SPACINGS` spacings, the
-    median count of the stretches that hold a point gives ``2 r + D = count s^2 / stretch`` and so
-    ``r <= (count s^2 / stretch - D) / 2``. Unlike the points' spread, which spans the gaps between several twigs
-    side by side (one section fitted across a cluster or a fork), the count adds up only the twigs' own widths.
-    The cloud's nominal spacing (from the points' neighbour distances on the surfaces) is at least the spacing
-    of the pulses across the line of sight (surfaces seen obliquely are sparser), so the bound errs wide. A
-    stretch hidden whole (behind a leaf or a branch) is left out by the median; one hidden across part of its
-    width is undercounted, which is why, like the spread's bound, it applies to the sections the points do not
-    resolve only (:func:`woody.cylinders.bound_by_footprint`).
+    median count gives ``2 r + D = count s^2 / stretch`` and so ``r <= (count s^2 / stretch - D) / 2``. Unlike the
+    points' spread, which spans the gaps between several twigs side by side (one section fitted across a cluster
+    or a fork), the count adds up only the twigs' own widths. The cloud's nominal spacing (from the points'
+    neighbour distances on the surfaces) is at least the spacing of the pulses across the line of sight (surfaces
+    seen obliquely are sparser), so the bound errs wide. The count assumes the silhouette seen: a stretch without
+    points (hidden behind a leaf or a branch, or beyond the branch's end) could have held any count and enters
+    the median as unbounded, so that only a section whose stretches hold points over more than half its length
+    is bounded at all. On a simulated leafy apple-like tree, a section fitted across a leaf in front of the
+    2.3 cm stem at 1.3 m held points in 4 of its 9 stretches, 2 to 15; with the empty stretches left out of the
+    median (as before), its 11.6 mm radius was cut to 0.44 mm. A stretch hidden across part of its width is
+    still undercounted. Like the spread's bound, it applies to the sections the points do not resolve only
+    (:func:`woody.cylinders.bound_by_footprint`).
 
     Parameters
     ----------
@@ -191,7 +195,8 @@ def silhouette_radius(along_m, length_m: float, spacing_m: float, footprint_m: f
     Returns
     -------
     float
-        The bound, m (at least 0); infinite for a section shorter than one stretch or without points.
+        The bound, m (at least 0); infinite for a section shorter than one stretch, or with half its stretches
+        or more empty.
 
     Examples
     --------
@@ -207,8 +212,9 @@ def silhouette_radius(along_m, length_m: float, spacing_m: float, footprint_m: f
     if stretches < 1 or len(along_m) == 0:
         return float("inf")
     index = np.clip((along_m / length_m * stretches).astype(int), 0, stretches - 1)
-    counts = np.bincount(index, minlength=stretches)
-    width = float(np.median(counts[counts > 0])) * spacing_m ** 2 / (length_m / stretches)
+    counts = np.bincount(index, minlength=stretches).astype(float)
+    counts[counts == 0] = np.inf
+    width = float(np.median(counts)) * spacing_m ** 2 / (length_m / stretches)
     return max(0.0, 0.5 * (width - footprint_m))
 
 
