@@ -120,7 +120,8 @@ test trees (spec Part D; each a documented departure in the default mode):
   leafless apple-like tree, 0.01-3 mm against a 4.9 mm footprint, about
   three times their radius, also from the true tree's own resolved limbs;
   and at most half the width its points' count gives the silhouette
-  (``count spacing^2 / length``) less the footprint
+  (``count spacing^2 / length``, median over its stretches, those without
+  points unbounded) less the footprint
   (:func:`woody.footprint.silhouette_radius`): the spread spans the gaps of
   a section fitted across several twigs side by side, the count does not;
   and a section the points resolve takes, where narrower, the circle of
@@ -286,7 +287,8 @@ class FollowParams:
         and needs no assumption about the tree's form, where the pipe
         model gives twigs thinner than the beam about 3 times their radius,
         and at most half the silhouette width their count gives less the
-        footprint (:func:`woody.footprint.silhouette_radius`);
+        footprint where they fill more than half its stretches
+        (:func:`woody.footprint.silhouette_radius`);
         and a resolved section is at most as wide as the circle of its
         points whose beam lay wholly on it
         (:func:`woody.footprint.facing_radius`). With these bounds, a
