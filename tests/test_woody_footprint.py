@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from woody.cylfit import fit_circle
-from woody.footprint import MIN_POINTS, facing_radius, lateral_radii, lateral_radius
+from woody.footprint import MIN_POINTS, SLICE_SPACINGS, facing_radius, lateral_radii, lateral_radius, silhouette_radius
 
 VIEW = np.array([0.0, 0.0, 0.5])  # the scanner, 4 m from a vertical axis at x = 4
 
@@ -118,3 +118,68 @@ def test_the_facing_refit_only_shrinks_resolved_sections():
     records[0]["sections"] = [([4, 0, 0], [4, 0, 1], 0.015)]
     refit_facing(records, points, labels, VIEW, 0.005)
     assert records[0]["sections"][0][2] == 0.015  # never wider
+
+
+def _grid(radius, footprint, spacing, centre_y=0.0, length=1.0, seed=0):
+    """Pulses on an even grid (``spacing`` across and along a vertical branch at x = 4 m, random phase) wherever the
+    beam touches the branch: lateral offsets over ``2 radius + footprint``, each point at the surface's range."""
+    rng = np.random.default_rng(seed)
+    half = radius + footprint / 2
+    y = np.arange(-half + rng.uniform(0, spacing), half, spacing)
+    z = np.arange(rng.uniform(0, spacing), length, spacing)
+    yy, zz = np.meshgrid(y, z)
+    depth = np.sqrt(np.clip(radius**2 - yy.ravel()**2, 0.0, None))
+    return np.c_[4.0 - depth, centre_y + yy.ravel(), zz.ravel()]
+
+
+@pytest.mark.parametrize("radius", [0.0005, 0.002, 0.008, 0.02])
+def test_the_point_count_recovers_the_radius_of_a_widened_branch(radius):
+    points = _grid(radius, 0.005, 0.002)
+    bound = silhouette_radius(points[:, 2], 1.0, 0.002, 0.005)
+    assert bound == pytest.approx(radius, abs=0.002 / 2 + 1e-9)  # within half a spacing: one point per row more or less
+
+
+def test_the_count_of_twigs_side_by_side_adds_their_widths_not_the_gap_between_them():
+    twigs = np.r_[_grid(0.002, 0.005, 0.002, centre_y=-0.02), _grid(0.002, 0.005, 0.002, centre_y=0.02, seed=1)]
+    spread = lateral_radius(twigs, [4, 0, 0], [4, 0, 1], VIEW, 0.005)
+    count = silhouette_radius(twigs[:, 2], 1.0, 0.002, 0.005)
+    assert spread > 0.02  # the spread spans the 4 cm between the twigs
+    assert count == pytest.approx(0.002 + 0.002 + 0.005 / 2, abs=0.002)  # ((2 r + D) + (2 r + D) - D) / 2
+
+
+@pytest.mark.parametrize("radius", [0.0005, 0.004])
+def test_a_branch_hidden_whole_over_less_than_half_its_length_stays_bounded_over_more_gets_no_bound(radius):
+    points = _grid(radius, 0.005, 0.002)
+    whole = silhouette_radius(points[:, 2], 1.0, 0.002, 0.005)
+    seen = points[(points[:, 2] % 0.1) < 0.06]  # 4 cm of every 10 cm hidden
+    assert silhouette_radius(seen[:, 2], 1.0, 0.002, 0.005) == pytest.approx(whole, abs=0.001)
+    seen = points[(points[:, 2] % 0.1) < 0.04]  # 6 cm of every 10 cm hidden
+    assert silhouette_radius(seen[:, 2], 1.0, 0.002, 0.005) == np.inf
+
+
+def test_a_stem_seen_in_slivers_over_less_than_half_its_length_keeps_its_radius():
+    # A 12 mm stem behind a plate that leaves 4 cm of every 10 cm open, and there only its silhouette's outer
+    # 9 mm (the plate's edge): the slivers undercount the silhouette.
+    points = _grid(0.012, 0.005, 0.002)
+    slivers = points[((points[:, 2] % 0.1) < 0.04) & (points[:, 1] > 0.006)]
+    assert silhouette_radius(slivers[:, 2], 1.0, 0.002, 0.005) == np.inf
+    # Counted over its seen stretches alone, the bound would cut the stem.
+    first = slivers[slivers[:, 2] < 0.04, 2]
+    assert silhouette_radius(first, 0.04, 0.002, 0.005) < 0.012 - 0.002
+
+
+def test_short_sections_and_sections_without_points_give_no_bound():
+    points = _grid(0.004, 0.005, 0.002)
+    assert silhouette_radius(points[:, 2] * 0.001, SLICE_SPACINGS * 0.002 * 0.9, 0.002, 0.005) == np.inf
+    assert silhouette_radius([], 1.0, 0.002, 0.005) == np.inf
+
+
+def test_sections_with_a_spacing_take_the_lower_of_the_two_bounds():
+    twigs = np.r_[_grid(0.002, 0.005, 0.002, centre_y=-0.01), _grid(0.002, 0.005, 0.002, centre_y=0.01, seed=1)]
+    tree = cKDTree(twigs)
+    sections = [([4.0, 0.0, 0.1], [4.0, 0.0, 0.9], 0.02)]
+    spread = lateral_radii(sections, twigs, tree, VIEW, 0.005)
+    both = lateral_radii(sections, twigs, tree, VIEW, 0.005, spacing_m=0.002)
+    assert both[0] < spread[0]
+    assert both[0] == pytest.approx(silhouette_radius(twigs[(twigs[:, 2] > 0.1) & (twigs[:, 2] < 0.9), 2] - 0.1, 0.8,
+                                                      0.002, 0.005))

@@ -96,3 +96,19 @@ def test_a_circle_on_a_few_stray_points_is_cut_to_the_radius_they_cover():
     for branch in result.branches:  # no resolved section wider than what its branch's points cover
         limits = covered_radii(branch["sections"], cloud[result.labels == branch["id"]], result.stats["spacing_m"])
         assert all(s[2] <= lim + 1e-12 for s, lim, ok in zip(branch["sections"], limits, branch["reliable"]) if ok)
+
+
+def test_a_restored_section_releases_its_branchs_other_clamps_to_the_pipe_model():
+    from woody.cylinders import released_clamps
+
+    # A leader under a thin parent: sections 0 and 2 keep their own circles, 1 and 3 were left at the clamp.
+    assert released_clamps([True, True, True, True, False], [True, False, True, False, False]) == \
+        [False, True, False, True, False]
+    # No own circle stands (a circle drawn across twigs): every clamp holds.
+    assert released_clamps([True, True, False], [False, False, False]) == [False, False, False]
+    # Released, a section between resolved ones of its branch takes the pipe model's radius from the one before
+    # it, not the parent's: the chain stem (4 mm) -> 16 mm -> released (fitted 20 mm) -> 15 mm.
+    out = pipe_radii([0.004, 0.016, 0.020, 0.015], [0.3, 0.06, 0.06, 0.06], [-1, 0, 1, 2],
+                     [True, True, False, True])
+    assert np.isclose(out[2], 0.016 * np.sqrt(0.12 / 0.18))
+    assert 0.004 < out[2] <= 0.016

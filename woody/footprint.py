@@ -17,7 +17,8 @@ leafless apple-like tree (FARO LS880 model, 0.036 deg, 4 m, footprint
 diameters of 0.5 / 1.4 / 2.9 / 6.5 mm (median per class).
 
 The same widening pulls the circle of a resolved branch out: :func:`facing_radius` refits it to the points whose
-beam lay wholly on the branch.
+beam lay wholly on the branch. The spread spans the gaps between twigs side by side; :func:`silhouette_radius`
+counts the points instead, which add up only the twigs' own widths.
 """
 
 from __future__ import annotations
@@ -30,6 +31,10 @@ from woody.geometry import segment_distance
 #: Fewest points beside a section for its lateral spread to bound its radius (assumption: with 8 points the
 #: spread's relative standard error is about a quarter, as for :data:`woody.cylinders.RESOLVED_POINTS`).
 MIN_POINTS = 8
+
+#: Length of the stretches along a section that :func:`silhouette_radius` counts points in, in point spacings
+#: (assumption: two spacings span about two scan rows whatever the axis' direction on the scan grid).
+SLICE_SPACINGS = 2.0
 
 #: Narrowest arc, each side of the line of sight, whose points :func:`facing_radius` fits, deg (assumption: over
 #: +-45 deg the arc's sagitta is 0.29 r, several times the range noise for the sections it is applied to; a
@@ -113,7 +118,8 @@ def lateral_radius(points: np.ndarray, start, end, viewpoint, footprint_m: float
     return max(0.0, 0.5 * (spread - footprint_m))
 
 
-def lateral_radii(sections: list[tuple], points: np.ndarray, tree: cKDTree, viewpoint, footprint_m: float) -> list:
+def lateral_radii(sections: list[tuple], points: np.ndarray, tree: cKDTree, viewpoint, footprint_m: float,
+                  spacing_m: float | None = None) -> list:
     """:func:`lateral_radius` of each section ``(start, end, radius)`` (m) from the cloud's points within its radius
     plus one footprint of its axis (any branch's: a branch's own points near a fork may have gone to a child).
 
@@ -129,6 +135,8 @@ def lateral_radii(sections: list[tuple], points: np.ndarray, tree: cKDTree, view
         Scanner position, m.
     footprint_m : float
         Beam footprint diameter, m.
+    spacing_m : float, optional
+        The cloud's point spacing, m: the bound is also at most :func:`silhouette_radius` of those points.
 
     Returns
     -------
@@ -145,8 +153,69 @@ def lateral_radii(sections: list[tuple], points: np.ndarray, tree: cKDTree, view
             continue
         cand = points[near]
         distance, t = segment_distance(cand, a, b)
-        out.append(lateral_radius(cand[(t > 0) & (t < 1) & (distance <= reach)], a, b, viewpoint, footprint_m))
+        beside = (t > 0) & (t < 1) & (distance <= reach)
+        bound = lateral_radius(cand[beside], a, b, viewpoint, footprint_m)
+        if spacing_m is not None and beside.sum() >= MIN_POINTS:
+            length = float(np.linalg.norm(b - a))
+            bound = min(bound, silhouette_radius(t[beside] * length, length, spacing_m, footprint_m))
+        out.append(bound)
     return out
+
+
+def silhouette_radius(along_m, length_m: float, spacing_m: float, footprint_m: float) -> float:
+    """Radius bound of one section from how many points the stretches of its length hold.
+
+    A pulse returns when its beam touches the branch (the widening of :func:`lateral_radius`), so the branch's
+    silhouette across the line of sight, ``2 r + D`` wide, holds about ``(2 r + D) / s`` points per length ``s``
+    along it at the scan's point spacing ``s``. Counted over stretches of :data:`SLICE_SPACINGS` spacings, the
+    median count gives ``2 r + D = count s^2 / stretch`` and so ``r <= (count s^2 / stretch - D) / 2``. Unlike the
+    points' spread, which spans the gaps between several twigs side by side (one section fitted across a cluster
+    or a fork), the count adds up only the twigs' own widths. The cloud's nominal spacing (from the points'
+    neighbour distances on the surfaces) is at least the spacing of the pulses across the line of sight (surfaces
+    seen obliquely are sparser), so the bound errs wide. The count assumes the silhouette seen: a stretch without
+    points (hidden behind a leaf or a branch, or beyond the branch's end) could have held any count and enters
+    the median as unbounded, so that only a section whose stretches hold points over more than half its length
+    is bounded at all. On a simulated leafy apple-like tree, a section fitted across a leaf in front of the
+    2.3 cm stem at 1.3 m held points in 4 of its 9 stretches, 2 to 15; with the empty stretches left out of the
+    median (as before), its 11.6 mm radius was cut to 0.44 mm. A stretch hidden across part of its width is
+    still undercounted. Like the spread's bound, it applies to the sections the points do not resolve only
+    (:func:`woody.cylinders.bound_by_footprint`).
+
+    Parameters
+    ----------
+    along_m : array_like, (n,)
+        Position of each point along the section's axis, from its start, m (within ``[0, length_m]``).
+    length_m : float
+        Section length, m.
+    spacing_m : float
+        The cloud's point spacing, m.
+    footprint_m : float
+        Beam footprint diameter at the section's range, m.
+
+    Returns
+    -------
+    float
+        The bound, m (at least 0); infinite for a section shorter than one stretch, or with half its stretches
+        or more empty.
+
+    Examples
+    --------
+    A 4 mm twig under a 5 mm footprint at 2 mm spacing: (4 + 5) / 2 = 4.5 points per 2 mm of length, 9 in each
+    4 mm stretch; radius 2 mm.
+
+    >>> along = np.repeat(np.arange(0.001, 0.1, 0.004), 9)
+    >>> round(silhouette_radius(along, 0.1, 0.002, 0.005) * 1e3, 2)
+    2.0
+    """
+    along_m = np.asarray(along_m, float)
+    stretches = int(length_m // (SLICE_SPACINGS * spacing_m)) if spacing_m > 0 else 0
+    if stretches < 1 or len(along_m) == 0:
+        return float("inf")
+    index = np.clip((along_m / length_m * stretches).astype(int), 0, stretches - 1)
+    counts = np.bincount(index, minlength=stretches).astype(float)
+    counts[counts == 0] = np.inf
+    width = float(np.median(counts)) * spacing_m ** 2 / (length_m / stretches)
+    return max(0.0, 0.5 * (width - footprint_m))
 
 
 def facing_radius(points: np.ndarray, start, end, radius: float, viewpoint, footprint_m: float) -> float:
