@@ -32,8 +32,8 @@ with them 8 of 11 (leafy tree) do. Measured (`fused`, 0.018 deg, the >= 80 %-vis
 area R² against the whole leaf, main -> completed): leafy tree 6.8 / 0.653 -> 5.9 / 0.661, pear seed 7 9.2 / 0.634 ->
 8.6 / 0.658, seed 23 8.2 / 0.749 -> 7.7 / 0.736, seeds 31, 41, 101 and 173 (a wall behind) within 0.05 points and
 +0.005; no single leaf of the standard suite is completed. A perfect mirror image of each leaf's seen mesh cells (the
-truth) would restore 59 % / 67 % of the area the tree's / pear seed 7's scored leaves hide; most of the rest is the
-far end a bent leaf hides, seen along its midrib.
+truth) would restore 59 % / 67 % of the area the tree's / pear seed 7's scored leaves hide (the rest is hidden on both sides
+of the midrib, as the far end of a bent leaf seen along its midrib is).
 """
 
 from __future__ import annotations
