@@ -141,7 +141,7 @@ class LeafResult:
     traits : dict
         Area, normal, elevation, azimuth (:func:`leafsfs.traits.leaf_traits`)
         plus ``n_points`` and ``n_outliers``; ``visible_area_m2`` (the
-        measured area: that of the visible part), ``cut`` (the leaf is only
+        measured area, without the half a leaf hides behind its roll), ``cut`` (the leaf is only
         partly visible: an occluder in front of it or the window's border
         cuts it), ``cut_by_border`` and ``occluded_fraction``
         (:func:`leafsfs.canopy.visibility`).
@@ -1019,8 +1019,8 @@ def _assemble(scan: Scan, variant: str, params: SfsParams, regions: _Regions, gr
                   "n_points": int(region.sum()), "n_outliers": int((outlier[box] & region).sum()),
                   "unreliable_alpha_fraction": float(np.mean(~reliable[box][region])),
                   "outlier_threshold_m": fit.threshold}
-        # The area is that of the visible part; whether that is the whole leaf (leafsfs.canopy.visibility).
-        traits.update(visible_area_m2=traits["area_m2"], cut=seen[label]["cut"], cut_by_border=seen[label]["border"],
+        # Whether the measured area is the whole leaf's (leafsfs.canopy.visibility).
+        traits.update(cut=seen[label]["cut"], cut_by_border=seen[label]["border"],
                       occluded_fraction=seen[label]["occluded_fraction"])
         leaves.append(LeafResult(label, fit.frame, fit.heights, traits))
     out_range = np.where(ownerless, np.nan, out_range)

@@ -40,7 +40,11 @@ leaf or twig behind a canopy leaf mostly is not (its own incidence changes
 over the band, or a third surface lights part of it), and there the planes'
 area stands.
 Parts of a curled leaf turned edge-on or hidden behind its own curl are not
-seen and not counted.
+seen; where a leaf seen across its midrib turns its far half edge-on and that
+half holds less area than the near one, the far half is completed from the
+near one (mirror symmetry about the midrib, :mod:`leafsfs.symmetry`; wrong for
+cut, eaten or asymmetric leaves), and ``visible_area_m2`` keeps the measured
+area.
 
 The project's truth (docs/contracts.md) is the midrib: elevation above the
 horizontal in [-90, 90] deg and azimuth from +x counter-clockwise. The
@@ -61,6 +65,7 @@ from scipy import ndimage
 
 from leafsfs.frame import LocalFrame
 from leafsfs.grid import gaussian_planes
+from leafsfs.symmetry import symmetric_area
 
 #: Smallest smoothing, pixels: fewer would let the range noise roughen the surface (and inflate the area).
 MIN_SMOOTHING_PX = 2.0
@@ -135,14 +140,18 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoot
     Returns
     -------
     dict
-        ``area_m2``, ``normal`` (upward unit mean normal), ``normal_zenith_deg``,
+        ``area_m2`` (m², with the far half a leaf hides behind its own roll
+        completed, :func:`leafsfs.symmetry.symmetric_area`, except where the
+        decomposition raised its mixed pulses), ``visible_area_m2`` (m², the
+        measured area), ``completed_side`` (the half completed: +1, -1 or
+        0), ``normal`` (upward unit mean normal), ``normal_zenith_deg``,
         ``elevation_deg`` and ``azimuth_deg`` of the midrib estimate,
         ``length_m`` (extent along it); NaN orientation without a surface.
     """
     weight = np.asarray(weight, dtype=float)
     known = (weight > 0) & np.isfinite(height)
-    empty = {"area_m2": 0.0, "normal": [math.nan] * 3, "normal_zenith_deg": math.nan, "elevation_deg": math.nan,
-             "azimuth_deg": math.nan, "length_m": 0.0}
+    empty = {"area_m2": 0.0, "visible_area_m2": 0.0, "completed_side": 0, "normal": [math.nan] * 3,
+             "normal_zenith_deg": math.nan, "elevation_deg": math.nan, "azimuth_deg": math.nan, "length_m": 0.0}
     if known.sum() < 4:
         return empty
     sigma_px = max(smoothing_m / frame.grid.pixel_size, MIN_SMOOTHING_PX)
@@ -164,8 +173,9 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoot
     element = elements(slope)
     points = u * r @ frame.pose.rotation.T + frame.pose.position
     area_sigma_px = max(AREA_SMOOTHING_FRACTION * sigma_px, MIN_SMOOTHING_PX)
-    area_elements = _area_slope_elements(elements, height, known, weight, area_sigma_px, element)
-    area_elements = weight * np.linalg.norm(area_elements, axis=-1)
+    slope_elements = _area_slope_elements(elements, height, known, weight, area_sigma_px, element)
+    area_elements = weight * np.linalg.norm(slope_elements, axis=-1)
+    raised = False
     if band is not None:
         # Both secants of a mixed pulse fall short near grazing incidence: the local planes' (of the pure pulses
         # beside it) where the leaf steepens towards its outline, the intensity's (1 / mean cos of the part of the
@@ -181,6 +191,7 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoot
         if band_total > BAND_LEAF_CAP * planes_total:
             counted = counted * (BAND_LEAF_CAP * planes_total / band_total)
         area_elements = np.where(mixed, counted, area_elements)
+        raised = bool(band_total > planes_total)
     area = float(np.sum(area_elements))
     element = element[known] * weight[known][:, None]
     facing = np.sign(np.sum(element * (frame.pose.position - points[known]), axis=1))
@@ -196,8 +207,20 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoot
     axis = np.linalg.eigh(offsets.T @ (weights[:, None] * offsets))[1][:, -1]
     axis = -axis if axis[2] < 0 else axis
     along = offsets @ axis
+    # A leaf whose mixed pulses the decomposition counted for more than the planes do has its edge-on part measured
+    # already (an evenly lit surface behind it): it is not completed (round 17: completing those too counted the
+    # edge-on part twice on the pear with a wall 1 m behind).
+    on = area_elements > 0
+    rays = points[on] - frame.pose.position
+    slope_normals = slope_elements[on] / np.linalg.norm(slope_elements[on], axis=1, keepdims=True)
+    cos_incidence = np.abs(np.sum(slope_normals * rays, axis=1)) / np.linalg.norm(rays, axis=1)
+    outline = (on & ~ndimage.binary_erosion(on, np.ones((3, 3), bool)))[on]
+    completed, side = (area, 0) if raised else symmetric_area(points[on], area_elements[on], cos_incidence, outline,
+                                                              normal, axis, centre - frame.pose.position)
     return {
-        "area_m2": area,
+        "area_m2": completed,
+        "visible_area_m2": area,
+        "completed_side": side,
         "normal": [float(v) for v in normal],
         "normal_zenith_deg": math.degrees(math.acos(min(1.0, normal[2]))),
         "elevation_deg": math.degrees(math.asin(min(1.0, axis[2]))),
