@@ -329,7 +329,8 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         limit = math.radians(max_slope_deg)
         slope = np.tan(limit if alpha is None else
                        np.minimum(np.nan_to_num(alpha, nan=limit) + math.radians(alpha_margin_deg), limit))
-        edges = edge_pulses(range_m, radius, noise, edge_factor, max_slope=slope, spacing_m=range_m * step)
+        edges = edge_pulses(range_m, radius, noise, edge_factor, max_slope=slope, spacing_m=range_m * step,
+                            behind_gap=True)
         linked = np.where(edges, np.nan, range_m)
     component = link_components(linked, theta, psi, alpha, max_slope_deg=max_slope_deg,
                                 alpha_margin_deg=alpha_margin_deg, noise_m=3 * math.sqrt(2) * sigma)
