@@ -157,7 +157,11 @@ def plane_fits(range_m: np.ndarray, radius_px: float, side: tuple[int, int] | No
                 w &= (h <= tol) | (h <= np.hypot(offsets[:, 0], offsets[:, 1])[None, :] * rise + tol)
         w = w.astype(float)
         n = w.sum(axis=1)
-        ok = n >= (5 if behind_rise_m is None else max(5, len(offsets) / 2))
+        if behind_rise_m is None:
+            ok = n >= 5
+        else:  # a pulse whose behind neighbours may count as no return needs half the (half) disc
+            ok = n >= np.where(np.isfinite(rise[:, 0] if np.ndim(rise) else np.full(len(c), rise)),
+                               max(5, len(offsets) / 2), 5)
         normal = np.einsum("nk,kc->nc", w[ok], outer).reshape(-1, 3, 3) + 1e-9 * np.eye(3)
         inverse = np.linalg.inv(normal)
         beta = np.einsum("nab,nb->na", inverse, np.einsum("nk,ka->na", w[ok] * h[ok], design))
@@ -201,7 +205,7 @@ HALF_DISC_SIDES = ((1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), 
 
 def edge_pulses(range_m: np.ndarray, radius_px: float, noise_m: np.ndarray | float, factor: float = 2.5,
                 max_slope: np.ndarray | float = math.inf, spacing_m: np.ndarray | float = 1.0,
-                behind_gap: bool = False) -> np.ndarray:
+                behind_gap: bool | np.ndarray = False) -> np.ndarray:
     """Pulses on no side of which the neighbourhood is one plausible plane within the range noise (mixed pulses).
 
     A neighbourhood is implausible when its plane leaves residuals above
@@ -243,8 +247,9 @@ def edge_pulses(range_m: np.ndarray, radius_px: float, noise_m: np.ndarray | flo
     spacing_m : ndarray or float
         Distance between neighbouring pulses on a surface facing the beam
         (range times the angular step), m.
-    behind_gap : bool
-        Fit each half disc without the pulses behind the pulse by more than
+    behind_gap : bool or ndarray of bool, 2-D
+        For every pulse (True) or the pulses of a mask (elsewhere as False),
+        fit each half disc without the pulses behind the pulse by more than
         its own steepest plausible slope (``spacing_m * max_slope`` per
         pixel) and ``factor`` noise deviations allow, as if nothing had
         returned there (:func:`plane_fits`' ``behind_rise_m``): a pure pulse
@@ -263,7 +268,11 @@ def edge_pulses(range_m: np.ndarray, radius_px: float, noise_m: np.ndarray | flo
         # Only the pulses no side has shown plausible yet: most are plausible on the first side.
         todo = np.isfinite(range_m) & ~plausible
         at = np.nonzero(todo)
-        behind = {"behind_rise_m": spacing_m * max_slope, "behind_tol_m": factor * noise_m} if behind_gap else {}
+        rise = spacing_m * max_slope
+        if np.ndim(behind_gap):  # only the given pulses: elsewhere no neighbour lies behind an implausible step
+            rise = np.where(behind_gap, rise, math.inf)
+        behind = ({"behind_rise_m": rise, "behind_tol_m": factor * noise_m}
+                  if np.ndim(behind_gap) or behind_gap else {})
         rms, slope, slope_noise, deviation = (v[at] for v in plane_fits(range_m, radius_px, side, where=todo,
                                                                         **behind))
         offsets = _disc_offsets(radius_px, side)

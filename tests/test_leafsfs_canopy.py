@@ -14,7 +14,7 @@ from leafsfs.canopy import (crease_pulses, dark_surfaces, edge_pulses, grow_outl
                             plane_fits, rim_mixed, rim_shares, shifted, split_creases, split_necks, visibility,
                             wood_surfaces)
 from leafsfs.leaves import range_noise
-from leafsfs.leaves import segment_scan
+from leafsfs.leaves import _near_background, segment_scan
 from leafsfs.preprocess import scan_alpha
 from tlssim.pattern import beam_frame
 from benchmarks.experiments.calibration import simulated_calibration
@@ -85,6 +85,33 @@ def test_behind_gap_judges_a_narrow_leaf_before_a_wall_as_before_the_sky():
     # the same strip before the open sky: the core is no edge either way
     sky = np.where(share == 1, range_m, np.nan)
     assert edge_pulses(sky, 2.5, 0.0015, 2.5, max_slope=max_slope, spacing_m=spacing)[core].mean() < 0.01
+
+
+def test_behind_gap_applies_before_a_background_only_not_before_a_leaf_5_cm_behind():
+    rng = np.random.default_rng(5)
+    rows, cols = np.mgrid[0:40, 0:60]
+    theta, psi = _grid(40, 60)
+    spacing = 2.0 * STEP
+    # a leaf strip 2 pure pulses wide, 24 long, mixed over 4 pulses on either side
+    depth = np.minimum(cols - 25, 26 - cols)
+    share = np.clip((depth + 5) / 5.0, 0, 1)
+    max_slope = np.full(rows.shape, math.tan(math.radians(35)))
+    core = (slice(11, 29), slice(25, 27))
+
+    def scene(gap_m, behind):
+        range_m = share * 2.0 + (1 - share) * (2.0 + gap_m) + 0.0015 * rng.standard_normal(rows.shape)
+        range_m = np.where(behind | ((share == 1) & (rows >= 8) & (rows < 32)), range_m, np.nan)
+        near = _near_background(range_m, theta, psi, None, 2.5, 80.0, 25.0, 0.0015, 9)
+        gated = edge_pulses(range_m, 2.5, 0.0015, 2.5, max_slope=max_slope, spacing_m=spacing, behind_gap=near)
+        return near, gated, edge_pulses(range_m, 2.5, 0.0015, 2.5, max_slope=max_slope, spacing_m=spacing)
+
+    # another leaf 5 cm behind, inside the window (sky around): no background, the edge test is main's
+    other = (rows >= 5) & (rows < 35) & (cols >= 12) & (cols < 40)
+    near, gated, plain = scene(0.05, other)
+    assert not near.any() and np.array_equal(gated, plain)
+    # a wall 1 m behind filling the window: the strip and its mixed band are near it, the core is no edge pulse
+    near, gated, plain = scene(1.0, np.ones(rows.shape, dtype=bool))
+    assert near[core].all() and plain[core].mean() > 0.9 and gated[core].mean() < 0.05
 
 
 def test_a_small_leaf_1_m_in_front_of_a_wall_is_found():
