@@ -95,7 +95,8 @@ def pulse_noise(noise_m: float, intensity: np.ndarray | None, gain_dn: float | N
 
 
 def plane_fits(range_m: np.ndarray, radius_px: float, side: tuple[int, int] | None = None,
-               where: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+               where: np.ndarray | None = None, behind_rise_m: np.ndarray | float | None = None,
+               behind_tol_m: np.ndarray | float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Least-squares plane fitted to the ranges within ``radius_px`` of every pulse.
 
     Parameters
@@ -110,6 +111,14 @@ def plane_fits(range_m: np.ndarray, radius_px: float, side: tuple[int, int] | No
         the diameter through it included; default: the whole disc).
     where : ndarray of bool, 2-D, optional
         Pulses to fit a plane around (default: every pulse with a range).
+    behind_rise_m, behind_tol_m : ndarray or float, optional
+        With ``behind_rise_m`` (per pulse or one for all, m per pixel), a
+        neighbour farther than the pulse by more than its pixel distance times
+        ``behind_rise_m`` plus ``behind_tol_m`` (m) counts as no return: it
+        lies behind a range step no plausible slope explains (the background
+        beyond a leaf's outline), as when nothing returned there; a plane then
+        needs at least half the (half) disc's pulses (one line of pulses at one
+        range, a mixed band's row along the edge, is no plane).
 
     Returns
     -------
@@ -141,9 +150,18 @@ def plane_fits(range_m: np.ndarray, radius_px: float, side: tuple[int, int] | No
         h = padded[c[:, None, 0] + r + offsets[None, :, 0], c[:, None, 1] + r + offsets[None, :, 1]]
         w = np.isfinite(h)
         h = np.where(w, h - range_m[c[:, 0], c[:, 1]][:, None], 0.0)  # relative ranges: no cancellation
+        if behind_rise_m is not None:
+            rise, tol = (np.asarray(v, dtype=float)[c[:, 0], c[:, 1]][:, None] if np.ndim(v) else v
+                         for v in (behind_rise_m, behind_tol_m))
+            with np.errstate(invalid="ignore"):  # an infinite rise at the pulse itself
+                w &= (h <= tol) | (h <= np.hypot(offsets[:, 0], offsets[:, 1])[None, :] * rise + tol)
         w = w.astype(float)
         n = w.sum(axis=1)
-        ok = n >= 5
+        if behind_rise_m is None:
+            ok = n >= 5
+        else:  # a pulse whose behind neighbours may count as no return needs half the (half) disc
+            ok = n >= np.where(np.isfinite(rise[:, 0] if np.ndim(rise) else np.full(len(c), rise)),
+                               max(5, len(offsets) / 2), 5)
         normal = np.einsum("nk,kc->nc", w[ok], outer).reshape(-1, 3, 3) + 1e-9 * np.eye(3)
         inverse = np.linalg.inv(normal)
         beta = np.einsum("nab,nb->na", inverse, np.einsum("nk,ka->na", w[ok] * h[ok], design))
@@ -186,7 +204,8 @@ HALF_DISC_SIDES = ((1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), 
 
 
 def edge_pulses(range_m: np.ndarray, radius_px: float, noise_m: np.ndarray | float, factor: float = 2.5,
-                max_slope: np.ndarray | float = math.inf, spacing_m: np.ndarray | float = 1.0) -> np.ndarray:
+                max_slope: np.ndarray | float = math.inf, spacing_m: np.ndarray | float = 1.0,
+                behind_gap: bool | np.ndarray = False) -> np.ndarray:
     """Pulses on no side of which the neighbourhood is one plausible plane within the range noise (mixed pulses).
 
     A neighbourhood is implausible when its plane leaves residuals above
@@ -228,6 +247,15 @@ def edge_pulses(range_m: np.ndarray, radius_px: float, noise_m: np.ndarray | flo
     spacing_m : ndarray or float
         Distance between neighbouring pulses on a surface facing the beam
         (range times the angular step), m.
+    behind_gap : bool or ndarray of bool, 2-D
+        For every pulse (True) or the pulses of a mask (elsewhere as False),
+        fit each half disc without the pulses behind the pulse by more than
+        its own steepest plausible slope (``spacing_m * max_slope`` per
+        pixel) and ``factor`` noise deviations allow, as if nothing had
+        returned there (:func:`plane_fits`' ``behind_rise_m``): a pure pulse
+        at a leaf's outline before a wall has the wall's mixed band in every
+        half disc when the leaf is a few footprints wide, and is judged as
+        before the open sky; a mixed pulse still lies off the leaf's plane.
 
     Returns
     -------
@@ -240,7 +268,13 @@ def edge_pulses(range_m: np.ndarray, radius_px: float, noise_m: np.ndarray | flo
         # Only the pulses no side has shown plausible yet: most are plausible on the first side.
         todo = np.isfinite(range_m) & ~plausible
         at = np.nonzero(todo)
-        rms, slope, slope_noise, deviation = (v[at] for v in plane_fits(range_m, radius_px, side, where=todo))
+        rise = spacing_m * max_slope
+        if np.ndim(behind_gap):  # only the given pulses: elsewhere no neighbour lies behind an implausible step
+            rise = np.where(behind_gap, rise, math.inf)
+        behind = ({"behind_rise_m": rise, "behind_tol_m": factor * noise_m}
+                  if np.ndim(behind_gap) or behind_gap else {})
+        rms, slope, slope_noise, deviation = (v[at] for v in plane_fits(range_m, radius_px, side, where=todo,
+                                                                        **behind))
         offsets = _disc_offsets(radius_px, side)
         steepest = _least_at(max_slope, offsets, at) if np.ndim(max_slope) else max_slope
         # rms^2 / sigma^2 of a plane is chi-square over its n - 3 degrees of freedom: mean 1, variance 2 / (n - 3)

@@ -329,7 +329,9 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         limit = math.radians(max_slope_deg)
         slope = np.tan(limit if alpha is None else
                        np.minimum(np.nan_to_num(alpha, nan=limit) + math.radians(alpha_margin_deg), limit))
-        edges = edge_pulses(range_m, radius, noise, edge_factor, max_slope=slope, spacing_m=range_m * step)
+        edges = edge_pulses(range_m, radius, noise, edge_factor, max_slope=slope, spacing_m=range_m * step,
+                            behind_gap=_near_background(range_m, theta, psi, alpha, radius, max_slope_deg,
+                                                        alpha_margin_deg, sigma, min_pixels))
         linked = np.where(edges, np.nan, range_m)
     component = link_components(linked, theta, psi, alpha, max_slope_deg=max_slope_deg,
                                 alpha_margin_deg=alpha_margin_deg, noise_m=3 * math.sqrt(2) * sigma)
@@ -449,6 +451,51 @@ def _rejoin_background(cut: np.ndarray, surfaces: np.ndarray, border: np.ndarray
     lookup = np.arange(count)
     lookup[rejoin] = first[origin[rejoin]]
     return lookup[cut]
+
+
+def _near_background(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha: np.ndarray | None,
+                     reach_px: float, max_slope_deg: float, alpha_margin_deg: float, sigma: float,
+                     min_pixels: int) -> np.ndarray:
+    """Pulses within ``reach_px`` of a background (a linked surface touching the window's border) or its mixed band.
+
+    The edge test may treat the neighbours behind an implausible step as no
+    return only there (:func:`leafsfs.canopy.edge_pulses`' ``behind_gap``):
+    before a background (a wall, the ground) as before the open sky, while
+    the canopy's own leaves and twigs behind a leaf, inside the window, stay
+    neighbours as on main. The mixed band is the pulses linked into no
+    surface (components under ``min_pixels``) joined to the background by
+    8-adjacency; ``reach_px`` is the edge test's disc radius.
+
+    Parameters
+    ----------
+    range_m : ndarray, 2-D
+        Ranges, m (NaN: no return).
+    theta, psi, alpha, max_slope_deg, alpha_margin_deg
+        As for :func:`link_components`.
+    reach_px : float
+        Distance from the background, pixels.
+    sigma : float
+        Range noise, m (the linking allows 3 sqrt(2) of it, as the segmentation).
+    min_pixels : int
+        Fewest pulses of a surface (:func:`segment_scan`'s).
+
+    Returns
+    -------
+    ndarray of bool, 2-D
+        Pulses near a background (the background's own included).
+    """
+    component = link_components(range_m, theta, psi, alpha, max_slope_deg=max_slope_deg,
+                                alpha_margin_deg=alpha_margin_deg, noise_m=3 * math.sqrt(2) * sigma)
+    background = _border_labels(component)[component]
+    # the background's mixed band: the pulses linked into no surface (fewer than min_pixels) touching it
+    loose = (np.bincount(component.ravel()) < min_pixels)[component] & (component > 0)
+    pieces, _ = ndimage.label(background | loose, structure=np.ones((3, 3), dtype=bool))
+    reached = np.zeros(int(pieces.max()) + 1, dtype=bool)
+    reached[pieces[background]] = True
+    background = reached[pieces] & (pieces > 0)
+    r = int(math.ceil(reach_px))
+    i, j = np.mgrid[-r:r + 1, -r:r + 1]
+    return ndimage.binary_dilation(background, structure=i ** 2 + j ** 2 <= reach_px ** 2)
 
 
 def _border_labels(surfaces: np.ndarray) -> np.ndarray:

@@ -14,7 +14,7 @@ from leafsfs.canopy import (crease_pulses, dark_surfaces, edge_pulses, grow_outl
                             plane_fits, rim_mixed, rim_shares, shifted, split_creases, split_necks, visibility,
                             wood_surfaces)
 from leafsfs.leaves import range_noise
-from leafsfs.leaves import segment_scan
+from leafsfs.leaves import _near_background, segment_scan
 from leafsfs.preprocess import scan_alpha
 from tlssim.pattern import beam_frame
 from benchmarks.experiments.calibration import simulated_calibration
@@ -63,6 +63,77 @@ def test_a_step_between_two_surfaces_is_an_edge_a_steep_plane_is_not():
     steep = 2.0 + math.tan(math.radians(75)) * spacing * cols + 0.0015 * rng.standard_normal(rows.shape)
     flags = edge_pulses(steep, 2.5, 0.0015, 2.5, max_slope=math.tan(math.radians(85)), spacing_m=spacing)
     assert flags[3:-3, 3:-3].mean() < 0.01
+
+
+def test_behind_gap_judges_a_narrow_leaf_before_a_wall_as_before_the_sky():
+    rng = np.random.default_rng(4)
+    rows, cols = np.mgrid[0:40, 0:60]
+    spacing = 2.0 * STEP
+    # a leaf strip 2 m away, 2 pure pulses wide (narrower than a half disc), 1 m in front of a wall; the footprint
+    # mixes them over 4 pulses on either side (the wall's share 0.2 .. 0.8: 20-80 cm behind the leaf)
+    depth = np.minimum(cols - 25, 26 - cols)  # 0 in the pure core, negative outside
+    share = np.clip((depth + 5) / 5.0, 0, 1)
+    range_m = share * 2.0 + (1 - share) * 3.0 + 0.0015 * rng.standard_normal(rows.shape)
+    max_slope = np.full(range_m.shape, math.tan(math.radians(35)))
+    core, band = (slice(3, -3), slice(25, 27)), (slice(3, -3), np.r_[21:25, 27:31])
+    before = edge_pulses(range_m, 2.5, 0.0015, 2.5, max_slope=max_slope, spacing_m=spacing)
+    after = edge_pulses(range_m, 2.5, 0.0015, 2.5, max_slope=max_slope, spacing_m=spacing, behind_gap=True)
+    # every half disc of the core's outer pulses reaches the wall's mixed band: they were edge pulses
+    assert before[core].mean() > 0.9
+    # without the pulses behind them they lie on the leaf's plane; the mixed ones still lie off it
+    assert after[core].mean() < 0.01 and after[band].mean() > 0.95
+    # the same strip before the open sky: the core is no edge either way
+    sky = np.where(share == 1, range_m, np.nan)
+    assert edge_pulses(sky, 2.5, 0.0015, 2.5, max_slope=max_slope, spacing_m=spacing)[core].mean() < 0.01
+
+
+def test_behind_gap_applies_before_a_background_only_not_before_a_leaf_5_cm_behind():
+    rng = np.random.default_rng(5)
+    rows, cols = np.mgrid[0:40, 0:60]
+    theta, psi = _grid(40, 60)
+    spacing = 2.0 * STEP
+    # a leaf strip 2 pure pulses wide, 24 long, mixed over 4 pulses on either side
+    depth = np.minimum(cols - 25, 26 - cols)
+    share = np.clip((depth + 5) / 5.0, 0, 1)
+    max_slope = np.full(rows.shape, math.tan(math.radians(35)))
+    core = (slice(11, 29), slice(25, 27))
+
+    def scene(gap_m, behind):
+        range_m = share * 2.0 + (1 - share) * (2.0 + gap_m) + 0.0015 * rng.standard_normal(rows.shape)
+        range_m = np.where(behind | ((share == 1) & (rows >= 8) & (rows < 32)), range_m, np.nan)
+        near = _near_background(range_m, theta, psi, None, 2.5, 80.0, 25.0, 0.0015, 9)
+        gated = edge_pulses(range_m, 2.5, 0.0015, 2.5, max_slope=max_slope, spacing_m=spacing, behind_gap=near)
+        return near, gated, edge_pulses(range_m, 2.5, 0.0015, 2.5, max_slope=max_slope, spacing_m=spacing)
+
+    # another leaf 5 cm behind, inside the window (sky around): no background, the edge test is main's
+    other = (rows >= 5) & (rows < 35) & (cols >= 12) & (cols < 40)
+    near, gated, plain = scene(0.05, other)
+    assert not near.any() and np.array_equal(gated, plain)
+    # a wall 1 m behind filling the window: the strip and its mixed band are near it, the core is no edge pulse
+    near, gated, plain = scene(1.0, np.ones(rows.shape, dtype=bool))
+    assert near[core].all() and plain[core].mean() > 0.9 and gated[core].mean() < 0.05
+
+
+def test_a_small_leaf_1_m_in_front_of_a_wall_is_found():
+    # a 3.5 cm leaf 4.5 m away at 60 deg, 0.018 deg: about 130 pulses, a third of them mixed with the wall; before
+    # the edge test judged its pulses without the wall's mixed band behind them, none was left to link (no region)
+    half = 0.6
+    spec = {"name": "small-before-wall", "scanner": {"preset": "faro-ls880", "position": [0, 0, 0], "window": {
+                "theta_deg": [-half, half], "psi_deg": [90 - half, 90 + half], "step_deg": 0.018}},
+            "objects": [{**LEAF, "name": "front", "length": 0.035,
+                         "pose": {"center": [4.5, 0, 0], "facing": "scanner", "incidence_deg": 60}},
+                        {"name": "wall", "type": "plane", "size": [1.5, 1.0], "material": "wall",
+                         "pose": {"center": [5.5, 0, 0], "facing": "scanner"}}]}
+    scene = scenes.scene_from_spec(spec)
+    scan = tlssim.simulate(scene, tlssim.setup_from_section(scene.scanner), seed=0, progress=False)
+    alpha, _ = scan_alpha(scan.intensity, scan.range, simulated_calibration(scan.scanner.model))
+    labels = segment_scan(scan.range, scan.theta, scan.psi, alpha, intensity=scan.intensity).leaves
+    pixels = scan.valid & (scan.truth_id == 0)
+    assert (pixels & (scan.mixed_fraction > 0.05)).sum() > 0.2 * pixels.sum()
+    region, cover = _best_region(labels, pixels)
+    assert region > 0 and cover >= 0.75
+    # and the region holds the leaf's pulses only, none of the wall's
+    assert (scan.truth_id[labels == region] == 0).mean() > 0.95
 
 
 def test_rim_mixed_flags_outline_pulses_off_their_surface_not_pure_ones():
