@@ -462,7 +462,7 @@ def _near_background(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, al
     return only there (:func:`leafsfs.canopy.edge_pulses`' ``behind_gap``):
     before a background (a wall, the ground) as before the open sky, while
     the canopy's own leaves and twigs behind a leaf, inside the window, stay
-    neighbours as on main. The mixed band is the pulses linked into no
+    neighbours (the plain edge test). The mixed band is the pulses linked into no
     surface (components under ``min_pixels``) joined to the background by
     8-adjacency; ``reach_px`` is the edge test's disc radius.
 

@@ -105,7 +105,7 @@ def test_behind_gap_applies_before_a_background_only_not_before_a_leaf_5_cm_behi
         gated = edge_pulses(range_m, 2.5, 0.0015, 2.5, max_slope=max_slope, spacing_m=spacing, behind_gap=near)
         return near, gated, edge_pulses(range_m, 2.5, 0.0015, 2.5, max_slope=max_slope, spacing_m=spacing)
 
-    # another leaf 5 cm behind, inside the window (sky around): no background, the edge test is main's
+    # another leaf 5 cm behind, inside the window (sky around): no background, the plain edge test
     other = (rows >= 5) & (rows < 35) & (cols >= 12) & (cols < 40)
     near, gated, plain = scene(0.05, other)
     assert not near.any() and np.array_equal(gated, plain)
