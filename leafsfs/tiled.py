@@ -538,21 +538,73 @@ def _load_window(tiled: TiledScan, w0: int, w1: int, rows: slice) -> Scan:
 def _grid_columns(tiled: TiledScan, col0: int, col1: int, rows: slice) -> Scan:
     """Rows ``rows`` of the columns ``col0:col1`` of a tiled scan, grid arrays only (no truth, no layers).
 
-    Only the tiles' grid members are decompressed (about half of a simulated tile's bytes), and only the
-    window's rows of them are kept.
+    Only the tiles' grid members are decompressed (about half of a simulated tile's bytes), each only up to
+    the window's last row (:func:`_member_rows`), and only the window's rows of them are kept.
     """
     parts = []
     for tile in tiled.tiles:
         if tile.col1 > col0 and tile.col0 < col1:
-            cut = (rows, slice(max(col0, tile.col0) - tile.col0, min(col1, tile.col1) - tile.col0))
+            cut = slice(max(col0, tile.col0) - tile.col0, min(col1, tile.col1) - tile.col0)
             try:
-                with np.load(tiled.path / tile.file, allow_pickle=False) as data:
-                    arrays = {key: np.ascontiguousarray(data[key][cut]) for key in GRID_KEYS}
+                with zipfile.ZipFile(tiled.path / tile.file) as data:
+                    arrays = {key: np.ascontiguousarray(_member_rows(data, key, rows)[:, cut]) for key in GRID_KEYS}
             except (OSError, ValueError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
                 raise SfsError(f"{tiled.path / tile.file}: unreadable tile ({exc})") from None
             parts.append(Scan(**arrays, pose=tiled.pose, scanner=tiled.scanner, object_names=tiled.object_names,
                               meta=dict(tiled.meta)))
     return concat_columns(parts)
+
+
+#: Bytes of a tile's member inflated at a time when a window's rows are read (:func:`_member_rows`).
+_READ_BYTES = 1 << 18
+
+
+def _member_rows(data: zipfile.ZipFile, key: str, rows: slice) -> np.ndarray:
+    """Rows ``rows`` of the array ``key`` of an NPZ archive, decompressed only up to the last of them.
+
+    The rows of a C-ordered ``.npy`` are consecutive bytes, so the member is read (inflated) up to the
+    last row asked for, and only the rows asked for are held: a window of the top bands of a tile no
+    longer inflates the whole member, nor holds it. Fortran-ordered members and slices with a step are
+    loaded whole and sliced.
+
+    Parameters
+    ----------
+    data : zipfile.ZipFile
+        The open NPZ archive.
+    key : str
+        Member name, without ``.npy``.
+    rows : slice
+        Rows of the array's first axis.
+
+    Returns
+    -------
+    ndarray
+        ``array[rows]``, writable, C-ordered.
+    """
+    with data.open(f"{key}.npy") as stream:
+        version = np.lib.format.read_magic(stream)
+        read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        shape, fortran, dtype = read_header(stream)
+        start, stop, step = rows.indices(shape[0]) if shape else (0, 0, 1)
+        if fortran or step != 1 or dtype.hasobject or not shape:
+            stream.seek(0)
+            return np.ascontiguousarray(np.lib.format.read_array(stream, allow_pickle=False)[rows])
+        row_bytes = math.prod(shape[1:]) * dtype.itemsize
+        skip = start * row_bytes
+        while skip > 0:  # the rows before: inflated and dropped, a piece at a time
+            piece = len(stream.read(min(_READ_BYTES, skip)))
+            if not piece:
+                raise ValueError(f"{key}.npy: fewer bytes than its header says")
+            skip -= piece
+        buffer = bytearray(max(stop - start, 0) * row_bytes)
+        view, done = memoryview(buffer), 0
+        while done < len(buffer):  # in pieces: a read of many megabytes copies its bytes over and over
+            piece = stream.read(min(_READ_BYTES, len(buffer) - done))
+            if not piece:
+                raise ValueError(f"{key}.npy: fewer bytes than its header says")
+            view[done:done + len(piece)] = piece
+            done += len(piece)
+    return np.frombuffer(buffer, dtype=dtype).reshape((max(stop - start, 0),) + tuple(shape[1:]))
 
 
 def _tile_leafsfs(path: Path, entry: dict) -> dict:
