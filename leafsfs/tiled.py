@@ -84,8 +84,9 @@ GUARD_COLS = MARGIN_PX + 5
 #: Largest leaf extent assumed by default, m: about twice the mean pear-leaf blade length measured in the
 #: lab (6.47 cm, scenes.leaf), for the petiole and larger leaves (assumption).
 LEAF_SIZE_M = 0.12
-#: Rows per band of the ``leafsfs reconstruct`` command on scans of more than twice as many rows (a full
-#: 160 deg scan at 0.018 deg has 8,889): the ground near the tripod then widens only the bottom band's windows.
+#: :func:`plan_windows` cuts a scan of more than twice as many rows into bands (a full 160 deg scan at 0.018 deg has
+#: 8,889; the plan tries bands of :data:`MIN_BAND_ROWS` to :data:`MAX_BAND_ROWS`): the ground near the tripod then
+#: widens only the bottom band's windows. A scan of fewer rows is also tried as one band.
 BAND_ROWS = 1024
 #: Columns from the scan's start whose margins size the windows of the ``leafsfs reconstruct`` command (a fixed
 #: count rather than the first tile, so that the windows do not depend on how the scan was tiled).
@@ -95,17 +96,22 @@ SIZING_COLS = 1024
 #: 2,206 MB on two windows of 7.0 M pulses (315 bytes per pulse) and at 3,120 MB on one window of 11.1 M (281).
 #: The 650 used before came from a 1.0 M-pulse window, where the imports weigh more.
 RECONSTRUCT_BYTES_PER_PULSE = 330
-#: Peak memory of a window's reconstruction per pulse of the window, bytes, for :func:`plan_windows`: a window of
-#: 1546 x 1200 pulses of the orchard row at 0.018 deg (rows 7168-8192 and their margins, near the tripod; ``fused``)
-#: peaked at 2.04 GB in a fresh process, 0.12 GB of it imports: 1,034 bytes per pulse.
-PEAK_WINDOW_BYTES_PER_PULSE = 1050
+#: Peak memory of a window's reconstruction per pulse of the window, bytes, for :func:`plan_windows`: the windows
+#: of one 598-column core of the full orchard row at 0.018 deg (``fused``, round 20; maximum RSS after each, in
+#: one process) peaked at 1.03 GB after a window of 1420 x 1098 pulses (rows 6144-7168 and their margins) and at
+#: 1.73 GB after one of 1546 x 1540 (rows 7168-8192, near the tripod): 643 bytes per pulse over 0.2 GB, rounded
+#: up. (Round 18 measured 1,034 on a window of 1546 x 1200 of the same rows.)
+PEAK_WINDOW_BYTES_PER_PULSE = 700
 #: Memory of the process that assembles and writes the cores, per pulse of a core, bytes (:func:`plan_windows`):
 #: the outputs of the cores held (about 19 bytes per pulse each, up to three cores), the core being written and
 #: its points (about 64), and the input members read one at a time (assumption, from the arrays' sizes).
 ASSEMBLY_BYTES_PER_PULSE = 150
 #: Memory of a Python process with ``leafsfs`` imported, bytes (0.12 GB measured; rounded up).
 PROCESS_BYTES = 0.2e9
-#: Fewest rows per band :func:`plan_windows` tries (halving :data:`BAND_ROWS`).
+#: Most rows per band :func:`plan_windows` tries on a scan of more rows: taller bands reconstruct fewer row margins
+#: twice, but their column margins are those of their nearest rows.
+MAX_BAND_ROWS = 4096
+#: Fewest rows per band :func:`plan_windows` tries (halving :data:`MAX_BAND_ROWS`).
 MIN_BAND_ROWS = 128
 
 
@@ -217,8 +223,9 @@ def plan_windows(tiled: TiledScan, budget_bytes: float, workers: int = 1, leaf_s
     is that of the band with the widest margins. The run's peak is taken as this process
     (:data:`PROCESS_BYTES` plus :data:`ASSEMBLY_BYTES_PER_PULSE` per pulse of a core) plus ``workers``
     windows (:data:`PROCESS_BYTES` plus :data:`PEAK_WINDOW_BYTES_PER_PULSE` per pulse; with one worker the
-    window runs in this process). Bands of :data:`BAND_ROWS` rows (all rows up to twice that) are halved down
-    to :data:`MIN_BAND_ROWS` while that lets wider cores fit, so that fewer margins are reconstructed twice.
+    window runs in this process). Bands of all rows (up to twice :data:`BAND_ROWS`) and of :data:`MAX_BAND_ROWS`
+    rows halved down to :data:`MIN_BAND_ROWS` are tried: the plan is the one that reconstructs the fewest margins
+    twice.
 
     Parameters
     ----------
@@ -247,8 +254,8 @@ def plan_windows(tiled: TiledScan, budget_bytes: float, workers: int = 1, leaf_s
     if band_rows is not None:
         choices = [band_rows]
     else:
-        first = rows if rows <= 2 * BAND_ROWS else BAND_ROWS
-        choices = [first] + [b for b in (BAND_ROWS // 2 ** i for i in range(1, 8)) if MIN_BAND_ROWS <= b < first]
+        halved = (MAX_BAND_ROWS // 2 ** i for i in range(MAX_BAND_ROWS.bit_length()))
+        choices = ([rows] if rows <= 2 * BAND_ROWS else []) + [b for b in halved if MIN_BAND_ROWS <= b < rows]
     # per band choice and band: the largest row and column margins over the samples (one sample in memory)
     found = {band: [[0, 0] for _ in range(0, rows, band)] for band in choices}
     for c0 in starts:
