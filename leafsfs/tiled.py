@@ -571,8 +571,8 @@ def _member_rows(data: zipfile.ZipFile, key: str, rows: slice) -> np.ndarray:
 
     The rows of a C-ordered ``.npy`` are consecutive bytes, so the member is read (inflated) up to the
     last row asked for, and only the rows asked for are held: a window of the top bands of a tile no
-    longer inflates the whole member, nor holds it. Fortran-ordered members and slices with a step are
-    loaded whole and sliced.
+    longer inflates the whole member, nor holds it. Fortran-ordered members, ``.npy`` format versions
+    other than 1.0 and 2.0 and slices with a step are loaded whole and sliced.
 
     Parameters
     ----------
@@ -590,10 +590,10 @@ def _member_rows(data: zipfile.ZipFile, key: str, rows: slice) -> np.ndarray:
     """
     with data.open(f"{key}.npy") as stream:
         version = np.lib.format.read_magic(stream)
-        read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-        shape, fortran, dtype = read_header(stream)
+        headers = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+        shape, fortran, dtype = headers[version](stream) if version in headers else ((), True, None)
         start, stop, step = rows.indices(shape[0]) if shape else (0, 0, 1)
-        if fortran or step != 1 or dtype.hasobject or not shape:
+        if fortran or step != 1 or not shape or dtype.hasobject:
             stream.seek(0)
             return np.ascontiguousarray(np.lib.format.read_array(stream, allow_pickle=False)[rows])
         row_bytes = math.prod(shape[1:]) * dtype.itemsize
