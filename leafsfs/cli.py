@@ -141,11 +141,15 @@ def _reconstruct_tiled(args, params, mask) -> int:
               f"x {plan.window[1]} pulses; expected peak of the run {plan.peak_bytes / 1e9:.1f} GB" + (
                   "" if plan.fits else f", over the {args.memory_budget:g} GB budget (the smallest windows tried): "
                                        "use fewer --workers or a larger --memory-budget"))
-    with tqdm(total=tiled.shape[0] * tiled.shape[1], unit="pulse", unit_scale=True, desc="reconstruct") as bar:
+    with tqdm(unit="window", desc="reconstruct") as bar:
+        def show(done: int, total: int) -> None:
+            bar.total = total
+            bar.update(done - bar.n)
+
         stray = args.variant == STRAY_VARIANT
         result = reconstruct_tiled(tiled, args.outdir, "fused" if stray else args.variant, params,
                                    calibration=args.calibration, core_cols=core_cols, band_rows=plan.band_rows,
-                                   leaf_size_m=leaf_size, workers=args.workers, progress=bar.update,
+                                   leaf_size_m=leaf_size, workers=args.workers, progress=show,
                                    strays=(args.stray_scope or "moved") if stray else None)
     print(f"{len(result.traits)} leaves in {len(result.scan.tiles)} tiles of {core_cols} columns; "
           f"{result.windows} windows run in {result.elapsed_s:.1f} s on {args.workers} worker(s): "

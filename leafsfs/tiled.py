@@ -323,7 +323,8 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
         ``2 x workers`` finished windows and of the cores it assembles from (about 19 bytes per pulse of their
         core rectangles), and the core it writes (:data:`ASSEMBLY_BYTES_PER_PULSE` in all).
     progress : callable, optional
-        Called with the number of pulses of every finished core.
+        Called as ``progress(done, total)`` with the windows reconstructed so far and the windows this run needs
+        (a resumed run also reconstructs the windows of the written cores next to the cores it still writes).
     strays : {"moved", "unclaimed", "isolated", "outside"}, optional
         Scope of the stray-point rule after PROP-SFS (:func:`leafsfs.strays.remove_strays`, its default
         settings), applied in every window before it is cut to its core, so that the margins hold the
@@ -394,10 +395,18 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
                        variant, params, calibration, wrap, strays)) for b, j in needed]
     results = _in_order(tiled, tasks, workers)
 
+    done = 0
+    if progress is not None:
+        progress(done, len(needed))
+
     def window(b: int, k: int) -> _Window:
+        nonlocal done
         while (b, k) not in cache:
             key, value = next(results)
             cache[key] = value
+            done += 1
+            if progress is not None:
+                progress(done, len(needed))
         return cache[b, k]
 
     def core_traits(k: int) -> list:
@@ -435,8 +444,6 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
             del grids, windows
             for key in [key for key in cache if last_use.get(key, -1) <= i]:
                 del cache[key]
-            if progress is not None:
-                progress(rows * (c1 - c0))
         if pending is not None:
             pending.result()
     finally:

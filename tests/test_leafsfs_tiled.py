@@ -102,8 +102,11 @@ def test_resume_rewrites_only_the_missing_tiles(tiled_leaf, by_core):
     before = {t.file: t.sha256 for t in result.scan.tiles}
     last = result.scan.tiles[-1]
     (result.scan.path / last.file).unlink()
-    again = reconstruct_tiled(tiled, out, "buffer", calibration=calibration, core_cols=77, leaf_size_m=LEAF_SIZE_M)
+    calls = []
+    again = reconstruct_tiled(tiled, out, "buffer", calibration=calibration, core_cols=77, leaf_size_m=LEAF_SIZE_M,
+                              progress=lambda done, total: calls.append((done, total)))
     assert again.windows == 2  # the last core's window and its neighbour's, not all five
+    assert calls == [(0, 2), (1, 2), (2, 2)]  # the progress counts the windows this run reconstructs
     assert again.pulses == tiled.shape[0] * (last.col1 - last.col0)
     assert {t.file: t.sha256 for t in open_tiled(out / "corrected").tiles} == before
     assert [t["leaf"] for t in again.traits] == [t["leaf"] for t in result.traits]
