@@ -389,6 +389,8 @@ def reconstruct_tiled(tiled: TiledScan, outdir, variant: str = "buffer", params:
         todo = sorted(todo, key=lambda columns: (columns[0] == 0, columns[0]))
     # The loop below asks for windows in this order (every band of a core and its neighbours, core by core).
     uses = [[(b, j) for j in neighbours(c0 // core_cols) for b in range(len(bands))] for c0, _ in todo]
+    if todo and todo[-1][0] == 0 and len(todo) > 1:  # an unwritten first core numbers the leaves of every other
+        uses[0] = [(b, 0) for b in range(len(bands))] + uses[0]  # one: its windows come first
     needed = list(dict.fromkeys(key for keys in uses for key in keys))
     last_use = {key: i for i, keys in enumerate(uses) for key in keys}
     tasks = [((b, j), (bands[b], (j * core_cols, min(cols, (j + 1) * core_cols)), leaf_size_m, max_margin,

@@ -11,6 +11,7 @@ from benchmarks.experiments.calibration import simulated_calibration
 from leafsfs import SfsError, reconstruct
 from leafsfs.cli import main
 from leafsfs.strays import remove_strays
+from leafsfs import tiled as leafsfs_tiled
 from leafsfs.tiled import GUARD_COLS, is_full_circle, margin_columns, margin_rows, reconstruct_tiled
 from tlssim.simulate import simulate_tiled
 from tlssim.tiled import add_tile, open_tiled, start_tiled
@@ -181,12 +182,17 @@ def _retiled(tiled, path, tile_cols):
     return open_tiled(path)
 
 
-def test_a_leaf_cut_by_the_seam_of_a_360_deg_scan_is_one_leaf(tiled_leaf, tmp_path):
-    _, calibration, whole = tiled_leaf
+@pytest.fixture(scope="module")
+def full_circle(tmp_path_factory, llvm):
     scene = scenes.build("leaf-1.5m")  # the leaf spans azimuths -2.2 to 3.3 deg: the seam at 0 deg cuts it
     section = {**scene.scanner, "window": {"theta_deg": [0.0, 359.964], "psi_deg": [88.5, 91.6], "step_deg": 0.036}}
-    scan = simulate_tiled(scene, tlssim.setup_from_section(section), tmp_path / "scan", seed=3, tile_cols=2500,
-                          progress=False, backend="llvm")
+    return simulate_tiled(scene, tlssim.setup_from_section(section), tmp_path_factory.mktemp("circle") / "scan",
+                          seed=3, tile_cols=2500, progress=False, backend="llvm")
+
+
+def test_a_leaf_cut_by_the_seam_of_a_360_deg_scan_is_one_leaf(tiled_leaf, full_circle, tmp_path):
+    _, calibration, whole = tiled_leaf
+    scan = full_circle
     assert is_full_circle(scan.theta_columns) and not is_full_circle(scan.theta_columns[:-2])
     result = reconstruct_tiled(scan, tmp_path / "out", "buffer", calibration=calibration, core_cols=2500)
     (leaf,) = result.traits  # one leaf, not its two halves
@@ -196,6 +202,34 @@ def test_a_leaf_cut_by_the_seam_of_a_360_deg_scan_is_one_leaf(tiled_leaf, tmp_pa
     assert not leaf["cut_by_border"] and leaf["core"] in (0, 3)
     labels = result.scan.load().layers["leaf"]
     assert labels[:, :80].max() == labels[:, -80:].max() == leaf["leaf"]  # both halves carry its label
+
+
+def test_a_resumed_360_deg_run_reconstructs_first_the_windows_of_the_first_core_it_writes(tiled_leaf, full_circle,
+                                                                                         tmp_path, monkeypatch):
+    _, calibration, _ = tiled_leaf
+    out = tmp_path / "out"
+    first = reconstruct_tiled(full_circle, out, "buffer", calibration=calibration, core_cols=1250)
+    for tile in first.scan.tiles:
+        if tile.col0 in (0, 3750):  # cores 0 and 3 of 8 are missing: core 3 is written first, core 0 last
+            (first.scan.path / tile.file).unlink()
+    computed, assembled = [], {}
+    window, assemble = leafsfs_tiled._reconstruct_window, leafsfs_tiled._assemble_core
+
+    def counted_window(scan, band, core, *args):
+        computed.append(core[0] // 1250)
+        return window(scan, band, core, *args)
+
+    def noted_assembly(k, *args):
+        assembled[k] = sorted(computed)
+        return assemble(k, *args)
+
+    monkeypatch.setattr(leafsfs_tiled, "_reconstruct_window", counted_window)
+    monkeypatch.setattr(leafsfs_tiled, "_assemble_core", noted_assembly)
+    again = reconstruct_tiled(full_circle, out, "buffer", calibration=calibration, core_cols=1250)
+    # Core 3 needs its neighbours' windows and core 0's (whose leaf count numbers the others), not every window
+    # up to core 0's neighbours (7 and 1), which the run would hold in memory at once.
+    assert assembled == {3: [0, 2, 3, 4], 0: [0, 1, 2, 3, 4, 7]}
+    assert again.windows == 6 and [t["leaf"] for t in again.traits] == [t["leaf"] for t in first.traits]
 
 
 def test_a_core_written_member_by_member_is_the_file_scan_save_writes(tiled_leaf, tmp_path, monkeypatch):
