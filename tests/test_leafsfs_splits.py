@@ -1,0 +1,121 @@
+"""Tests of leafsfs.splits: a surface that is two surfaces is split, a curved leaf is not."""
+import math
+
+import numpy as np
+
+from leafsfs.leaves import segment_scan
+from leafsfs.splits import MIN_ANGLE_DEG, part_scores, split_merged, two_parts
+
+STEP = math.radians(0.036)
+NOISE_M = 0.0015  # range noise of a FARO-class scanner on a leaf at a few metres, m (assumption)
+ROWS, COLS = 90, 150
+
+
+def _grid():
+    theta, psi = np.meshgrid(STEP * (np.arange(COLS) - COLS / 2), np.pi / 2 + STEP * (np.arange(ROWS) - ROWS / 2))
+    return theta, psi
+
+
+def _leaf(centre, half_axes):
+    """An elliptic outline on the grid (rows, cols), pixels."""
+    i, j = np.mgrid[:ROWS, :COLS]
+    return np.hypot((i - centre[0]) / half_axes[0], (j - centre[1]) / half_axes[1]) <= 1
+
+
+def _two_leaves(behind_m, slope_front, slope_back, seed=0):
+    """Ranges of two elliptic leaves 2 m away overlapping in the image, the second ``behind_m`` farther at the
+    overlap, each a plane whose range grows by ``slope`` times the across-beam distance along the columns; the
+    nearer one is seen where they overlap. Returns the ranges (NaN: no return) and each leaf's visible pulses."""
+    i, j = np.mgrid[:ROWS, :COLS]
+    x = j * 2.0 * STEP  # across-beam distance at 2 m, m
+    front, back = _leaf((45, 55), (30, 40)), _leaf((45, 100), (30, 40))
+    x_meet = 95 * 2.0 * STEP  # the front leaf's right end, where they overlap
+    r_front = 2.0 + slope_front * (x - x_meet)
+    r_back = 2.0 + behind_m + slope_back * (x - x_meet)
+    range_m = np.where(front, r_front, np.where(back, r_back, np.nan))
+    range_m = range_m + NOISE_M * np.random.default_rng(seed).standard_normal(range_m.shape)
+    return range_m, front, back & ~front
+
+
+def _split(range_m):
+    theta, psi = _grid()
+    one = np.isfinite(range_m).astype(int)
+    return split_merged(one, np.array([False, True]), range_m, theta, psi, NOISE_M, 30)
+
+
+def _apart(labels, front, back):
+    """Whether each leaf lies (95 % of its pulses) in one label and the two labels differ."""
+    shares = []
+    for leaf in (front, back):
+        values, counts = np.unique(labels[leaf], return_counts=True)
+        shares.append((values[np.argmax(counts)], counts.max() / leaf.sum()))
+    return shares[0][0] != shares[1][0] and min(s for _, s in shares) >= 0.95
+
+
+def test_two_overlapping_leaves_at_different_tilts_are_split_into_the_two_leaves():
+    # 40 deg apart (tan 20 deg and tan -20 deg), the back leaf 4 mm behind where they meet: no crease without a step
+    range_m, front, back = _two_leaves(0.004, math.tan(math.radians(20)), -math.tan(math.radians(20)))
+    labels, parents = _split(range_m)
+    assert parents.tolist() == [1] and labels.max() == 2
+    assert _apart(labels, front, back)
+    assert np.array_equal(labels > 0, np.isfinite(range_m))  # every pulse keeps a surface
+
+
+def test_two_parallel_leaves_at_different_distances_are_parted_but_not_split():
+    # the same tilt, 1 cm apart (7 noise deviations): the partition finds them, but their cubics meet at 0 deg
+    # (MIN_ANGLE_DEG: told apart by their tilts only)
+    range_m, front, back = _two_leaves(0.01, 0.3, 0.3)
+    theta, psi = _grid()
+    inside = np.isfinite(range_m)
+    part = two_parts(inside, range_m, theta, psi, np.full(inside.shape, NOISE_M))
+    assert _apart(part, front, back)
+    assert part_scores(part, range_m, theta, psi, np.full(inside.shape, NOISE_M))[3] < MIN_ANGLE_DEG
+    labels, parents = _split(range_m)
+    assert len(parents) == 0 and labels.max() == 1
+
+
+def test_a_curved_leaf_and_a_plane_stay_whole_and_only_candidates_are_split():
+    theta, psi = _grid()
+    i, j = np.mgrid[:ROWS, :COLS]
+    x, y = (j - 75) * 2.0 * STEP, (i - 45) * 2.0 * STEP
+    blade = _leaf((45, 75), (40, 70))
+    rng = np.random.default_rng(1)
+    # rolled across (5 cm radius: normals turn 30 deg over the blade), bent along (the tip droops by the cube of
+    # the distance), tilted 45 deg, twisted
+    curved = 2.0 + x + y ** 2 / (2 * 0.05) + 40.0 * x ** 3 + 2.0 * x * y
+    for surface in (curved, 2.0 + 0.5 * x - 0.2 * y):
+        range_m = np.where(blade, surface + NOISE_M * rng.standard_normal(blade.shape), np.nan)
+        labels, parents = _split(range_m)
+        assert len(parents) == 0 and np.array_equal(labels, blade.astype(int))
+    range_m, _, _ = _two_leaves(0.004, 0.36, -0.36)
+    labels, parents = split_merged(np.isfinite(range_m).astype(int), np.array([False, False]), range_m, theta, psi,
+                                   NOISE_M, 30)
+    assert len(parents) == 0 and labels.max() == 1
+
+
+def test_the_partition_and_scores_are_the_same_at_any_distance():
+    # the same two leaves three times as far (every length and the noise times 3): the same partition and scores
+    range_m, front, back = _two_leaves(0.004, 0.36, -0.36)
+    theta, psi = _grid()
+    inside = np.isfinite(range_m)
+    noise = np.full(inside.shape, NOISE_M)
+    part = two_parts(inside, range_m, theta, psi, noise)
+    one, apart, step, angle = part_scores(part, range_m, theta, psi, noise)
+    assert 0.8 < apart < 1.2 < one  # each part on its cubic within the noise, not both on one
+    assert abs(angle - 2 * math.degrees(math.atan(0.36))) < 5  # the two planes' tilts
+    assert np.array_equal(two_parts(inside, 3 * range_m, theta, psi, 3 * noise), part)
+    assert np.allclose(part_scores(part, 3 * range_m, theta, psi, 3 * noise), (one, apart, step, angle), rtol=1e-6)
+    # too few pulses for two cubics: no score apart
+    small = np.zeros(inside.shape, dtype=int)
+    small[40:45, 50:56] = 1
+    small[45:47, 50:56] = 2
+    assert np.isnan(part_scores(small, range_m, theta, psi, noise)[1])
+
+
+def test_segment_scan_gives_two_overlapping_leaves_two_regions():
+    range_m, front, back = _two_leaves(0.004, 0.36, -0.36)
+    theta, psi = _grid()
+    for split, regions in ((True, 2), (False, 1)):
+        labels = segment_scan(range_m, theta, psi, noise_m=NOISE_M, drop_border=False,
+                              split_merged_surfaces=split).leaves
+        assert len(np.unique(labels[labels > 0])) == regions
