@@ -13,7 +13,8 @@ The test uses the range and the scan grid only, in units of each pulse's
 range noise (the same at any step and distance): a surface is two when one
 smooth surface per part of a partition into two connected parts
 (:func:`two_parts`) explains its pulses much better than one smooth surface
-for all (:func:`part_scores`). Smooth surface: a cubic height field
+for all, and the two meet at an angle (:func:`part_scores`,
+:data:`MIN_EVIDENCE`, :data:`MIN_ANGLE_DEG`). Smooth surface: a cubic height field
 over the principal plane of the pulses (assumption: a leaf blade, with its
 bend, roll and twist, departs from a cubic by much less than the range noise
 over its extent, as the leaf model of :mod:`scenes.leaf` does, whose
