@@ -2,18 +2,40 @@
 import math
 
 import numpy as np
+from scipy.spatial import ConvexHull
 
 from leafsfs.leaves import segment_scan
-from leafsfs.splits import MIN_ANGLE_DEG, part_scores, split_merged, two_parts
+from leafsfs.splits import MIN_ANGLE_DEG, MIN_EVIDENCE, part_scores, split_merged, surface_areas, two_parts
+from tlssim.pattern import beam_frame
 
 STEP = math.radians(0.036)
 NOISE_M = 0.0015  # range noise of a FARO-class scanner on a leaf at a few metres, m (assumption)
 ROWS, COLS = 90, 150
 
 
-def _grid():
-    theta, psi = np.meshgrid(STEP * (np.arange(COLS) - COLS / 2), np.pi / 2 + STEP * (np.arange(ROWS) - ROWS / 2))
+def _grid(cols=COLS):
+    theta, psi = np.meshgrid(STEP * (np.arange(cols) - COLS / 2), np.pi / 2 + STEP * (np.arange(ROWS) - ROWS / 2))
     return theta, psi
+
+
+def _with_typical_leaves(range_m, count=3, seed=2):
+    """The ranges ``range_m`` (one surface, label 1) with ``count`` single planar leaves of a typical size (an
+    ellipse of 24 x 32 pixels half-axes, a little smaller than each of :func:`_two_leaves`' two: the overlapping
+    pair measures 2.5 typical leaves) to their right, labels 2, 3, ...: the scan's median surface is a typical
+    leaf. Returns the ranges, the labels and the grids."""
+    width = 90
+    cols = COLS + count * width
+    i, j = np.mgrid[:ROWS, :cols]
+    out = np.full((ROWS, cols), np.nan)
+    labels = np.zeros((ROWS, cols), dtype=int)
+    out[:, :COLS] = range_m
+    labels[:, :COLS] = np.isfinite(range_m)
+    rng = np.random.default_rng(seed)
+    for n in range(count):
+        leaf = np.hypot((i - 45) / 24, (j - COLS - width * n - 45) / 32) <= 1
+        out[leaf] = 2.0 + 0.2 * (j[leaf] - COLS) * 2.0 * STEP + NOISE_M * rng.standard_normal(leaf.sum())
+        labels[leaf] = 2 + n
+    return out, labels, _grid(cols)
 
 
 def _leaf(centre, half_axes):
@@ -38,9 +60,11 @@ def _two_leaves(behind_m, slope_front, slope_back, seed=0):
 
 
 def _split(range_m):
-    theta, psi = _grid()
-    one = np.isfinite(range_m).astype(int)
-    return split_merged(one, np.array([False, True]), range_m, theta, psi, NOISE_M, 30)
+    """split_merged on the surface ``range_m`` among typical leaves; the labels on its grid and the parents."""
+    wide, labels, (theta, psi) = _with_typical_leaves(range_m)
+    out, parents = split_merged(labels, np.ones(labels.max() + 1, dtype=bool), wide, theta, psi, NOISE_M, 30)
+    out = out[:, :COLS]
+    return np.where(out > 4, out - 3, out), parents
 
 
 def _apart(labels, front, back):
@@ -88,9 +112,11 @@ def test_a_curved_leaf_and_a_plane_stay_whole_and_only_candidates_are_split():
         labels, parents = _split(range_m)
         assert len(parents) == 0 and np.array_equal(labels, blade.astype(int))
     range_m, _, _ = _two_leaves(0.004, 0.36, -0.36)
-    labels, parents = split_merged(np.isfinite(range_m).astype(int), np.array([False, False]), range_m, theta, psi,
-                                   NOISE_M, 30)
-    assert len(parents) == 0 and labels.max() == 1
+    wide, labels, (theta, psi) = _with_typical_leaves(range_m)
+    candidates = np.ones(labels.max() + 1, dtype=bool)
+    candidates[1] = False
+    out, parents = split_merged(labels, candidates, wide, theta, psi, NOISE_M, 30)
+    assert len(parents) == 0 and np.array_equal(out, labels)
 
 
 def test_the_partition_and_scores_are_the_same_at_any_distance():
@@ -114,8 +140,52 @@ def test_the_partition_and_scores_are_the_same_at_any_distance():
 
 def test_segment_scan_gives_two_overlapping_leaves_two_regions():
     range_m, front, back = _two_leaves(0.004, 0.36, -0.36)
-    theta, psi = _grid()
+    wide, _, (theta, psi) = _with_typical_leaves(range_m)
     for split, regions in ((True, 2), (False, 1)):
-        labels = segment_scan(range_m, theta, psi, noise_m=NOISE_M, drop_border=False,
-                              split_merged_surfaces=split).leaves
+        labels = segment_scan(wide, theta, psi, noise_m=NOISE_M, drop_border=False,
+                              split_merged_surfaces=split).leaves[:, :COLS]
         assert len(np.unique(labels[labels > 0])) == regions
+
+
+def test_a_folded_leaf_of_typical_size_stays_whole_though_its_halves_are_two_planes():
+    # a leaf folded along its midrib (each half 20 deg off the blade: 40 deg between the halves, a crease 6 mm
+    # deep), the size of the scan's other leaves: the two-surface test alone would part it along the fold, but
+    # only surfaces of about two leaves' area are tested
+    theta, psi = _grid()
+    i, j = np.mgrid[:ROWS, :COLS]
+    blade = _leaf((45, 75), (22, 34))
+    y = np.abs(i - 45) * 2.0 * STEP  # distance from the midrib, m
+    range_m = np.where(blade, 2.0 - math.tan(math.radians(20)) * y, np.nan)
+    range_m = range_m + NOISE_M * np.random.default_rng(3).standard_normal(range_m.shape)
+    inside = np.isfinite(range_m)
+    noise = np.full(inside.shape, NOISE_M)
+    part = two_parts(inside, range_m, theta, psi, noise)
+    one, apart, _, angle = part_scores(part, range_m, theta, psi, noise)
+    n = inside.sum()
+    assert n * (one - apart) > MIN_EVIDENCE * 10 * np.log(n) and angle >= MIN_ANGLE_DEG  # two planes by the test
+    labels, parents = _split(range_m)
+    assert len(parents) == 0 and np.array_equal(labels, blade.astype(int))
+
+
+def test_surface_areas_are_the_areas_of_planar_leaves():
+    # a planar disc facing the scanner and one tilted 60 deg (its range grows by tan 60 deg per metre across the
+    # beam): the area on their planes; a surface with fewer pulses than asked is not measured
+    theta, psi = _grid()
+    i, j = np.mgrid[:ROWS, :COLS]
+    x = (j - COLS / 2) * 2.0 * STEP
+    labels = np.zeros((ROWS, COLS), dtype=int)
+    labels[_leaf((45, 37), (30, 30))] = 1
+    labels[_leaf((45, 112), (30, 30))] = 2
+    labels[_leaf((10, 75), (3, 3))] = 3
+    range_m = np.where(labels == 2, 2.0 + math.tan(math.radians(60)) * x, 2.0)
+    range_m = np.where(labels > 0, range_m, np.nan)
+    area = surface_areas(labels, np.ones(4, dtype=bool), range_m, theta, psi, 100)
+    assert np.isnan(area[0]) and np.isnan(area[3])
+    points = beam_frame(theta, psi)[0] * range_m[..., None]
+    for k in (1, 2):
+        pts = points[labels == k]
+        plane = np.linalg.svd(pts - pts.mean(axis=0), full_matrices=False)[2][:2]  # the plane's two axes
+        hull = ConvexHull((pts - pts.mean(axis=0)) @ plane.T).volume  # area through the rim pulses' centres, m^2
+        # the pulses cover half a pulse beyond the rim: 3 % more than the hull for a 30-pulse radius
+        assert 1.0 < area[k] / hull < 1.06
+    assert 1.9 < area[2] / area[1] < 2.3  # about 1 / cos 60 deg as much
