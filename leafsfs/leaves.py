@@ -401,7 +401,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         parted, parents = split_merged(surfaces, leaf, range_m, theta, psi, noise, piece_px)
         if len(parents):
             new = int(surfaces.max(initial=0)) + 1 + np.arange(len(parents))
-            judged = leaves_of(parted)
+            judged = leaves_of(np.where(np.isin(parted, np.concatenate([parents, new])), parted, 0))  # the parts only
             whole = ~judged[parents] & ~judged[new]
             lookup = np.arange(int(parted.max()) + 1)
             lookup[new[whole]] = parents[whole]
