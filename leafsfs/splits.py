@@ -182,7 +182,10 @@ def two_parts(inside: np.ndarray, range_m: np.ndarray, theta: np.ndarray, psi: n
     majority, and each part keeps its largest connected piece (the rest goes
     to the other part). Planes, not cubics: they do not bend to follow the
     other part. Of the two results, the one whose cubic per part leaves the
-    smaller residual (:func:`part_scores`).
+    smaller residual (:func:`part_scores`); then one more round with a cubic
+    per part, kept when it leaves a smaller residual still (a curved leaf's
+    far end that lies nearer the other part's plane than its own goes back
+    to its leaf).
 
     Parameters
     ----------
@@ -201,7 +204,8 @@ def two_parts(inside: np.ndarray, range_m: np.ndarray, theta: np.ndarray, psi: n
     """
     rows, cols = np.nonzero(inside)
     local, noise, axis = _heights(rows, cols, range_m, theta, psi, noise_m)
-    design = _design(local[:, 1:])[:, :3]
+    cubic = _design(local[:, 1:])
+    design = cubic[:, :3]
     z_one = _fit_residuals(design, local[:, 0], noise, np.ones(len(rows), dtype=bool))[0]
     xyz = beam_frame(theta, psi)[0] * range_m[..., None]
     best, score = None, np.inf
@@ -216,6 +220,13 @@ def two_parts(inside: np.ndarray, range_m: np.ndarray, theta: np.ndarray, psi: n
         apart = part_scores(part, range_m, theta, psi, noise_m)[1]
         if apart < score:
             best, score = part, apart
+    if best is not None:
+        labels = _refine(best[rows, cols], cubic, local[:, 0], noise, inside, rows, cols, rounds=1)
+        if labels is not None:
+            part = np.zeros(inside.shape, dtype=int)
+            part[rows, cols] = labels
+            if part_scores(part, range_m, theta, psi, noise_m)[1] < score:
+                best = part
     return best
 
 
@@ -356,12 +367,12 @@ def _normal_clusters(xyz: np.ndarray, inside: np.ndarray, rows: np.ndarray, cols
 
 
 def _refine(start: np.ndarray, design: np.ndarray, height: np.ndarray, noise: np.ndarray, inside: np.ndarray,
-            rows: np.ndarray, cols: np.ndarray) -> np.ndarray | None:
-    """Alternate fits and assignments from the partition ``start`` (1, 2; 0 unassigned); None when a part
-    vanishes."""
+            rows: np.ndarray, cols: np.ndarray, rounds: int = ROUNDS) -> np.ndarray | None:
+    """Alternate fits (of the columns ``design``) and assignments from the partition ``start`` (1, 2; 0
+    unassigned) for ``rounds`` rounds; None when a part vanishes."""
     labels = start.copy()
     image = np.zeros(inside.shape, dtype=int)
-    for _ in range(ROUNDS):
+    for _ in range(rounds):
         if min((labels == 1).sum(), (labels == 2).sum()) < 2 * design.shape[1]:
             return None
         z = np.stack([np.abs(_fit_residuals(design, height, noise, labels == p)[0]) for p in (1, 2)])
