@@ -33,6 +33,7 @@ from leafsfs.canopy import (MIN_LEAF_WIDTH_M, dark_surfaces, edge_pulses, grow_o
                             split_necks, wood_surfaces)
 from leafsfs.edges import MixedPulses, attribute_mixed, band_pixels
 from leafsfs.errors import SfsError
+from leafsfs.splits import split_merged
 from tlssim.pattern import beam_frame
 
 #: Smallest neighbourhood radius of the edge test, pixels, for a footprint of a pixel or more (a 5 x 5 disc: the mixed
@@ -192,7 +193,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
                  min_fill: float = 0.5, occluder_gap_m: float = 0.01, crease_angle_deg: float = 40.0,
                  min_piece_px: int = 3, min_leaf_width_m: float = MIN_LEAF_WIDTH_M,
                  lobe_ratio: float = 0.15, piece_ratio: float = 0.5, rim_sigma: float = 0.0,
-                 grow_sigma: float = 0.0) -> Segmentation:
+                 grow_sigma: float = 0.0, split_merged_surfaces: bool = True) -> Segmentation:
     """Surfaces, mixed pulses and leaf regions of a scan.
 
     Parameters
@@ -314,6 +315,12 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         lie within this many of their range-noise standard deviations of its
         local plane (:func:`leafsfs.canopy.grow_outline`: outline pulses
         partly off the leaf with nothing behind; 0: none).
+    split_merged_surfaces : bool
+        A leaf surface whose two parts lie each on its own smooth surface much
+        better than the whole on one is two surfaces the linking joined (two
+        leaves overlapping in the image, a leaf on its branch): split, and each
+        part judged again; kept whole when neither part is a leaf
+        (:func:`leafsfs.splits.split_merged`).
     """
     valid = np.isfinite(range_m)
     if not valid.any():
@@ -390,6 +397,18 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         leaf &= ~(refused & (pieces >= 2) & elongated)[group]
         surfaces = np.where(refused[joined], surfaces, joined)
         leaf &= np.bincount(surfaces.ravel(), minlength=len(leaf)) > 0  # the labels joined into another
+    if split_merged_surfaces:
+        parted, parents = split_merged(surfaces, leaf, range_m, theta, psi, noise, piece_px)
+        if len(parents):
+            new = int(surfaces.max(initial=0)) + 1 + np.arange(len(parents))
+            judged = leaves_of(np.where(np.isin(parted, np.concatenate([parents, new])), parted, 0))  # the parts only
+            whole = ~judged[parents] & ~judged[new]
+            lookup = np.arange(int(parted.max()) + 1)
+            lookup[new[whole]] = parents[whole]
+            parted = lookup[parted]
+            leaf = np.pad(leaf, (0, max(len(judged) - len(leaf), 0)))
+            leaf[parents[~whole]], leaf[new[~whole]] = judged[parents[~whole]], judged[new[~whole]]
+            surfaces = parted
     band = band_pixels(band_m, range_m, surfaces, step)
     reach = band_pixels(reach_m, range_m, surfaces, step) if reach_m > 0 else 0
     if min_piece_px > 0:
