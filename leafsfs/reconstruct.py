@@ -409,7 +409,7 @@ class _Regions:
     background : ndarray of bool, 2-D
         Mixed pulses given to the surface that dominates them (not a leaf,
         or a thin part attached to one), and the edge pulses within the
-        range noise of one wood-shaped surface given its circle's or
+        range noise of one surface that is no leaf given its circle's or
         quadric's distance (:func:`leafsfs.woodfit.wood_fitted_range`).
     unreliable : ndarray of bool, 2-D
         Valid pulses whose range straddles two surfaces (or none), and the
@@ -776,9 +776,9 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
     partial = np.zeros(scan.shape, dtype=bool)
     fitted = wood_fitted_range(mixed, scan.range, scan.theta, scan.psi, alpha, segmentation.leaf_surfaces,
                                segmentation.band_px, segmentation.noise_m)
-    # An edge pulse within the range noise of one wood-shaped surface is that surface's, yet it lies where the
-    # branch turns away from the beam: its circle (or quadric) there gives its distance, as for the branch's mixed
-    # pulses (the plane it was judged against stops short by millimetres).
+    # An edge pulse within the range noise of one surface that is no leaf is that surface's, yet it lies where the
+    # surface turns away from the beam: its circle (wood) or quadric there gives its distance, as for the surface's
+    # mixed pulses (the plane it was judged against stops short by millimetres).
     on_wood = valid & (mixed.surfaces == 0) & (mixed.pair[..., 1] == 0) & np.isfinite(fitted)
     if labels is None:
         labels = segmentation.leaves

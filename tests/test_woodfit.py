@@ -5,7 +5,7 @@ import math
 import numpy as np
 
 from leafsfs.edges import MixedPulses, attribute_mixed
-from leafsfs.woodfit import MIN_PULSES, MIN_QUADRIC_PULSES, cylinder_ranges, quadric_ranges, twig_ranges, \
+from leafsfs.woodfit import MIN_PULSES, MIN_QUADRIC_PULSES, cylinder_ranges, quadric_ranges, twig_ranges, wood_labels, \
     wood_fitted_range
 
 STEP = math.radians(0.018)
@@ -220,3 +220,29 @@ def test_paired_twig_pulse_takes_the_twig_median_a_lone_one_keeps_its_range():
     fitted = wood_fitted_range(mixed, range_m, theta, psi, None, np.array([], dtype=int), BAND, NOISE)
     assert abs(fitted[paired] - np.median(range_m[twig])) < 1e-12
     assert np.isnan(fitted[alone])
+
+
+def test_owner_that_is_no_leaf_and_not_wood_shaped_takes_its_quadric():
+    # A wide surface curving away (3 cm radius of curvature: a curled leaf piece), neither elongated, sparse nor narrow,
+    # that the segmentation did not take for a leaf owns mixed pulses shared with a wall: they take its quadric,
+    # nearer its true surface than its plane; a leaf surface's pulses get nothing.
+    range_m, true, surfaces, targets, _ = _bowl(1 / 0.03, NOISE / 4)
+    rows = np.arange(N)[:, None] * np.ones((1, N))
+    surfaces = np.where(rows >= N / 2 + 8, 2, surfaces)  # the wall's pure pulses below the targets
+    range_m = np.where(surfaces == 2, WALL, range_m)
+    theta, psi = np.meshgrid(np.arange(N) * STEP, math.pi / 2 + (np.arange(N) - N / 2) * STEP)
+    assert not wood_labels(surfaces, range_m, theta, psi, STEP, None)[1]
+    share = 0.7
+    range_m = np.where(targets, share * true + (1 - share) * WALL, range_m)
+    plane = np.full((N, N), np.nan)
+    for r, c in zip(*np.nonzero(targets)):
+        plane[r, c] = _plane_at(range_m, surfaces == 1, r, c, 12.0)
+    pair = np.where(targets[..., None], np.array([1, 2]), 0)
+    pair_range = np.where(targets[..., None], np.stack([plane, np.full((N, N), WALL)], axis=-1), np.nan)
+    mixed = MixedPulses(surfaces.copy(), pair, np.where(targets, share, np.nan), pair_range,
+                        np.full((N, N, 2), np.nan), np.where(targets, 1, surfaces), np.zeros((N, N), bool))
+    fitted = wood_fitted_range(mixed, range_m, theta, psi, None, np.array([], dtype=int), BAND, NOISE)
+    on = targets & np.isfinite(fitted)
+    assert on.sum() >= 0.5 * targets.sum()
+    assert np.median(np.abs(fitted - true)[on]) < 0.5 * np.median(np.abs(plane - true)[on])
+    assert np.isnan(wood_fitted_range(mixed, range_m, theta, psi, None, np.array([1]), BAND, NOISE)[targets]).all()
