@@ -805,17 +805,27 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
     else:
         # A given region counts its pixels whole, except the mixed pulses of its main surface, which count (inside
         # the region or just outside it) for their share of that surface; its mixed pulses that another surface
-        # dominates (the wall behind) take that surface's distance and leave the region.
+        # dominates (the wall behind) take that surface's distance and leave the region. Each region's shares are
+        # kept on the window they can be non-zero in: the region grown by more than a footprint (the rim tests reach
+        # one footprint off it) and its main surface's pulses and pairs.
+        extents = mixed.extents()
+        margin = int(np.ceil(segmentation.footprint_px)) + 2
         shares, band = _Shares(scan.shape), _Shares(scan.shape)
-        whole = (slice(None), slice(None))
-        for k in np.unique(labels[labels > 0]):
-            main = _main_surface(mixed.surfaces, labels == k)
-            band.add(k, whole, _band(mixed, main, whole, scan.intensity, gain, calibration, segmentation.band_px))
-            paired = (mixed.surfaces == 0) & (mixed.pair == main).any(axis=-1)
-            own = rim_shares(labels == k, scan.intensity, gain, segmentation.footprint_px)
-            own = np.where(_mixes_in_range(labels == k, mixed.pair == main, segmentation.footprint_px), 1.0, own)
-            shares.add(k, whole, np.where(paired, with_thin.share_of(main, gain), own))
-            background |= (unreliable | on_wood) & (labels == k) & (mixed.owner > 0) & (mixed.owner != main)
+        for k, box in enumerate(ndimage.find_objects(labels), start=1):
+            if box is None:
+                continue
+            main = _main_surface(mixed.surfaces[box], labels[box] == k)
+            box = tuple(slice(max(sl.start - margin, 0), min(sl.stop + margin, n)) for sl, n in zip(box, scan.shape))
+            if main in extents:
+                box = tuple(slice(min(a.start, b.start), max(a.stop, b.stop)) for a, b in zip(box, extents[main]))
+            region = labels[box] == k
+            band.add(k, box, _band(mixed, main, box, scan.intensity, gain, calibration, segmentation.band_px))
+            paired = (mixed.surfaces[box] == 0) & (mixed.pair[box] == main).any(axis=-1)
+            own = rim_shares(region, scan.intensity[box], gain, segmentation.footprint_px)
+            own = np.where(_mixes_in_range(region, mixed.pair[box] == main, segmentation.footprint_px), 1.0, own)
+            shares.add(k, box, np.where(paired, with_thin.share_of(main, gain, box), own))
+            background[box] |= (unreliable[box] | on_wood[box]) & region & (mixed.owner[box] > 0) \
+                & (mixed.owner[box] != main)
         labels = np.where(background, 0, labels)
     owner_range = np.where(unreliable & (mixed.owner > 0), np.where(np.isfinite(fitted), fitted, mixed.owner_range()),
                            np.nan)
