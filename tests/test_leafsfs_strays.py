@@ -160,3 +160,14 @@ def test_moved_scope_keeps_a_pulse_moved_onto_the_range_its_neighbours_measure()
         corrected[10, 20] = new
         result = _result(measured, corrected, np.zeros((ROWS, COLS), int), leaves=())
         assert remove_strays(result).removed[10, 20] == removed
+
+
+def test_moved_scope_counts_every_move_where_the_noise_cannot_be_estimated(plate):
+    """Without three consecutive returns along a row or column the range noise is unknown: a moved stray still goes."""
+    measured = np.full((ROWS, COLS), np.nan)
+    measured[::2, ::2] = 2.0                      # isolated returns: no second difference anywhere
+    measured[10, 10] = 2.3
+    corrected = measured.copy()
+    corrected[10, 10] = 2.3001                    # moved by 0.1 mm
+    result = _result(measured, corrected, np.zeros((ROWS, COLS), int), leaves=())
+    assert remove_strays(result).removed[10, 10]
