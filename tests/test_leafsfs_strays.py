@@ -6,6 +6,7 @@ import types
 import numpy as np
 import pytest
 
+from leafsfs.baselines import stray_point_filter
 from leafsfs.errors import SfsError
 from leafsfs.params import SfsParams
 from leafsfs.reconstruct import SfsResult
@@ -122,3 +123,51 @@ def test_outside_scope_judges_the_leaves_on_the_ranges_prop_sfs_left(plate):
     assert out.range[15, 10] == 2.0 and not out.outlier[15, 10] and out.range[13, 5] == 1.99
     # the rule on the measured ranges alone keeps the centre of the patch
     assert (14, 6) not in set(zip(*np.nonzero(remove_strays(result, scope="unclaimed").removed)))
+
+
+def _leaf_strip_before_wall(seed=0):
+    """A wall at 3 m (2 mm range noise) with a leaf seen edge-on before it: a strip one pulse high at 2 m (row 10,
+    columns 5-19) ending in a pulse mixing leaf and wall at 2.5 m (column 20)."""
+    rng = np.random.default_rng(seed)
+    measured = 3.0 + rng.normal(0.0, 0.002, (ROWS, COLS))
+    measured[10, 5:20] = 2.0 + rng.normal(0.0, 0.002, 15)
+    measured[10, 20] = 2.5
+    return measured
+
+
+def test_moved_scope_keeps_a_leaf_before_a_wall_and_removes_the_mixed_pulse_between():
+    """Good leaf and wall pulses that PROP-SFS moved within the range noise stay although the rule finds the leaf's
+    off their neighbours; the mixed pulse PROP-SFS moved onto the leaf still goes."""
+    measured = _leaf_strip_before_wall()
+    corrected = measured.copy()
+    corrected[10, 5:20] += 0.001                 # the strip refitted within the noise
+    corrected[9, 5:21] -= 0.001                  # so are the wall pulses above it ...
+    corrected[11, 5:21] += 0.001                 # ... and below it
+    corrected[10, 20] = 2.0                      # the mixed pulse placed on the leaf
+    result = _result(measured, corrected, np.zeros((ROWS, COLS), int), leaves=())
+    off = ~stray_point_filter(result.scan)
+    assert off[10, 5:20].all() and off[10, 20]   # the rule on the measured ranges flags the strip and the mix
+    gone = set(zip(*np.nonzero(remove_strays(result).removed)))
+    assert gone == {(10, 20)}
+
+
+def test_moved_scope_keeps_a_pulse_moved_onto_the_range_its_neighbours_measure():
+    """A mixed pulse moved onto the wall that most of its neighbours measure stays; moved onto the leaf strip, which
+    two of its eight neighbours measure, it goes; moved by less than the tolerance but beyond the noise it goes."""
+    measured = _leaf_strip_before_wall()
+    for new, removed in ((3.0, False), (2.0, True), (2.49, True)):
+        corrected = measured.copy()
+        corrected[10, 20] = new
+        result = _result(measured, corrected, np.zeros((ROWS, COLS), int), leaves=())
+        assert remove_strays(result).removed[10, 20] == removed
+
+
+def test_moved_scope_counts_every_move_where_the_noise_cannot_be_estimated(plate):
+    """Without three consecutive returns along a row or column the range noise is unknown: a moved stray still goes."""
+    measured = np.full((ROWS, COLS), np.nan)
+    measured[::2, ::2] = 2.0                      # isolated returns: no second difference anywhere
+    measured[10, 10] = 2.3
+    corrected = measured.copy()
+    corrected[10, 10] = 2.3001                    # moved by 0.1 mm
+    result = _result(measured, corrected, np.zeros((ROWS, COLS), int), leaves=())
+    assert remove_strays(result).removed[10, 10]
