@@ -228,21 +228,44 @@ def stray_point_filter(scan, mask=None, window_px: int = STRAY_POINT_RULE["windo
     _positive("max_range_diff_m", max_range_diff_m)
     if not 0.0 < min_share <= 1.0:
         raise SfsError(f"min_share must lie in (0, 1], got {min_share!r}")
+    share = agreeing_share(scan.range, scan.range, window_px, max_range_diff_m)
+    return mask & (share >= min_share)
+
+
+def agreeing_share(measured: np.ndarray, at: np.ndarray, window_px: int, max_range_diff_m: float) -> np.ndarray:
+    """Share of the measured returns in each pulse's grid window (itself excluded) within a tolerance of a range.
+
+    Parameters
+    ----------
+    measured : ndarray, 2-D
+        Measured ranges, m (NaN = no return).
+    at : ndarray, 2-D
+        The range each pulse is compared at, m (its measured one for the
+        stray-point rule, a corrected one to judge a correction).
+    window_px : int
+        Odd window size, pixels.
+    max_range_diff_m : float
+        Range tolerance, m.
+
+    Returns
+    -------
+    ndarray of float, 2-D
+        Share in [0, 1] (NaN where the window holds no other return).
+    """
     half = window_px // 2
-    agree = np.zeros(scan.shape)
-    total = np.zeros(scan.shape)
+    agree = np.zeros(measured.shape)
+    total = np.zeros(measured.shape)
     for dr in range(-half, half + 1):
         for dc in range(-half, half + 1):
             if dr == 0 and dc == 0:
                 continue
-            other = _shifted(scan.range, dr, dc, np.nan)
+            other = _shifted(measured, dr, dc, np.nan)
             present = np.isfinite(other)
             total += present
             with np.errstate(invalid="ignore"):
-                agree += present & (np.abs(other - scan.range) <= max_range_diff_m)
+                agree += present & (np.abs(other - at) <= max_range_diff_m)
     with np.errstate(invalid="ignore", divide="ignore"):
-        share = agree / total
-    return mask & (share >= min_share)
+        return agree / total
 
 
 def intensity_filter(scan, mask=None, below_median_dn: float | None = 100.0,

@@ -126,7 +126,7 @@ import dataclasses
 
 import numpy as np
 
-from leafsfs.baselines import STRAY_POINT_RULE, stray_point_filter
+from leafsfs.baselines import STRAY_POINT_RULE, agreeing_share, stray_point_filter
 from leafsfs.errors import SfsError
 from leafsfs.leaves import range_noise
 from leafsfs.reconstruct import SfsResult
@@ -204,22 +204,9 @@ def _placed_on_measured(result: SfsResult, window_px: int, max_range_diff_m: flo
         Grid-shaped mask (False where ``result`` has no range).
     """
     measured = np.where(result.scan.valid, result.scan.range, np.nan)
-    half = window_px // 2
-    padded = np.pad(measured, half, constant_values=np.nan)
-    rows, cols = measured.shape
-    agree = np.zeros(measured.shape)
-    total = np.zeros(measured.shape)
-    for dr in range(-half, half + 1):
-        for dc in range(-half, half + 1):
-            if dr == 0 and dc == 0:
-                continue
-            other = padded[half + dr:half + dr + rows, half + dc:half + dc + cols]
-            present = np.isfinite(other)
-            total += present
-            with np.errstate(invalid="ignore"):
-                agree += present & (np.abs(other - result.range) <= max_range_diff_m)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.isfinite(result.range) & (agree / total >= min_share)
+    share = agreeing_share(measured, result.range, window_px, max_range_diff_m)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(result.range) & (share >= min_share)
 
 
 def _in_no_leaf(result: SfsResult) -> np.ndarray:
