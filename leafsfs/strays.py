@@ -181,28 +181,8 @@ def stray_scope(result: SfsResult, scope: str = "moved") -> np.ndarray:
 
 def _placed_on_measured(result: SfsResult, window_px: int, max_range_diff_m: float, min_share: float) -> np.ndarray:
     """Pulses whose range in ``result`` agrees with the measured ranges of their neighbours, as the stray-point rule
-    judges agreement.
-
-    A pulse agrees when at least ``min_share`` of the measured returns in its
-    ``window_px × window_px`` neighbourhood (itself excluded) lie within
-    ``max_range_diff_m`` of its range in ``result``.
-
-    Parameters
-    ----------
-    result : SfsResult
-        A reconstruction.
-    window_px : int
-        Odd window size, pixels.
-    max_range_diff_m : float
-        Range tolerance, m.
-    min_share : float
-        Share of agreeing neighbours needed, in (0, 1].
-
-    Returns
-    -------
-    ndarray of bool
-        Grid-shaped mask (False where ``result`` has no range).
-    """
+    judges agreement (:func:`leafsfs.baselines.agreeing_share`; the rule's parameters as in :func:`remove_strays`);
+    False where ``result`` has no range."""
     measured = np.where(result.scan.valid, result.scan.range, np.nan)
     share = agreeing_share(measured, result.range, window_px, max_range_diff_m)
     with np.errstate(invalid="ignore"):
