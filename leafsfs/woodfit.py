@@ -119,8 +119,8 @@ def wood_fitted_range(mixed: MixedPulses, range_m: np.ndarray, theta: np.ndarray
     as well, and its plane, fitted a third of the band inside its border,
     stops short where it turns away. Measured with the truth on the dumps
     of main's fused run (the pulses whose output changes, judged against the
-    true surface of their dominant object; a scratch script,
-    /work/notes/r21/place_nonwood2.py): leafy tree at 0.018 deg 1,866
+    true surface of their dominant object; a scratch measurement, round
+    21): leafy tree at 0.018 deg 1,866
     scored pulses, outliers 702 -> 290, mean per-leaf ROP reduction 0.688 ->
     0.695; pear seed 7 at 3 m 2,441 pulses, 339 -> 296, 0.725 -> 0.726.
 
