@@ -731,14 +731,17 @@ def leaf_outputs(leaves: list[LeafTruth], output: VariantOutput, scene, scan) ->
         region's traits and the stats ``found`` (1 when the match covers at
         least :data:`MIN_FOUND_COVERAGE` of its visible pulses),
         ``coverage`` (that share), ``purity`` (share of the region's pulses
-        the leaf dominates), ``region_pixels``, ``merged`` (1 when the
-        region is also another leaf's match) and the region's rppp ratios.
+        the leaf dominates), ``region_pixels``, ``merged`` (1 when the leaf
+        is found and its region is another found leaf's match too) and the
+        region's rppp ratios.
     counts : dict
         ``n_regions``, ``n_false`` (regions matching no leaf),
         ``n_false_on_leaves`` (of those, regions on a target leaf that
         matched another region: split leaves), ``n_false_off_leaves`` (on
-        wood, walls and other objects), ``n_merged`` (leaves whose match
-        is also another leaf's: leaves merged into one region).
+        wood, walls and other objects), ``n_merged`` (found leaves whose
+        region also holds at least half of another leaf: leaves merged
+        into one region; a few pulses of a mostly hidden leaf inside a
+        neighbour's region do not make a merge).
     """
     if output.labels is None or output.regions is None:
         raise BenchError("whole-scan scoring needs an output with region labels and their traits")
@@ -747,21 +750,22 @@ def leaf_outputs(leaves: list[LeafTruth], output: VariantOutput, scene, scan) ->
     labels = np.asarray(output.labels)
     visible = [labels[leaf.own_pixels()] for leaf in leaves]
     matches = [int(np.bincount(own[own > 0]).argmax()) if (own > 0).any() else None for own in visible]
-    shared = Counter(label for label in matches if label is not None)
+    coverages = [float(np.mean(own == label)) if label is not None else 0.0 for own, label in zip(visible, matches)]
+    shared = Counter(label for label, coverage in zip(matches, coverages) if coverage >= MIN_FOUND_COVERAGE)
     outputs = []
-    for leaf, own, label in zip(leaves, visible, matches):
+    for leaf, own, label, coverage in zip(leaves, visible, matches, coverages):
         stats, traits = {"found": 0, "coverage": 0.0}, {"area_m2": 0.0}
         if label is not None:
             k = index[label]
-            coverage = float(np.mean(own == label))
-            stats = {"found": int(coverage >= MIN_FOUND_COVERAGE), "coverage": coverage,
+            found = coverage >= MIN_FOUND_COVERAGE
+            stats = {"found": int(found), "coverage": coverage,
                      "purity": int((own == label).sum()) / int(regions["pixels"][k]),
-                     "region_pixels": int(regions["pixels"][k]), "merged": int(shared[label] > 1),
+                     "region_pixels": int(regions["pixels"][k]), "merged": int(found and shared[label] > 1),
                      **{key: float(regions[key][k]) for key in regions if key.startswith("rppp_")}}
             traits = output.regions[label]
         flags = None if output.flags is None else np.asarray(output.flags)[leaf.window]
         outputs.append(VariantOutput(np.asarray(output.xyz)[leaf.window], traits, {**output.stats, **stats}, flags))
-    matched = set(shared)
+    matched = {label for label in matches if label is not None}
     merged = sum(count for count in shared.values() if count > 1)
     targets = {leaf.object_id for leaf in leaves}
     others = {i for i, obj in enumerate(scene.objects) if obj.type in TARGET_TYPES} - targets

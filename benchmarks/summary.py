@@ -276,7 +276,7 @@ def validation_table(rows: list[dict]) -> list[dict]:
     midrib elevation and azimuth. ``n_found`` / ``n_missed``: visible
     leaves found or missed by variants that segment the scan themselves
     (None for the others), ``n_merged`` of the found ones in a region that
-    is another leaf's match too; ``n_false``: their regions that match no
+    is another found leaf's match too; ``n_false``: their regions that match no
     leaf, over all cases.
 
     Returns

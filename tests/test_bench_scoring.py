@@ -177,6 +177,13 @@ def test_whole_scan_regions_are_matched_to_true_leaves(two_leaves):
     assert back_out.stats["found"] == front_out.stats["found"] == 1 and counts["n_merged"] == 2
     assert back_out.stats["merged"] == front_out.stats["merged"] == 1
     assert front_out.stats["purity"] < 0.75
+    # A third of the back leaf inside the front leaf's region, the rest in none: the back leaf is missed, its few
+    # pulses there make no merge.
+    labels[back.own_pixels()] = 0
+    labels[rows[third], cols[third]] = 3
+    (back_out, front_out), counts = scoring.leaf_outputs(leaves, output, scene, scan)
+    assert back_out.stats["found"] == 0 and front_out.stats["found"] == 1
+    assert back_out.stats["merged"] == front_out.stats["merged"] == 0 and counts["n_merged"] == 0
     # Given the targets: each leaf's own pulses carry its label.
     given = scoring.target_labels(scan.shape, leaves)
     assert set(np.unique(given)) == {0, 1, 2}
