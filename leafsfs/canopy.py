@@ -853,7 +853,7 @@ PIECE_TOLERANCE = 2.0 / 3.0
 
 def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndarray, gap_px: float,
                   tolerance_m: float, local_px: float = 0.0, fragments: np.ndarray | None = None,
-                  lobe_ratio: float = 0.0, piece_ratio: float = 0.0) -> np.ndarray:
+                  lobe_ratio: float = 0.0, piece_ratio: float = 0.0, bands_px: float = 0.0) -> np.ndarray:
     """Surfaces cut apart by an occluder in front of them joined into one (the label of the first).
 
     Two candidate surfaces are the parts of one leaf when they come within
@@ -865,7 +865,11 @@ def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndar
     ranges within ``tolerance_m`` (median absolute residual: one plane) --
     the planes of the whole parts, or (a curved or curled leaf, whose whole
     parts are on no common plane) those of the pulses of each part within
-    ``local_px`` of the other.
+    ``local_px`` of the other. The parts lie up to ``gap_px + bands_px``
+    apart: the occluder, and on either side of it the band of edge pulses
+    left out of the linking; the gap is then the pixels within half the
+    parts' distance (plus a pixel) of both, where that is more than
+    ``gap_px``.
 
     A ``fragments`` surface (one judged no leaf on its own: a leaf's tip or
     lobe cut off by a twig is too narrow, too elongated or too dark for a
@@ -908,6 +912,8 @@ def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndar
         assumption: 0.5, the larger part is the blade; with :data:`PIECE_TOLERANCE`, chosen with the truth on the
         touching leaf surfaces of the leafy tree and pear seed 7 at 0.018 deg: 7 pairs of pieces of one leaf joined,
         2 leaf-and-wood pairs, both on the pear).
+    bands_px : float
+        Width of the two edge bands beside an occluder, pixels (0: the parts lie at most ``gap_px`` apart).
 
     Returns
     -------
@@ -942,7 +948,8 @@ def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndar
                     for s, n in zip(boxes[k - 1], surfaces.shape))
         sub = surfaces[box]
         inside = sub == k
-        grown = _dilated(inside, gap_px)
+        apart = ndimage.distance_transform_edt(~inside)
+        grown = apart <= gap_px + bands_px
         for m in np.unique(sub[grown & ~inside]):
             if m <= k or m not in planes or root(m) == root(k) or not (leaf[k] or leaf[m]):
                 continue
@@ -964,7 +971,8 @@ def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndar
                           local_px, 0.5 * tolerance_m):
                 parent[piece] = root(whole)
                 continue
-            gap = grown & _dilated(other, gap_px) & ~inside & ~other
+            half = max(gap_px, 0.5 * float(apart[other].min()) + 1.0)
+            gap = (apart <= half) & _dilated(other, half) & ~inside & ~other
             rows, cols = np.nonzero(gap)
             rows, cols = rows + box[0].start, cols + box[1].start
             fits = [((rows_k, cols_k, plane_k), planes[m])]  # the whole parts' planes; then the planes near the cut

@@ -262,8 +262,9 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         (:func:`leafsfs.canopy.wood_surfaces`; ``max_aspect=inf`` and
         ``min_fill=0``: none).
     occluder_gap_m : float
-        Leaf surfaces up to this far apart (at the scan's median range),
-        separated by something nearer than both and on one range plane
+        Leaf surfaces up to this far apart (at the scan's median range; plus
+        the band of edge pulses on either side of the occluder, two edge
+        radii, left out of the linking), separated by something nearer than both and on one range plane
         within 3 sigma, are one leaf cut by an occluder, and so is a smaller
         surface that is no leaf on its own with a leaf surface
         (:func:`leafsfs.canopy.join_occluded`; assumption: 1 cm, twigs and
@@ -380,7 +381,9 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         # Surfaces no leaf on their own (a tip or lobe cut off by a twig) may join the leaf they were cut from.
         fragments = ~leaf & ~_border_labels(surfaces)
         fragments[0] = False
-        joined = join_occluded(surfaces, range_m, leaf, gap, 3 * sigma, 1.5 * gap, fragments, lobe_ratio, piece_ratio)
+        bands = 2 * radius if edge_factor > 0 else 0.0  # the edge pulses either side of the occluder
+        joined = join_occluded(surfaces, range_m, leaf, gap, 3 * sigma, 1.5 * gap, fragments, lobe_ratio, piece_ratio,
+                               bands)
         # A joined group the leaf tests refuse as a whole is not joined: a leaf and the branch piece behind its
         # twig part again (each keeps its own judgement); a group of two or more leaf surfaces more elongated than a
         # leaf is the pieces of one branch cut by what lies in front of it, and none is a leaf (two leaves joined
