@@ -931,7 +931,7 @@ def join_occluded(surfaces: np.ndarray, range_m: np.ndarray, candidates: np.ndar
         return k
 
     boxes = ndimage.find_objects(surfaces)
-    reach = int(math.ceil(gap_px))
+    reach = int(math.ceil(gap_px + bands_px))
     leaf = np.zeros(len(parent), dtype=bool)
     leaf[:len(candidates)] = candidates[:len(parent)]
     joinable = leaf.copy()

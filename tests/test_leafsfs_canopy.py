@@ -385,6 +385,23 @@ def test_join_occluded_joins_the_parts_of_a_leaf_behind_a_twig_only():
         join_occluded(labels, range_m, candidates, 0.0, 0.005)
 
 
+def test_join_occluded_reaches_across_the_edge_bands_beside_a_twig():
+    rows, cols = np.mgrid[0:40, 0:80]
+    plane = 3.0 + 0.0005 * rows + 0.001 * cols
+    labels = np.zeros(rows.shape, int)
+    labels[5:35, 5:30], labels[5:35, 42:70] = 1, 2  # two parts 12 pixels apart: a 4-pixel twig, 4-pixel bands
+    twig = (cols >= 34) & (cols < 38)
+    band = ((cols >= 30) & (cols < 34)) | ((cols >= 38) & (cols < 42))  # mixed pulses between twig and leaf
+    candidates = np.array([False, True, True])
+    for between, joined in ((plane - 0.03, True), (np.nan, False), (plane + 0.05, False)):
+        range_m = np.where(twig, between, np.where(band, plane - 0.015 if joined else between, plane))
+        assert (join_occluded(labels, range_m, candidates, 6.0, 0.005)[labels == 2] == 2).all()  # no bands: too far
+        assert (join_occluded(labels, range_m, candidates, 6.0, 0.005, bands_px=8.0)[labels == 2] == 1).all() == joined
+    # far beyond the occluder and its bands, a part is another leaf
+    range_m = np.where(twig | band, plane - 0.03, plane)
+    assert (join_occluded(labels, range_m, candidates, 3.0, 0.005, bands_px=6.0)[labels == 2] == 2).all()
+
+
 def test_join_occluded_gives_a_fragment_cut_off_by_a_twig_back_to_its_leaf_only():
     rows, cols = np.mgrid[0:40, 0:60]
     plane = 3.0 + 0.0005 * rows + 0.001 * cols
