@@ -266,10 +266,10 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         the band of edge pulses on either side of the occluder, two edge
         radii, left out of the linking), separated by something nearer than
         both and on one range plane within 3 sigma, are one leaf cut by an
-        occluder, and so is a smaller
-        surface that is no leaf on its own with a leaf surface
-        (:func:`leafsfs.canopy.join_occluded`; assumption: 1 cm, twigs and
-        petioles in front of a leaf; 0: not joined). The common plane is that
+        occluder, and so is a smaller surface that is no leaf on its own
+        with a leaf surface (:func:`leafsfs.canopy.join_occluded`;
+        assumption: 1 cm, twigs and petioles in front of a leaf; 0: not
+        joined). The common plane is that
         of the whole parts or, for curved leaves, that of each part's pulses
         within 1.5 times this of the other part. A joined group the leaf tests
         (width, wood shape, darkness) refuse as a whole is parted again; when
