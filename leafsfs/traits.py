@@ -20,6 +20,11 @@ area element grows as ``1 / cos``, a slightly flattened leaf loses much of
 its area (a flat 9 cm leaf at 80 deg and 3.5 m, 0.018 deg, whose band of
 edge pulses is as wide as its pure part: -21 % from all pulses, +2 % from
 the pure ones), on half the smoothing (:data:`AREA_SMOOTHING_FRACTION`).
+Beyond 70 deg a pure pulse's slope is that of the differences of its height
+to its neighbours' instead (:func:`_grazing_differences`): a wrinkled leaf
+turns edge-on on the scale of a few pulses, which a plane averages away
+(grazing leaves' pure pulses of the leafy tree: 11 % short of their true
+secants with the planes, 2.5 % with the differences).
 In the band of mixed pulses beyond the reach of those planes the slope is
 that of the quadratic surface fitted to all pure pulses, not the nearest
 plane's: a rolled or cupped leaf is steeper towards its margins, and at
@@ -83,6 +88,13 @@ QUADRATIC_MAX_NOISE_RATIO = 3.0
 #: Smallest noise that ratio is taken of, m (assumption: a scanner's range noise is no finer than half a millimetre;
 #: noiseless heights would otherwise hold the quadratic to a leaf's exact shape).
 MIN_HEIGHT_NOISE_M = 0.0005
+#: Smallest secant of the local planes' incidence from which a pure pulse's area element takes its slope from the
+#: differences of its height to its neighbours' (:func:`_grazing_differences`): 1 / cos(70 deg) (assumption: beyond
+#: it the height step between pulses is at least 2.7 pulse spacings, so range noise of the order of the spacing
+#: inflates the secant by a few per cent). Measured on the leaves >= 80 % visible, area R2 of leafy tree / pear seed
+#: 41 at 5 m (0.018 deg, `fused`): planes 0.686 / 0.787; differences beyond 70 deg 0.708 / 0.791; differences at every
+#: incidence 0.598 / 0.760 (median |area error| 5.5 -> 23.7 %: the noise of a facing leaf's differences).
+DIFFERENCE_MIN_SECANT = 1.0 / math.cos(math.radians(70.0))
 #: Largest incidence a mixed pulse's leaf part is counted at, deg (assumption: the area element ``1 / cos`` grows
 #: without bound towards 90 deg, where an intensity a few DN above the floor would count for any area).
 BAND_MAX_INCIDENCE_DEG = 88.0
@@ -342,7 +354,9 @@ def _area_slope_elements(elements, height: np.ndarray, known: np.ndarray, weight
     fitted to all pure pulses (:func:`_quadratic_slope`): a curled leaf gets
     steeper towards its margins, and the nearest plane's slope would carry
     the flatter middle out to the border. The orientation keeps the planes of
-    all pulses; only the area takes these.
+    all pulses; only the area takes these. At grazing incidence a pure pulse
+    takes its slope from its own height differences
+    (:func:`_grazing_differences`).
     """
     pure = known & (weight >= 1)
     if pure.sum() < PURE_SLOPE_MIN_PX:
@@ -352,9 +366,64 @@ def _area_slope_elements(elements, height: np.ndarray, known: np.ndarray, weight
         return fallback
     quadratic = _quadratic_slope(height, pure)
     if quadratic is None:
-        return elements(slope[tuple(ndimage.distance_transform_edt(~fitted, return_distances=False,
-                                                                   return_indices=True))])
-    return elements(np.where(fitted[..., None], slope, quadratic))
+        planes = elements(slope[tuple(ndimage.distance_transform_edt(~fitted, return_distances=False,
+                                                                     return_indices=True))])
+    else:
+        planes = elements(np.where(fitted[..., None], slope, quadratic))
+    return _grazing_differences(elements, height, pure, planes)
+
+
+def _grazing_differences(elements, height: np.ndarray, pure: np.ndarray, planes: np.ndarray) -> np.ndarray:
+    """Area elements of the pure pulses at grazing incidence from their own height differences, else ``planes``.
+
+    Where the planes' incidence is at least :data:`DIFFERENCE_MIN_SECANT`'s,
+    a pure pulse takes its slope from the differences of its height to its
+    pure neighbours' (central where both neighbours along an axis are pure,
+    one-sided where one is; the planes' element where neither is). A leaf's
+    surface turns on the scale of a few pulses (wrinkles, veins, pleats), and
+    near grazing incidence the parts turned further edge-on count for much
+    more area than a plane fitted over several pulses gives them: the
+    smoothed slope loses the pulse-scale one across the steep direction.
+    Measured on the grazing (>= 70 deg) leaves' pure pulses of the leafy tree
+    and pear seed 41 at 5 m (0.018 deg, truth: each pulse's true incidence),
+    the planes counted 535 / 508 cm2 of 604 / 548, the differences 589 / 558.
+    Range noise inflates a difference's secant by about half the square of
+    the noise over the height step between pulses, which beyond 70 deg is
+    ``tan(70 deg) = 2.7`` pulse spacings or more (assumption: the noise is of
+    the order of the spacing or less); below it the noise would dominate
+    (:data:`DIFFERENCE_MIN_SECANT`).
+
+    Parameters
+    ----------
+    elements : callable
+        World area elements of a slope field ``(rows, cols, 2)``, m².
+    height : ndarray, 2-D
+        Heights, m (any value where not pure).
+    pure : ndarray of bool, 2-D
+        Pulses wholly on the leaf.
+    planes : ndarray, (rows, cols, 3)
+        The planes' area elements, m².
+
+    Returns
+    -------
+    ndarray, (rows, cols, 3)
+        Area elements, m².
+    """
+    slope = np.full(height.shape + (2,), np.nan)
+    h = np.where(pure, height, np.nan)
+    for axis in (0, 1):
+        ahead, behind = (np.full(h.shape, np.nan) for _ in range(2))
+        inner = [slice(None)] * 2
+        inner[axis] = slice(None, -1)
+        outer = [slice(None)] * 2
+        outer[axis] = slice(1, None)
+        ahead[tuple(inner)], behind[tuple(outer)] = h[tuple(outer)], h[tuple(inner)]
+        central, forward, backward = (ahead - behind) / 2, ahead - h, h - behind
+        slope[..., axis] = np.where(np.isfinite(central), central, np.where(np.isfinite(forward), forward, backward))
+    known = pure & np.all(np.isfinite(slope), axis=-1)
+    flat = np.linalg.norm(elements(np.zeros(height.shape + (2,))), axis=-1)
+    grazing = known & (np.linalg.norm(planes, axis=-1) >= DIFFERENCE_MIN_SECANT * flat)
+    return np.where(grazing[..., None], elements(np.where(known[..., None], slope, 0.0)), planes)
 
 
 def _quadratic_slope(height: np.ndarray, known: np.ndarray) -> np.ndarray | None:
