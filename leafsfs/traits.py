@@ -20,7 +20,7 @@ area element grows as ``1 / cos``, a slightly flattened leaf loses much of
 its area (a flat 9 cm leaf at 80 deg and 3.5 m, 0.018 deg, whose band of
 edge pulses is as wide as its pure part: -21 % from all pulses, +2 % from
 the pure ones), on half the smoothing (:data:`AREA_SMOOTHING_FRACTION`).
-Beyond 70 deg a pure pulse's slope is that of the differences of its height
+Beyond 78 deg a pure pulse's slope is that of the differences of its height
 to its neighbours' instead (:func:`_grazing_differences`): a wrinkled leaf
 turns edge-on on the scale of a few pulses, which a plane averages away
 (grazing leaves' pure pulses of the leafy tree: 11 % short of their true
@@ -89,16 +89,19 @@ QUADRATIC_MAX_NOISE_RATIO = 3.0
 #: noiseless heights would otherwise hold the quadratic to a leaf's exact shape).
 MIN_HEIGHT_NOISE_M = 0.0005
 #: Smallest secant of the local planes' incidence from which a pure pulse's area element takes its slope from the
-#: differences of its height to its neighbours' (:func:`_grazing_differences`): 1 / cos(70 deg) (assumption: beyond
-#: it the height step between pulses is at least 2.7 pulse spacings, so range noise of the order of the spacing
-#: inflates the secant by a few per cent). Measured on the leaves >= 80 % visible, area R2 of leafy tree / pear seed
-#: 41 at 5 m (0.018 deg, `fused`): planes 0.686 / 0.787; differences beyond 70 deg 0.708 / 0.791; differences at every
-#: incidence 0.598 / 0.760 (median |area error| 5.5 -> 23.7 %: the noise of a facing leaf's differences). Not where
-#: the decomposition of the mixed pulses raised them (an evenly lit surface behind the leaf, :func:`mixed_band`): there
-#: the differences overshot (pear seed 173 at 4 m, a wall 1 m behind, grazing leaves' pure pulses: planes 547 cm2,
-#: differences 609, truth 561; single pear leaves before a wall at 0.8 m, 70 / 80 deg: area error -4.8 / -18.8 % ->
-#: +31.5 / +34.2 %, where the height noise exceeds the step between pulses), and the planes' area stands.
-DIFFERENCE_MIN_SECANT = 1.0 / math.cos(math.radians(70.0))
+#: differences of its height to its neighbours' (:func:`_grazing_differences`): 1 / cos(78 deg) (assumption: beyond
+#: it the height step between pulses is at least 4.7 pulse spacings, so range noise of the order of the spacing
+#: inflates the secant by a few per cent at most). Measured on the leaves >= 80 % visible (0.018 deg, `fused`, area
+#: R2 / median |area error|): from 70 deg, leafy tree 0.686 -> 0.705, pear seed 41 at 5 m 0.787 -> 0.792, but the
+#: median of seed 31 at 2.5 m 6.4 -> 7.0 % and of seed 101 at 3.5 m 5.6 -> 6.3 % (leaves near the median overshot);
+#: from 78 deg tree 0.697 / 6.2 %, seed 7 0.667 -> 0.676 / 8.6 -> 7.6 %, seed 31 0.710 / 6.3 %, no R2 down on seven
+#: pears and trees (the angle was chosen offline on those seven); at every incidence the tree's R2 fell to 0.598
+#: (median 23.7 %: the noise of a facing leaf's differences). Not where the decomposition of the mixed pulses raised
+#: them (an evenly lit surface behind the leaf, :func:`mixed_band`): there the differences overshot (pear seed 173 at
+#: 4 m, a wall 1 m behind, grazing leaves' pure pulses: planes 547 cm2, differences 609, truth 561; single pear leaves
+#: before a wall at 0.8 m, 70 / 80 deg: area error -4.8 / -18.8 % -> +31.5 / +34.2 %, where the height noise exceeds
+#: the step between pulses), and the planes' area stands.
+DIFFERENCE_MIN_SECANT = 1.0 / math.cos(math.radians(78.0))
 #: Largest incidence a mixed pulse's leaf part is counted at, deg (assumption: the area element ``1 / cos`` grows
 #: without bound towards 90 deg, where an intensity a few DN above the floor would count for any area).
 BAND_MAX_INCIDENCE_DEG = 88.0
@@ -392,8 +395,8 @@ def _grazing_differences(elements, height: np.ndarray, pure: np.ndarray, planes:
     and pear seed 41 at 5 m (0.018 deg, truth: each pulse's true incidence),
     the planes counted 535 / 508 cm2 of 604 / 548, the differences 589 / 558.
     Range noise inflates a difference's secant by about half the square of
-    the noise over the height step between pulses, which beyond 70 deg is
-    ``tan(70 deg) = 2.7`` pulse spacings or more (assumption: the noise is of
+    the noise over the height step between pulses, which beyond 78 deg is
+    ``tan(78 deg) = 4.7`` pulse spacings or more (assumption: the noise is of
     the order of the spacing or less); below it the noise would dominate
     (:data:`DIFFERENCE_MIN_SECANT`).
 
