@@ -416,15 +416,11 @@ def _grazing_differences(elements, height: np.ndarray, pure: np.ndarray, planes:
     ndarray, (rows, cols, 3)
         Area elements, m².
     """
-    slope = np.full(height.shape + (2,), np.nan)
     h = np.where(pure, height, np.nan)
-    for axis in (0, 1):
-        ahead, behind = (np.full(h.shape, np.nan) for _ in range(2))
-        inner = [slice(None)] * 2
-        inner[axis] = slice(None, -1)
-        outer = [slice(None)] * 2
-        outer[axis] = slice(1, None)
-        ahead[tuple(inner)], behind[tuple(outer)] = h[tuple(outer)], h[tuple(inner)]
+    padded = np.pad(h, 1, constant_values=np.nan)
+    slope = np.empty(height.shape + (2,))
+    for axis, (ahead, behind) in enumerate([(padded[2:, 1:-1], padded[:-2, 1:-1]),
+                                            (padded[1:-1, 2:], padded[1:-1, :-2])]):
         central, forward, backward = (ahead - behind) / 2, ahead - h, h - behind
         slope[..., axis] = np.where(np.isfinite(central), central, np.where(np.isfinite(forward), forward, backward))
     known = pure & np.all(np.isfinite(slope), axis=-1)

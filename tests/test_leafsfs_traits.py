@@ -7,7 +7,6 @@ import pytest
 from scipy import ndimage
 
 from leafsfs.frame import local_frame
-import leafsfs.traits as traits
 from leafsfs.traits import _grazing_differences, _quadratic_slope, background_spread, leaf_traits, mixed_band
 from tlssim.pattern import beam_frame
 
@@ -249,7 +248,7 @@ def test_a_leaf_below_78_deg_keeps_the_planes_area(incidence_deg, monkeypatch):
     # Below 78 deg the noise of the differences would inflate the area: the planes' elements stand, pleats or not.
     frame, height, weight, _ = _pleated_traits(incidence_deg, 0.002)
     area = leaf_traits(frame, height, weight, 0.005)["area_m2"]
-    monkeypatch.setattr(traits, "_grazing_differences", lambda elements, height, pure, planes: planes)
+    monkeypatch.setattr("leafsfs.traits._grazing_differences", lambda elements, height, pure, planes: planes)
     assert area == leaf_traits(frame, height, weight, 0.005)["area_m2"]
 
 
