@@ -35,7 +35,7 @@ import math
 import numpy as np
 from scipy import ndimage
 
-from leafsfs.canopy import plane_fits, principal_spreads, wood_surfaces
+from leafsfs.canopy import plane_fits
 from leafsfs.errors import SfsError
 from tlssim.pattern import beam_frame
 
@@ -49,13 +49,25 @@ MIN_PLANE_RADIUS_PX = 3.0
 #: A surface whose dark pulses are more than this share of its pulses is not cut (a leaf seen through another leaf
 #: reads dark all over; :func:`leafsfs.canopy.dark_surfaces` judges the whole surface). Assumption: one half.
 MAX_DARK_SHARE = 0.5
-#: Smallest evidence for a cylinder across a part's width: the drop of the sum of squared range residuals, in range
-#: noise variances, when a curvature across the part's narrow axis is added to its plane (a chi-square of one degree
+#: Smallest evidence for a cylinder across a patch's width: the drop of the sum of squared range residuals, in range
+#: noise variances, when a curvature across the patch's narrow axis is added to its plane (a chi-square of one degree
 #: of freedom under a plane; assumption: 25, five standard deviations).
 MIN_CYLINDER_EVIDENCE = 25.0
-#: Largest radius of a cylinder taken for bark, m (assumption: 5 cm, the thickest branches of a fruit tree's crown
-#: that leaves lie against; a leaf's curl across a part is gentler).
-MAX_BARK_RADIUS_M = 0.05
+#: Largest radius of a cylinder taken for bark, m (assumption: 3 cm, the thickest branches of a fruit tree's crown
+#: that leaves lie against and the linking joins to them).
+MAX_BARK_RADIUS_M = 0.03
+#: Largest radius of a cylinder taken for bark, as a share of the patch's width (four spreads along its second
+#: principal axis). A branch seen from the side shows an arc of about +-60-80 deg, a width of 1.7-2 radii: 0.5-0.6
+#: width; a leaf rolled across its width (its margins turned by ``roll`` rad each) has a radius of ``1 / (2 roll)``
+#: widths, at least 0.7 width for a roll of up to 0.7 rad (assumption; the pear leaves of :mod:`scenes.leaf` roll
+#: by at most 0.5 rad). Chosen on the development canopies (canopy5 suite: leafy tree, pears s7, s23, s31, s41):
+#: their bark surfaces taken for leaves measured 0.35-0.7, their leaves 0.45-1.8, those under 0.7 also curved along
+#: their length (:data:`MIN_AXIS_RATIO`).
+MAX_RADIUS_WIDTH = 0.7
+#: Smallest radius of the curvature along a bark patch's length, in radii across it: a branch is nearly straight
+#: over a patch, a rolled leaf that is also bent (a dome or saddle) is not (assumption: 3; on the development
+#: canopies a rolled leaf measured 2.5, bark 2.7-400).
+MIN_AXIS_RATIO = 3.0
 
 
 def local_incidence(range_m: np.ndarray, inside: np.ndarray, step_rad: float) -> np.ndarray:
@@ -83,49 +95,104 @@ def local_incidence(range_m: np.ndarray, inside: np.ndarray, step_rad: float) ->
     return np.arctan(slope / (masked * step_rad))
 
 
-def cylinder_evidence(xyz: np.ndarray, beam: np.ndarray, noise_m: float) -> tuple[float, float]:
-    """How much better a cylinder across a patch's narrow axis fits its points than a plane.
+def cylinder_fit(xyz: np.ndarray, noise_m: float) -> tuple[float, float, float, float]:
+    """How much better a cylinder across a patch's narrow axis fits its points than a plane, and its radii.
 
     The points are taken in their principal frame (``u`` along the longest
-    axis, ``v`` across, ``w`` the depth, oriented away from the scanner);
-    ``w = a + b u + c v`` is compared with ``w = a + b u + c v + e v^2``.
+    axis, ``v`` across, ``w`` the depth, oriented away from the scanner at the
+    origin); ``w = a + b u + c v`` is compared with ``w = a + b u + c v + e
+    v^2``, and the quadric ``w = a + b u + c v + e v^2 + f u^2 + g u v`` gives
+    the radii across and along.
 
     Parameters
     ----------
     xyz : ndarray, (n, 3)
-        Points, m.
-    beam : ndarray, (3,)
-        Mean beam direction (unit, from the scanner).
+        Points in the scanner's frame, m.
     noise_m : float
         Range noise (standard deviation), m.
 
     Returns
     -------
     evidence : float
-        Drop of the sum of squared residuals in noise variances (0 with fewer than 8 points).
+        Drop of the sum of squared residuals from the plane to the cylinder, in noise variances (0 with fewer
+        than 8 points).
     radius : float
-        Radius of the fitted curvature, m, positive when the patch bulges towards the scanner (inf when flat).
+        Radius across, ``1 / (2 e)`` of the quadric, m: positive when the patch bulges towards the scanner (inf
+        when it does not).
+    along : float
+        Radius along, ``1 / (2 |f|)``, m (inf when straight).
+    width : float
+        Four spreads along the second principal axis, m.
     """
     if len(xyz) < 8:
-        return 0.0, math.inf
-    d = xyz - xyz.mean(axis=0)
-    _, vectors = np.linalg.eigh(d.T @ d)
+        return 0.0, math.inf, math.inf, 0.0
+    centre = xyz.mean(axis=0)
+    d = xyz - centre
+    values, vectors = np.linalg.eigh(d.T @ d)
     u, v, w = vectors[:, 2], vectors[:, 1], vectors[:, 0]
-    if w @ beam < 0:
+    if w @ centre < 0:
         w = -w
     pu, pv, pw = d @ u, d @ v, d @ w
     plane = np.stack([np.ones(len(d)), pu, pv], axis=1)
-    curved = np.column_stack([plane, pv ** 2])
-    rss = [float(np.sum((pw - m @ np.linalg.lstsq(m, pw, rcond=None)[0]) ** 2)) for m in (plane, curved)]
-    e = np.linalg.lstsq(curved, pw, rcond=None)[0][3]
-    radius = 1 / (2 * e) if e > 0 else math.inf
-    return (rss[0] - rss[1]) / noise_m ** 2, radius
+    cylinder = np.column_stack([plane, pv ** 2])
+    quadric = np.column_stack([cylinder, pu ** 2, pu * pv])
+    rss = [float(np.sum((pw - m @ np.linalg.lstsq(m, pw, rcond=None)[0]) ** 2)) for m in (plane, cylinder)]
+    e, f = np.linalg.lstsq(quadric, pw, rcond=None)[0][3:5]
+    with np.errstate(divide="ignore"):
+        radius = float(1 / (2 * e)) if e > 0 else math.inf
+        along = float(1 / (2 * abs(f)))
+    return (rss[0] - rss[1]) / noise_m ** 2, radius, along, 4 * math.sqrt(max(values[1], 0) / len(d))
+
+
+def is_bark(xyz: np.ndarray, noise_m: float) -> bool:
+    """Whether a patch of points is a piece of a branch seen from the side: a narrow, straight cylinder.
+
+    The cylinder across the patch (:func:`cylinder_fit`) beats the plane by
+    :data:`MIN_CYLINDER_EVIDENCE`, bulges towards the scanner with a radius of
+    at most :data:`MAX_BARK_RADIUS_M` and :data:`MAX_RADIUS_WIDTH` of the
+    patch's width, and the patch is nearly straight along its length
+    (:data:`MIN_AXIS_RATIO`).
+
+    Parameters
+    ----------
+    xyz : ndarray, (n, 3)
+        Points in the scanner's frame, m.
+    noise_m : float
+        Range noise (standard deviation), m.
+    """
+    evidence, radius, along, width = cylinder_fit(xyz, noise_m)
+    return (evidence >= MIN_CYLINDER_EVIDENCE and radius <= MAX_BARK_RADIUS_M and radius <= MAX_RADIUS_WIDTH * width
+            and along >= MIN_AXIS_RATIO * radius)
+
+
+def bark_surfaces(surfaces: np.ndarray, candidates: np.ndarray, range_m: np.ndarray, theta: np.ndarray,
+                  psi: np.ndarray, noise_m: float) -> np.ndarray:
+    """Which candidate surfaces are pieces of a branch (:func:`is_bark`; index = label, False for 0).
+
+    Parameters
+    ----------
+    surfaces : ndarray of int, 2-D
+        Surface labels (0: none).
+    candidates : ndarray of bool
+        Labels to test (index = label).
+    range_m, theta, psi : ndarray, 2-D
+        Scan grids (m, rad).
+    noise_m : float
+        Range noise (standard deviation), m.
+    """
+    bark = np.zeros(len(candidates), dtype=bool)
+    for k, box in enumerate(ndimage.find_objects(surfaces), start=1):
+        if box is None or k >= len(candidates) or not candidates[k]:
+            continue
+        sel = (surfaces[box] == k) & np.isfinite(range_m[box])
+        bark[k] = is_bark(beam_frame(theta[box][sel], psi[box][sel])[0] * range_m[box][sel][:, None], noise_m)
+    return bark
 
 
 def dark_parts(surfaces: np.ndarray, leaf: np.ndarray, range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray,
-               alpha: np.ndarray, step_rad: float, noise_m: float, excess_rad: float, min_pixels: int, *,
-               max_aspect: float = 4.0, min_fill: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
-    """Leaf surfaces with their dark, wood-shaped parts labelled apart.
+               alpha: np.ndarray, step_rad: float, noise_m: float, excess_rad: float,
+               min_pixels: int) -> tuple[np.ndarray, np.ndarray]:
+    """Leaf surfaces with their dark parts shaped like bark (:func:`is_bark`) labelled apart.
 
     Parameters
     ----------
@@ -146,8 +213,6 @@ def dark_parts(surfaces: np.ndarray, leaf: np.ndarray, range_m: np.ndarray, thet
         range plane (:func:`local_incidence`) by more than this, rad.
     min_pixels : int
         Fewest pulses of a part cut off.
-    max_aspect, min_fill : float
-        The wood tests of :func:`leafsfs.canopy.wood_surfaces`.
 
     Returns
     -------
@@ -180,17 +245,9 @@ def dark_parts(surfaces: np.ndarray, leaf: np.ndarray, range_m: np.ndarray, thet
         candidates = [p for p in range(1, n + 1) if sizes[p] >= min_pixels]
         if not candidates:
             continue
-        labels = np.where(np.isin(parts, candidates), parts, 0)
-        woody = wood_surfaces(labels, range_m[box], theta[box], psi[box], step_rad, alpha[box],
-                              max_aspect=max_aspect, min_fill=min_fill)
-        spread = principal_spreads(labels, range_m[box], theta[box], psi[box])
         for p in candidates:
             sel = parts == p
-            xyz = beam_frame(theta[box][sel], psi[box][sel])[0] * range_m[box][sel][:, None]
-            beam = xyz.mean(axis=0) / np.linalg.norm(xyz.mean(axis=0))
-            evidence, radius = cylinder_evidence(xyz, beam, noise_m)
-            bark = evidence >= MIN_CYLINDER_EVIDENCE and radius <= MAX_BARK_RADIUS_M
-            if not (woody[p] or bark) or not np.isfinite(spread[p, 1]):
+            if not is_bark(beam_frame(theta[box][sel], psi[box][sel])[0] * range_m[box][sel][:, None], noise_m):
                 continue
             count += 1
             out[box][sel] = count
