@@ -1,32 +1,35 @@
-"""Bark parts of leaf surfaces cut off by their intensity and their shape.
+"""Bark in leaf surfaces: surfaces shaped like a branch, and dark bark-shaped parts, are no leaves.
 
-A leaf surface of :func:`leafsfs.leaves.segment_scan` may hold a piece of the
-branch it lies against when the linking joined the two and neither the neck,
-crease nor merge cuts parted them. Such a piece reads darker than a leaf on
-its local range plane would: bark reflects less than the calibrated leaf, and
-its pulses see a bulging surface, so the intensity-derived incidence
-``alpha`` exceeds the incidence of the local plane of the ranges. A leaf
-seen through another leaf (transmission) or a leaf darker than the
-calibrated one also reads dark, but over its whole surface and on a plane.
+A leaf surface of :func:`leafsfs.leaves.segment_scan` may be a piece of a
+branch the leaf tests let through (broad enough, not elongated, not darker
+than its range plane), or hold a piece of the branch a leaf lies against when
+the linking joined the two and neither the neck, crease nor merge cuts parted
+them. Bark has a shape no leaf has: a narrow, straight cylinder that bulges
+towards the scanner across its width (:func:`is_bark`); a leaf is a plane, a
+gentle roll (a radius of a width or more), or a dome or saddle (curved along
+its length too). And bark reads darker than a leaf on its local range plane
+would: it reflects less than the calibrated leaf and its pulses see a bulging
+surface, so the intensity-derived incidence ``alpha`` exceeds the incidence
+of the local plane of the ranges. A leaf seen through another leaf
+(transmission) or a leaf darker than the calibrated one also reads dark, but
+on a plane, and mostly over its whole surface.
 
-So a connected dark part of a leaf surface is cut off (:func:`dark_parts`)
-only when
+So
 
-* it is dark: ``alpha`` exceeds the local plane's incidence by more than a
-  threshold, over a part at least a surface in size once the outline strips
-  (one or two pulses wide, darkened by the footprint's share off the leaf) are
-  opened away;
-* the surface is not dark over most of its pulses (that is
-  :func:`leafsfs.canopy.dark_surfaces`' business, and a leaf behind another
-  leaf);
-* the part is shaped like wood: elongated or sparse by the wood tests of
-  :func:`leafsfs.canopy.wood_surfaces`, or a cylinder across its width
-  (:func:`cylinder_evidence`: its ranges bulge towards the scanner across its
-  narrow axis much more than the noise allows for a plane).
+* a leaf surface shaped like bark is no leaf (:func:`bark_surfaces`);
+* a connected dark part of a leaf surface is cut off (:func:`dark_parts`)
+  only when ``alpha`` exceeds the local plane's incidence by more than a
+  threshold over a part at least a surface in size once the outline strips
+  (one or two pulses wide, darkened by the footprint's share off the leaf)
+  are opened away, the surface is not dark over most of its pulses (that is
+  :func:`leafsfs.canopy.dark_surfaces`' business), and the part is shaped
+  like bark.
 
 The caller (:func:`leafsfs.leaves.segment_scan`) keeps a cut only when what
-remains of the surface is still a leaf by its leaf tests, and the cut parts
-are no leaves.
+remains of the surface is still a leaf by its leaf tests; the cut parts are
+no leaves. The thresholds were chosen on the development canopies (suite
+canopy5: leafy tree, pears s7, s23, s41 at 0.018 deg); the pears s101 and
+s173 (suite fresh17) are the check.
 """
 from __future__ import annotations
 
@@ -57,16 +60,16 @@ MIN_CYLINDER_EVIDENCE = 25.0
 #: that leaves lie against and the linking joins to them).
 MAX_BARK_RADIUS_M = 0.03
 #: Largest radius of a cylinder taken for bark, as a share of the patch's width (four spreads along its second
-#: principal axis). A branch seen from the side shows an arc of about +-60-80 deg, a width of 1.7-2 radii: 0.5-0.6
-#: width; a leaf rolled across its width (its margins turned by ``roll`` rad each) has a radius of ``1 / (2 roll)``
-#: widths, at least 0.7 width for a roll of up to 0.7 rad (assumption; the pear leaves of :mod:`scenes.leaf` roll
-#: by at most 0.5 rad). Chosen on the development canopies (canopy5 suite: leafy tree, pears s7, s23, s31, s41):
-#: their bark surfaces taken for leaves measured 0.35-0.7, their leaves 0.45-1.8, those under 0.7 also curved along
-#: their length (:data:`MIN_AXIS_RATIO`).
+#: principal axis, 1.15 times the chord for pulses spread evenly across it). A branch seen from the side over an arc
+#: of +-60-80 deg has a width of 2.0-2.3 radii (0.44-0.5); a leaf rolled across its width, its margins turned by
+#: ``roll`` rad, has a radius of ``1 / (2.3 roll)`` widths, above 0.7 for a roll under 0.62 rad (assumption; the
+#: pear leaves of :mod:`scenes.leaf` roll by at most 0.5 rad). Measured on canopy5's leaf surfaces (main's
+#: segmentation; leafy tree, pears s7, s23, s41): the surfaces :func:`is_bark` takes at 0.7 held 6,444 wood and 71
+#: leaf pulses; at 0.8, 7,256 and 71; at 1.0, 10,200 and 301 (a rolled leaf of the leafy tree and two pieces).
 MAX_RADIUS_WIDTH = 0.7
 #: Smallest radius of the curvature along a bark patch's length, in radii across it: a branch is nearly straight
-#: over a patch, a rolled leaf that is also bent (a dome or saddle) is not (assumption: 3; on the development
-#: canopies a rolled leaf measured 2.5, bark 2.7-400).
+#: over a patch, a rolled leaf that is also bent (a dome or saddle) is not (assumption: 3; on the leafy tree a
+#: rolled leaf of 2.3 cm radius measured 2.5).
 MIN_AXIS_RATIO = 3.0
 
 

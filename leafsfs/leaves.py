@@ -431,8 +431,7 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
     if dark_excess_deg > 0 and alpha is not None:
         # Bark parts of leaf surfaces: kept apart (no leaves) when what remains of the surface is still a leaf.
         parted, parents = dark_parts(surfaces, leaf, range_m, theta, psi, alpha, step, sigma,
-                                     math.radians(dark_excess_deg), piece_px, max_aspect=max_aspect,
-                                     min_fill=min_fill)
+                                     math.radians(dark_excess_deg), piece_px)
         if len(parents):
             new = int(surfaces.max(initial=0)) + 1 + np.arange(len(parents))
             judged = leaves_of(np.where(np.isin(parted, parents), parted, 0))  # what remains of the cut surfaces
