@@ -162,6 +162,11 @@ def is_bark(xyz: np.ndarray, noise_m: float) -> bool:
         Points in the scanner's frame, m.
     noise_m : float
         Range noise (standard deviation), m.
+
+    Returns
+    -------
+    bool
+        True for a branch piece.
     """
     evidence, radius, along, width = cylinder_fit(xyz, noise_m)
     return (evidence >= MIN_CYLINDER_EVIDENCE and radius <= MAX_BARK_RADIUS_M and radius <= MAX_RADIUS_WIDTH * width
@@ -182,6 +187,11 @@ def bark_surfaces(surfaces: np.ndarray, candidates: np.ndarray, range_m: np.ndar
         Scan grids (m, rad).
     noise_m : float
         Range noise (standard deviation), m.
+
+    Returns
+    -------
+    ndarray of bool
+        Bark per label (length of ``candidates``).
     """
     bark = np.zeros(len(candidates), dtype=bool)
     for k, box in enumerate(ndimage.find_objects(surfaces), start=1):
