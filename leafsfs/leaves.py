@@ -31,6 +31,7 @@ from scipy.sparse import csgraph
 from leafsfs.canopy import (MIN_LEAF_WIDTH_M, dark_surfaces, edge_pulses, grow_outline, join_occluded,
                             narrow_surfaces, principal_spreads, pulse_noise, rim_mixed, shifted, split_creases,
                             split_necks, wood_surfaces)
+from leafsfs.darkparts import bark_surfaces, dark_parts
 from leafsfs.edges import MixedPulses, attribute_mixed, band_pixels
 from leafsfs.errors import SfsError
 from leafsfs.splits import split_merged
@@ -193,7 +194,8 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
                  min_fill: float = 0.5, occluder_gap_m: float = 0.01, crease_angle_deg: float = 40.0,
                  min_piece_px: int = 3, min_leaf_width_m: float = MIN_LEAF_WIDTH_M,
                  lobe_ratio: float = 0.15, piece_ratio: float = 0.5, rim_sigma: float = 0.0,
-                 grow_sigma: float = 0.0, split_merged_surfaces: bool = True) -> Segmentation:
+                 grow_sigma: float = 0.0, split_merged_surfaces: bool = True,
+                 bark_cylinders: bool = True, dark_excess_deg: float = 20.0) -> Segmentation:
     """Surfaces, mixed pulses and leaf regions of a scan.
 
     Parameters
@@ -323,6 +325,19 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
         leaves overlapping in the image, a leaf on its branch): split, and each
         part judged again; kept whole when neither part is a leaf
         (:func:`leafsfs.splits.split_merged`).
+    bark_cylinders : bool
+        Leaf surfaces that are a narrow, straight cylinder bulging towards the
+        scanner are pieces of a branch seen from the side, no leaves
+        (:func:`leafsfs.darkparts.bark_surfaces`).
+    dark_excess_deg : float
+        With ``alpha``, the connected parts of a leaf surface whose
+        intensity-derived incidence exceeds that of their local range plane by
+        more than this, degrees, and that are bark-shaped (a narrow, straight
+        cylinder, :func:`leafsfs.darkparts.is_bark`), are cut off as no
+        leaves: the bark of a branch the linking joined to a leaf
+        (:func:`leafsfs.darkparts.dark_parts`); a surface dark over most of
+        its pulses is not cut, and a cut is undone when what remains is no
+        leaf by the leaf tests (0: none cut).
     """
     valid = np.isfinite(range_m)
     if not valid.any():
@@ -413,6 +428,21 @@ def segment_scan(range_m: np.ndarray, theta: np.ndarray, psi: np.ndarray, alpha:
             leaf = np.pad(leaf, (0, max(len(judged) - len(leaf), 0)))
             leaf[parents[~whole]], leaf[new[~whole]] = judged[parents[~whole]], judged[new[~whole]]
             surfaces = parted
+    if dark_excess_deg > 0 and alpha is not None:
+        # Bark parts of leaf surfaces: kept apart (no leaves) when what remains of the surface is still a leaf.
+        parted, parents = dark_parts(surfaces, leaf, range_m, theta, psi, alpha, step, sigma,
+                                     math.radians(dark_excess_deg), piece_px)
+        if len(parents):
+            new = int(surfaces.max(initial=0)) + 1 + np.arange(len(parents))
+            judged = leaves_of(np.where(np.isin(parted, parents), parted, 0))  # what remains of the cut surfaces
+            undone = ~judged[parents]
+            lookup = np.arange(int(parted.max()) + 1)
+            lookup[new[undone]] = parents[undone]
+            surfaces = lookup[parted]
+            leaf = np.pad(leaf, (0, max(int(parted.max()) + 1 - len(leaf), 0)))
+            leaf[new] = False
+    if bark_cylinders:
+        leaf &= ~bark_surfaces(surfaces, leaf, range_m, theta, psi, sigma)
     band = band_pixels(band_m, range_m, surfaces, step)
     reach = band_pixels(reach_m, range_m, surfaces, step) if reach_m > 0 else 0
     if min_piece_px > 0:
