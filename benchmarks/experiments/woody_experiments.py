@@ -93,7 +93,7 @@ def _step_runs(cloud, points, viewpoints, truth, variants=(("oracle", False), ("
             if (normals_kind, refine) not in variants:
                 continue
             start = time.perf_counter()
-            result = step(points, normals, refine=refine, **kwargs)
+            result = step(points, normals, refine=refine, **{"normal_levels": 4, **kwargs})
             elapsed = time.perf_counter() - start
             s = score(truth, result.cylinders(), min_tolerance_m=2 * kwargs.get("cell_m", 0.02))
             rows.append({"normals": normals_kind, "circles": "refit" if refine else "hs", "points": len(points),
