@@ -3,7 +3,8 @@
 Each experiment prints a table and writes ``<name>.json`` (and a plot where
 one helps) under the output directory. Clouds are drawn on truth cylinders
 (:mod:`woody.synthetic`), seeded; STEP runs with oracle normals and with
-PCA normals oriented towards the scanner(s) that see each point, with and
+PCA normals (at the scale of least surface variation,
+:func:`woody.normals.multiscale_normals`) oriented towards the scanner(s) that see each point, with and
 without the circle re-fit ("hs" = Hough-space circles only).
 
 - ``density`` (STEP DS1 a): cylinder r = 0.5 m, L = 2 m, 10 densities from
@@ -40,7 +41,7 @@ import numpy as np
 from benchmarks.errors import BenchError
 from woody.cylfit import fit_direction
 from woody.cylinders import follow_cylinders
-from woody.normals import pca_normals
+from woody.normals import multiscale_normals, pca_normals
 from woody.scoring import score
 from woody.step import step
 from woody.synthetic import (add_noise, apple_like_tree, conifer_stem, curved_tube, sample_cylinders,
@@ -87,12 +88,12 @@ def _step_runs(cloud, points, viewpoints, truth, variants=(("oracle", False), ("
     for normals_kind in ("oracle", "pca"):
         if all(kind != normals_kind for kind, _ in variants):
             continue
-        normals = cloud.normals if normals_kind == "oracle" else pca_normals(points, 16, viewpoints)
+        normals = cloud.normals if normals_kind == "oracle" else multiscale_normals(points, 16, viewpoints)[0]
         for refine in (False, True):
             if (normals_kind, refine) not in variants:
                 continue
             start = time.perf_counter()
-            result = step(points, normals, refine=refine, **kwargs)
+            result = step(points, normals, refine=refine, **{"normal_levels": 4, **kwargs})
             elapsed = time.perf_counter() - start
             s = score(truth, result.cylinders(), min_tolerance_m=2 * kwargs.get("cell_m", 0.02))
             rows.append({"normals": normals_kind, "circles": "refit" if refine else "hs", "points": len(points),
