@@ -255,10 +255,7 @@ def dark_parts(surfaces: np.ndarray, leaf: np.ndarray, range_m: np.ndarray, thet
         dark = ndimage.binary_opening(dark, opening)
         parts, n = ndimage.label(dark)
         sizes = np.bincount(parts.ravel(), minlength=n + 1)
-        candidates = [p for p in range(1, n + 1) if sizes[p] >= min_pixels]
-        if not candidates:
-            continue
-        for p in candidates:
+        for p in (p for p in range(1, n + 1) if sizes[p] >= min_pixels):
             sel = parts == p
             if not is_bark(beam_frame(theta[box][sel], psi[box][sel])[0] * range_m[box][sel][:, None], noise_m):
                 continue
