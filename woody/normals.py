@@ -75,23 +75,8 @@ def pca_normals(points, k: int = 16, viewpoints=None) -> np.ndarray:
     >>> bool(np.allclose(n, (0, 0, 1)))
     True
     """
-    points = check_points(points)
-    if not 3 <= k <= 200:
-        raise WoodyError(f"normal neighbourhood k must be between 3 and 200 points, got {k}")
-    if len(points) < k:
-        raise WoodyError(f"{len(points)} points are too few for normals from k={k} neighbours")
-    viewpoints = check_viewpoints(viewpoints, len(points))
-    _, neighbours = cKDTree(points).query(points, k=k)
-    normals = np.empty_like(points)
-    for start in range(0, len(points), _BLOCK):
-        block = points[neighbours[start:start + _BLOCK]]
-        block = block - block.mean(axis=1, keepdims=True)
-        _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", block, block))
-        normals[start:start + _BLOCK] = vectors[:, :, 0]
-    if viewpoints is not None:
-        away = np.einsum("ij,ij->i", normals, viewpoints - points) < 0
-        normals[away] *= -1.0
-    return normals
+    points, viewpoints = _checked(points, k, viewpoints)
+    return _facing(_knn_pca(points, k)[0], points, viewpoints)
 
 
 def multiscale_normals(points, k: int = 16, viewpoints=None, levels: int = 4) -> tuple[np.ndarray, np.ndarray]:
@@ -151,23 +136,12 @@ def multiscale_normals(points, k: int = 16, viewpoints=None, levels: int = 4) ->
     >>> bool(np.median(normals[:, 2]) > 0.99), round(float(np.median(noise)), 2)
     (True, 0.02)
     """
-    points = check_points(points)
     if not 0 <= levels <= 8:
         raise WoodyError(f"levels must be between 0 and 8, got {levels}")
-    if not 3 <= k <= 200:
-        raise WoodyError(f"normal neighbourhood k must be between 3 and 200 points, got {k}")
-    if len(points) < k:
-        raise WoodyError(f"{len(points)} points are too few for normals from k={k} neighbours")
-    viewpoints = check_viewpoints(viewpoints, len(points))
-    distances, neighbours = cKDTree(points).query(points, k=k)
-    normals, variation, noise = np.empty_like(points), np.empty(len(points)), np.empty(len(points))
-    for start in range(0, len(points), _BLOCK):
-        block = points[neighbours[start:start + _BLOCK]]
-        block = block - block.mean(axis=1, keepdims=True)
-        values, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", block, block) / k)
-        normals[start:start + _BLOCK] = vectors[:, :, 0]
-        variation[start:start + _BLOCK], noise[start:start + _BLOCK] = _variation_noise(values)
-    radius = float(np.median(distances[:, -1]))
+    points, viewpoints = _checked(points, k, viewpoints)
+    normals, values, reach = _knn_pca(points, k)
+    variation, noise = _variation_noise(values / k)
+    radius = float(np.median(reach))
     relative = points - points.min(axis=0)
     for level in range(1, levels + 1):
         if radius <= 0:
@@ -176,10 +150,38 @@ def multiscale_normals(points, k: int = 16, viewpoints=None, levels: int = 4) ->
         better = (coarse_variation < variation) & disc
         normals[better], variation[better], noise[better] = coarse[better], coarse_variation[better], \
             coarse_noise[better]
+    return _facing(normals, points, viewpoints), noise
+
+
+def _checked(points, k: int, viewpoints) -> tuple[np.ndarray, np.ndarray | None]:
+    """The points and viewpoints as arrays, with ``k`` checked against them (:func:`pca_normals`)."""
+    points = check_points(points)
+    if not 3 <= k <= 200:
+        raise WoodyError(f"normal neighbourhood k must be between 3 and 200 points, got {k}")
+    if len(points) < k:
+        raise WoodyError(f"{len(points)} points are too few for normals from k={k} neighbours")
+    return points, check_viewpoints(viewpoints, len(points))
+
+
+def _knn_pca(points: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Smallest eigenvector and ascending eigenvalues of each point's ``k``-neighbour scatter matrix (m^2; the
+    covariance times ``k``), and the distance to its ``k``-th neighbour (m)."""
+    distances, neighbours = cKDTree(points).query(points, k=k)
+    normals, values = np.empty_like(points), np.empty_like(points)
+    for start in range(0, len(points), _BLOCK):
+        block = points[neighbours[start:start + _BLOCK]]
+        block = block - block.mean(axis=1, keepdims=True)
+        values[start:start + _BLOCK], vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", block, block))
+        normals[start:start + _BLOCK] = vectors[:, :, 0]
+    return normals, values, distances[:, -1]
+
+
+def _facing(normals: np.ndarray, points: np.ndarray, viewpoints: np.ndarray | None) -> np.ndarray:
+    """The normals flipped in place to face their viewpoints (unchanged without)."""
     if viewpoints is not None:
         away = np.einsum("ij,ij->i", normals, viewpoints - points) < 0
         normals[away] *= -1.0
-    return normals, noise
+    return normals
 
 
 def _variation_noise(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

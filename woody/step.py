@@ -162,8 +162,9 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
         Coordinates, m.
     normals : array_like, (n, 3), optional
         Given normals (e.g. oracle normals from the scene truth). When
-        omitted they are estimated by PCA at the scale of least surface
-        variation (:func:`woody.normals.multiscale_normals`).
+        omitted they are estimated by PCA (:func:`woody.normals.multiscale_normals`:
+        of the ``normal_k`` nearest neighbours, or with ``normal_levels`` > 0
+        at the scale of least surface variation).
     viewpoints : array_like, (3,) or (n, 3), optional
         Scanner position(s), m: estimated normals are flipped to face them.
     cell_m, radius_step_m : float
@@ -277,14 +278,14 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
             raise WoodyError(f"the {count} points fill only {len(points)} voxels of {cell_m / 4} m: too few for "
                              f"STEP (at least {normal_k})")
     oriented = True if oriented is None else oriented
-    noise = None
+    noise = None  # the re-fit's tolerance beyond one radius cell: only with coarser scales
     if normals is None:
-        normals, noise = multiscale_normals(points, normal_k, viewpoints, normal_levels)
+        normals, measured = multiscale_normals(points, normal_k, viewpoints, normal_levels)
+        noise = measured if normal_levels > 0 else None
         if oriented and viewpoints is None:
             normals = orient_outward(points, normals)
     elif refine and normal_levels > 0:
         noise = multiscale_normals(points, normal_k, None, normal_levels)[1]
-    noise = noise if normal_levels > 0 else None
     timings["normals_s"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
