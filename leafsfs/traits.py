@@ -24,10 +24,8 @@ Beyond 78 deg a pure pulse's slope is that of the differences of its height
 to its neighbours' instead (:func:`_grazing_differences`): a wrinkled leaf
 turns edge-on on the scale of a few pulses, which a plane averages away
 (grazing leaves' pure pulses of the leafy tree: 11 % short of their true
-secants with the planes, 2.5 % with the differences); so does one whose
-planes stay below 78 deg where the mean secant of the differences within a
-pulse around it is beyond (:data:`DIFFERENCE_MEAN_SIGMA_PX`: a leaf turns
-edge-on on a scale the planes average away). Beyond 78 deg a mixed pulse at
+secants with the planes, 2.5 % with the differences). Beyond 78 deg a
+mixed pulse at
 the outline counts, for its share, at the larger of the planes' secant and
 the steepest secant of the pure pulses at the edge beside it
 (:func:`_edge_secants`): the leaf goes on turning edge-on into its band of
@@ -118,17 +116,6 @@ MIN_HEIGHT_NOISE_M = 0.0005
 #: before a wall at 0.8 m, 70 / 80 deg: area error -4.8 / -18.8 % -> +31.5 / +34.2 %, where the height noise exceeds
 #: the step between pulses), and the planes' area stands.
 DIFFERENCE_MIN_SECANT = 1.0 / math.cos(math.radians(78.0))
-#: Standard deviation of the Gaussian mean of the pure pulses' difference secants that also opens the differences
-#: (:func:`_grazing_differences`), pixels (assumption: one pulse spacing, the scale on which a wrinkled leaf turns
-#: edge-on while the planes' wider fit still says less than 78 deg). Chosen offline on the canopy5 trees' recorded
-#: leaf inputs (0.018 deg, `fused`, found leaves >= 80 % visible, area R2 / median |area error| % of the found ones;
-#: main: leafy tree 0.697 / 5.46, pear seed 41 0.716 / 5.84, seed 7 0.694 / 7.26, seed 31 0.728 / 3.80), with the
-#: band pulses' edge secants (:func:`_edge_secants`): without this mean 0.710 / 5.60, 0.719 / 5.52, 0.715 / 7.85,
-#: 0.751 / 4.34; 0.7 px 0.718 / 5.44, 0.718 / 5.53, 0.722 / 6.84; 1 px 0.718 / 5.30, 0.718 / 5.38, 0.725 / 6.79,
-#: 0.725 / 4.91; 1.5 px 0.719 / 5.60, 0.719 / 5.31, 0.725 / 7.06. Seed 31 at 2.5 m, whose range noise is 2-3.6
-#: pulse spacings (the differences' assumption fails), loses: its near-median leaves overshoot. Pears seed 101 and
-#: 173 (fresh17) are the check.
-DIFFERENCE_MEAN_SIGMA_PX = 1.0
 #: Largest incidence a mixed pulse's leaf part is counted at, deg (assumption: the area element ``1 / cos`` grows
 #: without bound towards 90 deg, where an intensity a few DN above the floor would count for any area).
 BAND_MAX_INCIDENCE_DEG = 88.0
@@ -418,8 +405,8 @@ def _area_slope_elements(elements, height: np.ndarray, known: np.ndarray, weight
 def _grazing_differences(elements, height: np.ndarray, pure: np.ndarray, planes: np.ndarray) -> np.ndarray:
     """Area elements of the pure pulses at grazing incidence from their own height differences, else ``planes``.
 
-    Where the planes' incidence, or the local mean of the differences', is at
-    least :data:`DIFFERENCE_MIN_SECANT`'s, a pure pulse takes its slope from the differences of its height to its
+    Where the planes' incidence is at least :data:`DIFFERENCE_MIN_SECANT`'s,
+    a pure pulse takes its slope from the differences of its height to its
     pure neighbours' (central where both neighbours along an axis are pure,
     one-sided where one is; the planes' element where neither is). A leaf's
     surface turns on the scale of a few pulses (wrinkles, veins, pleats), and
@@ -433,10 +420,7 @@ def _grazing_differences(elements, height: np.ndarray, pure: np.ndarray, planes:
     the noise over the height step between pulses, which beyond 78 deg is
     ``tan(78 deg) = 4.7`` pulse spacings or more (assumption: the noise is of
     the order of the spacing or less); below it the noise would dominate
-    (:data:`DIFFERENCE_MIN_SECANT`). The threshold is met by the planes'
-    secant or by the Gaussian mean (:data:`DIFFERENCE_MEAN_SIGMA_PX`) of the
-    differences' secants over the pure pulses around the pulse: the flanks of
-    pleats a plane flattens below 78 deg.
+    (:data:`DIFFERENCE_MIN_SECANT`).
 
     Parameters
     ----------
@@ -463,12 +447,8 @@ def _grazing_differences(elements, height: np.ndarray, pure: np.ndarray, planes:
         slope[..., axis] = np.where(np.isfinite(central), central, np.where(np.isfinite(forward), forward, backward))
     known = pure & np.all(np.isfinite(slope), axis=-1)
     flat = np.linalg.norm(elements(np.zeros(height.shape + (2,))), axis=-1)
-    differences = elements(np.where(known[..., None], slope, 0.0))
-    secant = np.where(known, np.linalg.norm(differences, axis=-1) / flat, 0.0)
-    count = ndimage.gaussian_filter(known.astype(float), DIFFERENCE_MEAN_SIGMA_PX)
-    mean = ndimage.gaussian_filter(secant, DIFFERENCE_MEAN_SIGMA_PX) / np.where(count > 0, count, 1.0)
-    grazing = known & (np.maximum(np.linalg.norm(planes, axis=-1) / flat, mean) >= DIFFERENCE_MIN_SECANT)
-    return np.where(grazing[..., None], differences, planes)
+    grazing = known & (np.linalg.norm(planes, axis=-1) >= DIFFERENCE_MIN_SECANT * flat)
+    return np.where(grazing[..., None], elements(np.where(known[..., None], slope, 0.0)), planes)
 
 
 def _edge_secants(secant: np.ndarray, pure: np.ndarray) -> np.ndarray:
