@@ -7,7 +7,8 @@ import pytest
 from scipy import ndimage
 
 from leafsfs.frame import local_frame
-from leafsfs.traits import _grazing_differences, _quadratic_slope, background_spread, leaf_traits, mixed_band
+from leafsfs.traits import (_edge_secants, _grazing_differences, _quadratic_slope, background_spread, leaf_traits,
+                             mixed_band)
 from tlssim.pattern import beam_frame
 
 STEP = math.radians(0.018)
@@ -268,3 +269,52 @@ def test_grazing_differences_are_the_gradient_of_a_linear_height_field_up_to_its
     steep[0, 0] = steep[1, 0] = steep[4, 4] = False
     assert out[steep] == pytest.approx(np.broadcast_to([3.0, -2.0, 1.0], (steep.sum(), 3)))
     assert out[~steep] == pytest.approx(planes[~steep])
+
+
+def test_edge_secants_are_the_steepest_pure_secant_beside_the_nearest_pure_pulse():
+    # Pure pulses in rows 1-3, columns 1-4 with secants 2 + column / 10, one steeper (9) at (1, 4): a pulse outside
+    # takes the largest secant of the 3 x 3 around the pure pulse nearest to it.
+    secant = 2.0 + 0.1 * np.indices((6, 7))[1]
+    secant[1, 4] = 9.0
+    pure = np.zeros(secant.shape, bool)
+    pure[1:4, 1:5] = True
+    edge = _edge_secants(np.where(pure, secant, np.nan), pure)
+    assert edge[5, 1] == pytest.approx(2.2)  # nearest pure (3, 1): columns 0-2 of rows 2-3 hold 2.1 and 2.2
+    assert edge[0, 5] == pytest.approx(9.0)  # nearest pure (1, 4), itself the steepest
+    assert edge[4, 4] == pytest.approx(2.4)  # nearest pure (3, 4): rows 2-3 of columns 3-4 (9 is two rows up)
+    assert np.all(_edge_secants(secant, np.zeros(secant.shape, bool)) == 0)
+
+
+def test_a_flat_grazing_plates_band_of_known_share_counts_for_that_share_of_its_pulses():
+    # A plate at 82 deg, 3.5 m away, its outer 3 rings mixed (share 0.5) at the plate's own heights: a flat leaf's
+    # edge is as steep as its middle, and the band counts half of its pulses' footprints, no more.
+    theta, range_m, axis, frame, height, rim, weight = _plate_rim(82.0, slice(30, 60), slice(5, 55), 3)
+    cos_plate = np.abs(np.sum(axis * [-math.cos(math.radians(82)), 0, math.sin(math.radians(82))], -1))
+    exact = np.sum(weight * range_m**2 * STEP**2 / cos_plate)
+    assert leaf_traits(frame, height[frame.box], weight[frame.box], 0.005)["area_m2"] == pytest.approx(exact, rel=0.01)
+
+
+def _kinked_plate(incidence_deg, margin_deg, kink_row, distance_m=3.5, rows=90, cols=60):
+    """A plate at ``incidence_deg`` that turns, from row ``kink_row`` on, about a horizontal line to
+    ``margin_deg`` (a margin curled edge-on); its ranges and cosines of incidence."""
+    theta, psi = np.meshgrid(STEP * (np.arange(cols) - cols / 2), np.pi / 2 + STEP * (np.arange(rows) - rows / 2))
+    u = beam_frame(theta, psi)[0]
+    normals = [np.array([-math.cos(math.radians(a)), 0.0, math.sin(math.radians(a))])
+               for a in (incidence_deg, margin_deg)]
+    plate = (normals[0] @ [distance_m, 0.0, 0.0]) / (u @ normals[0])
+    kink = u[kink_row, cols // 2] * plate[kink_row, cols // 2]  # the margin's plane holds the kink line
+    margin = np.arange(rows)[:, None] >= kink_row
+    range_m = np.where(margin, (normals[1] @ kink) / (u @ normals[1]), plate)
+    return theta, psi, range_m, np.abs(np.where(margin, u @ normals[1], u @ normals[0]))
+
+
+def test_a_grazing_leaf_curled_edge_on_at_its_margin_counts_its_band_at_the_margins_secant():
+    # A plate at 80 deg whose margin (the last 4 pure rows and the 3 mixed rings beyond) is turned to 86 deg, the
+    # mixed rings (share 0.5) at heights flattened towards the middle: the planes of the pure pulses give the band
+    # about 80 deg and lost 2.9 % of the area; the margin's pure pulses' differences give it 86 deg.
+    theta, psi, range_m, cos_incidence = _kinked_plate(80.0, 86.0, 54)
+    region = np.zeros(theta.shape, bool)
+    region[30:61, 5:55] = True
+    traits, weight = _traits_with_flattened_rim(theta, psi, range_m, region, rings=3)
+    assert traits["area_m2"] == pytest.approx(np.sum(weight * range_m**2 * STEP**2 / cos_incidence), rel=0.02)
+
