@@ -504,7 +504,7 @@ def _edge_secants(secant: np.ndarray, pure: np.ndarray, deviation: np.ndarray) -
     nine), which each secant gives up before the largest is taken: where
     the range noise is of the order of the pulse spacing (pear seed 31 at
     2.5 m: 1.8-3.3 spacings, 10-90 % of its leaves) the plain largest of
-    nine counted near-median leaves' edges too steep. Taken as independent:
+    nine counted the edges too steep (module docstring). Taken as independent:
     neighbouring central differences share pulses, so the correction is
     somewhat too large, and the result errs towards the planes' secant.
 
