@@ -7,7 +7,8 @@ import pytest
 from scipy import ndimage
 
 from leafsfs.frame import local_frame
-from leafsfs.traits import _grazing_differences, _quadratic_slope, background_spread, leaf_traits, mixed_band
+from leafsfs.traits import (_edge_secants, _grazing_differences, _quadratic_slope, background_spread, leaf_traits,
+                             mixed_band)
 from tlssim.pattern import beam_frame
 
 STEP = math.radians(0.018)
@@ -248,7 +249,8 @@ def test_a_leaf_below_78_deg_keeps_the_planes_area(incidence_deg, monkeypatch):
     # Below 78 deg the noise of the differences would inflate the area: the planes' elements stand, pleats or not.
     frame, height, weight, _ = _pleated_traits(incidence_deg, 0.002)
     area = leaf_traits(frame, height, weight, 0.005)["area_m2"]
-    monkeypatch.setattr("leafsfs.traits._grazing_differences", lambda elements, height, pure, planes: planes)
+    monkeypatch.setattr("leafsfs.traits._grazing_differences",
+                        lambda elements, height, pure, planes, noise_m: (planes, np.zeros(planes.shape[:-1])))
     assert area == leaf_traits(frame, height, weight, 0.005)["area_m2"]
 
 
@@ -263,8 +265,109 @@ def test_grazing_differences_are_the_gradient_of_a_linear_height_field_up_to_its
     elements = lambda slope: np.concatenate([slope, np.ones(slope.shape[:-1] + (1,))], axis=-1)
     planes = np.full(height.shape + (3,), 10.0)
     planes[0, 0] = [0.0, 0.0, 1.0]  # a facing pulse
-    out = _grazing_differences(elements, height, pure, planes)
+    out, deviation = _grazing_differences(elements, height, pure, planes, 0.0)
     steep = pure & (np.arange(7)[:, None] != 6)
     steep[0, 0] = steep[1, 0] = steep[4, 4] = False
     assert out[steep] == pytest.approx(np.broadcast_to([3.0, -2.0, 1.0], (steep.sum(), 3)))
     assert out[~steep] == pytest.approx(planes[~steep])
+    assert np.all(deviation == 0)
+
+
+def test_grazing_differences_deviation_is_the_rise_of_the_norm_one_noise_deviation_steeper():
+    # h = 3 i - 2 j, noise 0.1 per height: a pulse with central differences along both axes has slope noise 0.1 /
+    # sqrt(2) in any direction, so its norm sqrt(1 + |g|^2) rises to sqrt(1 + (|g| + 0.1 / sqrt(2))^2); one at the
+    # border has a one-sided difference (noise 0.1 sqrt(2)) along the rows, and its deviation is larger.
+    rows, cols = np.indices((7, 9)).astype(float)
+    height = 3.0 * rows - 2.0 * cols
+    elements = lambda slope: np.concatenate([slope, np.ones(slope.shape[:-1] + (1,))], axis=-1)
+    planes = np.full(height.shape + (3,), 10.0)
+    out, deviation = _grazing_differences(elements, height, np.ones(height.shape, bool), planes, 0.1)
+    gradient = math.sqrt(13.0)
+    assert deviation[3, 4] == pytest.approx(math.sqrt(1 + (gradient + 0.1 / math.sqrt(2)) ** 2) - math.sqrt(14.0))
+    assert deviation[0, 4] > deviation[3, 4]
+
+
+def test_edge_secants_are_the_steepest_pure_secant_beside_the_nearest_pure_pulse():
+    # Pure pulses in rows 1-3, columns 1-4 with secants 2 + column / 10, one steeper (9) at (1, 4): a pulse outside
+    # takes the largest secant of the 3 x 3 around the pure pulse nearest to it.
+    secant = 2.0 + 0.1 * np.indices((6, 7))[1]
+    secant[1, 4] = 9.0
+    pure = np.zeros(secant.shape, bool)
+    pure[1:4, 1:5] = True
+    edge = _edge_secants(np.where(pure, secant, np.nan), pure, np.zeros(secant.shape))
+    assert edge[5, 1] == pytest.approx(2.2)  # nearest pure (3, 1): columns 0-2 of rows 2-3 hold 2.1 and 2.2
+    assert edge[0, 5] == pytest.approx(9.0)  # nearest pure (1, 4), itself the steepest
+    assert edge[4, 4] == pytest.approx(2.4)  # nearest pure (3, 4): rows 2-3 of columns 3-4 (9 is two rows up)
+    zeros = np.zeros(secant.shape)
+    assert np.all(_edge_secants(secant, np.zeros(secant.shape, bool), zeros) == 0)
+
+
+def test_edge_secants_give_up_the_expected_largest_of_their_noisy_neighbours():
+    # Four pure pulses of equal secant 5 and noise 0.5: the largest of four noisy secants exceeds 5 by 1.029 noise
+    # deviations on average (the expected largest of four standard normal deviates), which the edge gives up; a
+    # single pure pulse, the largest of one, keeps its secant.
+    pure = np.zeros((6, 6), bool)
+    pure[2:4, 2:4] = True
+    edge = _edge_secants(np.full(pure.shape, 5.0), pure, np.where(pure, 0.5, 0.0))
+    assert edge[0, 0] == pytest.approx(5.0 - 1.029 * 0.5, abs=0.015)
+    alone = np.zeros((5, 5), bool)
+    alone[2, 2] = True
+    assert _edge_secants(np.full(alone.shape, 5.0), alone, np.full(alone.shape, 0.5))[0, 0] == pytest.approx(5.0)
+
+
+def test_a_flat_grazing_plates_band_of_known_share_counts_for_that_share_of_its_pulses():
+    # A plate at 82 deg, 3.5 m away, its outer 3 rings mixed (share 0.5) at the plate's own heights: a flat leaf's
+    # edge is as steep as its middle, and the band counts half of its pulses' footprints, no more.
+    theta, range_m, axis, frame, height, rim, weight = _plate_rim(82.0, slice(30, 60), slice(5, 55), 3)
+    cos_plate = np.abs(np.sum(axis * [-math.cos(math.radians(82)), 0, math.sin(math.radians(82))], -1))
+    exact = np.sum(weight * range_m**2 * STEP**2 / cos_plate)
+    assert leaf_traits(frame, height[frame.box], weight[frame.box], 0.005)["area_m2"] == pytest.approx(exact, rel=0.01)
+
+
+def _kinked_plate(incidence_deg, margin_deg, kink_row, distance_m=3.5, rows=90, cols=60):
+    """A plate at ``incidence_deg`` that turns, from row ``kink_row`` on, about a horizontal line to
+    ``margin_deg`` (a margin curled edge-on); its ranges and cosines of incidence."""
+    theta, psi = np.meshgrid(STEP * (np.arange(cols) - cols / 2), np.pi / 2 + STEP * (np.arange(rows) - rows / 2))
+    u = beam_frame(theta, psi)[0]
+    normals = [np.array([-math.cos(math.radians(a)), 0.0, math.sin(math.radians(a))])
+               for a in (incidence_deg, margin_deg)]
+    plate = (normals[0] @ [distance_m, 0.0, 0.0]) / (u @ normals[0])
+    kink = u[kink_row, cols // 2] * plate[kink_row, cols // 2]  # the margin's plane holds the kink line
+    margin = np.arange(rows)[:, None] >= kink_row
+    range_m = np.where(margin, (normals[1] @ kink) / (u @ normals[1]), plate)
+    return theta, psi, range_m, np.abs(np.where(margin, u @ normals[1], u @ normals[0]))
+
+
+def test_a_grazing_leaf_curled_edge_on_at_its_margin_counts_its_band_at_the_margins_secant():
+    # A plate at 80 deg whose margin (the last 4 pure rows and the 3 mixed rings beyond) is turned to 86 deg, the
+    # mixed rings (share 0.5) at heights flattened towards the middle: the planes of the pure pulses give the band
+    # about 80 deg and lost 2.9 % of the area; the margin's pure pulses' differences give it 86 deg.
+    theta, psi, range_m, cos_incidence = _kinked_plate(80.0, 86.0, 54)
+    region = np.zeros(theta.shape, bool)
+    region[30:61, 5:55] = True
+    traits, weight = _traits_with_flattened_rim(theta, psi, range_m, region, rings=3)
+    assert traits["area_m2"] == pytest.approx(np.sum(weight * range_m**2 * STEP**2 / cos_incidence), rel=0.02)
+
+
+
+@pytest.mark.parametrize("noise_spacings", [1.0, 2.0])
+def test_a_noisy_flat_grazing_plates_band_rises_at_most_by_the_positive_part_of_its_noise(noise_spacings):
+    # The 82 deg plate at 3.5 m, its outer 3 rings mixed (share 0.5), range noise of 1 and 2 pulse spacings: a flat
+    # leaf's edge is as steep as its middle, so an unbiased edge secant, taken where it exceeds the planes', raises the
+    # band by the mean positive part of its noise, at most 0.4 times the secant noise of a one-sided difference
+    # (sqrt(2) noise over the height step of tan(82 deg) spacings); the plain largest of nine noisy secants rose by
+    # 19 and 40 % of the band's area.
+    theta, psi, range_m, axis = _tilted_plate(82.0)
+    region = np.zeros(theta.shape, bool)
+    region[30:60, 5:55] = True
+    rim = region & ~ndimage.binary_erosion(region, iterations=3)
+    weight = np.where(rim, 0.5, region.astype(float))
+    cos_plate = np.abs(np.sum(axis * [-math.cos(math.radians(82)), 0, math.sin(math.radians(82))], -1))
+    exact = np.sum(np.where(rim, weight, 0.0) * range_m**2 * STEP**2 / cos_plate)
+    noisy = range_m + noise_spacings * 3.5 * STEP * np.random.default_rng(0).standard_normal(range_m.shape)
+    frame = local_frame(theta, psi, noisy, region)
+    height, w = np.where(region, frame.height(noisy), np.nan)[frame.box], weight[frame.box]
+    # the band's count: the area less that with the band's shares (almost) nil, the pure pulses' area alike
+    band = (leaf_traits(frame, height, w, 0.005)["visible_area_m2"]
+            - leaf_traits(frame, height, np.where(w < 1, 1e-9 * w, w), 0.005)["visible_area_m2"])
+    assert 1.0 <= band / exact <= 1.0 + 0.4 * math.sqrt(2.0) * noise_spacings / math.tan(math.radians(82.0))
