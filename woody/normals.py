@@ -42,6 +42,13 @@ _VOXELS_PER_RADIUS = 3.0
 #: disc: 0.28), is no patch of it (assumption: 0.5, between the two; checked
 #: on the 120-deg arc of tests/test_woody_step.py and the DS1c cylinder).
 _DISC = 0.5
+#: Factor by which a coarse ball's surface variation must be below that of the plane a point has so far for the
+#: ball to replace it. On a plane with noise the variation falls with the ball's area (a quarter per doubling of
+#: the radius) while a noise-free patch keeps its own, so a ball merely as varied as the smaller one is no sign
+#: of noise; on a clean, curved or cluttered cloud (thin branches, forks, leaves) the scales' variations are
+#: about equal and the least of them is a matter of chance, often a ball that reaches a neighbouring surface
+#: (assumption: 2, the geometric middle of 1, any decrease, and 4, the noise's quarter).
+_FLATTER = 2.0
 #: Nearest voxels summed per point at a coarse scale (a ball of 3 voxel radii
 #: on a surface holds about 28 per layer of voxels).
 _BALL_VOXELS = 32
@@ -147,7 +154,7 @@ def multiscale_normals(points, k: int = 16, viewpoints=None, levels: int = 4) ->
         if radius <= 0:
             break
         coarse, coarse_variation, coarse_noise, disc = _ball_normals(relative, radius * 2.0 ** level)
-        better = (coarse_variation < variation) & disc
+        better = (_FLATTER * coarse_variation < variation) & disc
         normals[better], variation[better], noise[better] = coarse[better], coarse_variation[better], \
             coarse_noise[better]
     return _facing(normals, points, viewpoints), noise
