@@ -129,8 +129,9 @@ def ds1b(quick: bool, seed: int) -> list[Row]:
                    "wall at load 7, 343 CPU-s with these 22 runs). The re-fitted circles equal the Hough ones from 2.5"
                    " cm because woody.step.refine_tuboid keeps a re-fit only when its median residual is at most one "
                    "radius cell (1 cm), which the noise exceeds. Round 25 (issue 11): 37/44 (2397 s wall at load 6-9). PCA normals "
-                   "at the scale of least surface variation (woody.normals.multiscale_normals: median error 0.9 / 1.5 "
-                   "/ 3.2 deg at 1 / 2 / 5 cm) and a re-fit that accepts the noise measured about the local planes: "
+                   "at the scale of least surface variation (woody.normals.multiscale_normals; since round 26 a "
+                   "coarser scale only where at most half as varied: median error 0.77 / 1.40 / 3.33 deg at 1 / 2 / "
+                   "5 cm, 37/44 unchanged) and a re-fit that accepts the noise measured about the local planes: "
                    "every re-fitted row within up to 5 cm (0.01-0.30 cm), PCA Hough circles up to 3.5 cm; the 7 rows "
                    "outside are Hough-space circles on the uniform noise's plateau (oracle from 3.5 cm, PCA from 4 "
                    "cm).", heavy=True)
@@ -155,11 +156,12 @@ def ds1c(quick: bool, seed: int) -> list[Row]:
           findings="Results are figures in the paper; the row tests its statement that two-view clouds are more "
                    "resilient than single-view ones (completeness and radius error). Measured (full form, seed 0: "
                    "1/1 within, 5.7 min wall / 130 CPU-s): two views keep radius MAE 0.010-0.012 cm down to 10 % "
-                   "of the points and 0.03 / 0.07 cm with 1 / 2 cm of noise (one tuboid, completeness 1.00); one "
-                   "view gives 0.91 cm. At 3 and 4 cm of noise the tube is cut into 5 and 7 tuboids (completeness "
-                   "0.86 / 0.85, MAE 2.1 / 2.6 cm): the paper's stated failure mode (noise can cut tuboids). STEP "
-                   "never finds more than 7 tuboids here, so the cap of 10 does not bind and the capped rows equal "
-                   "the uncapped ones.", heavy=True)
+                   "of the points and 0.03 / 0.06 / 0.18 / 0.55 cm with 1 / 2 / 3 / 4 cm of noise (completeness 1.00, "
+                   "1-2 tuboids; round 26, multi-scale normals); one view gives 0.91 cm. With 16-neighbour normals "
+                   "the tube was cut at 3 and 4 cm of noise into 5 and 7 tuboids (completeness 0.86 / 0.85, MAE 2.1 "
+                   "/ 2.6 cm), the paper's stated failure mode (noise can cut tuboids). STEP never finds more than 7 "
+                   "tuboids here, so the cap of 10 does not bind and the capped rows equal the uncapped ones.",
+          heavy=True)
 def ds2(quick: bool, seed: int) -> list[Row]:
     """Rows of DS2 (radius MAE and completeness per condition; the two-view claim).
 
