@@ -349,7 +349,6 @@ def test_a_grazing_leaf_curled_edge_on_at_its_margin_counts_its_band_at_the_marg
     assert traits["area_m2"] == pytest.approx(np.sum(weight * range_m**2 * STEP**2 / cos_incidence), rel=0.02)
 
 
-
 @pytest.mark.parametrize("noise_spacings", [1.0, 2.0])
 def test_a_noisy_flat_grazing_plates_band_rises_at_most_by_the_positive_part_of_its_noise(noise_spacings):
     # The 82 deg plate at 3.5 m, its outer 3 rings mixed (share 0.5), range noise of 1 and 2 pulse spacings: a flat
