@@ -347,15 +347,15 @@ def fit_circle_beam(xy, viewpoint, footprint_m: float, start: CircleFit | None =
     :func:`fit_circle` takes each point as a sample of the surface. Where the beam lies partly on a thin stem,
     a single-return scanner places the point on the central ray, which misses the stem, at about the range of
     the silhouette: those points lie outside the circle and pull the fitted radius out (on the simulated 5 cm
-    stems of ``tlsbench experiment dbh-stems``, FARO LS880 model, 2-10 m: -2 to +9 %). Here the points'
+    stems of ``tlsbench experiment dbh-stems``, FARO LS880 model, 2-10 m: -1.6 to +8.8 %). Here the points'
     directions are kept (a scanner's angles are exact; its noise lies along the range) and the circle is the one
     whose modelled ranges (:func:`beam_ranges`) best match the measured ones, over the points whose central ray
     passes :data:`FIT_SIGMAS` standard deviations of the beam (a quarter footprint) inside its silhouette; every
     point adds how far its central ray passes beyond :data:`EXTENT_SIGMAS` of them (half a footprint) outside
     it (a point cannot come from farther), which keeps the circle as wide as the silhouette's points less half
-    a footprint. The points in between (the beam partly off the stem) enter only the start. The fit starts from :func:`fit_circle` (``start``), minimises
-    with a robust loss scaled by the residuals' median absolute deviation, then again on the inliers within
-    three robust standard deviations.
+    a footprint. The points in between (the beam partly off the stem) enter only the start. The fit starts
+    from :func:`fit_circle` (``start``), minimises with a robust loss scaled by the residuals' median absolute
+    deviation, then again on the inliers within three robust standard deviations.
 
     Parameters
     ----------
