@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 
 from benchmarks.cli import main
 
@@ -96,3 +97,21 @@ def test_simulator_scan_memory_splits_into_start_output_and_growth():
     if sys.platform == "linux":
         assert row["peak_mb"] >= row["start_mb"] > 0
         assert abs(row["peak_mb"] - row["start_mb"] - row["output_mb"] - row["growth_mb"]) < 1e-9
+
+
+def test_dbh_stems_gives_the_presets_footprint_and_the_grid_it_is_asked_for(tmp_path, capsys):
+    import math
+
+    from benchmarks.experiments.dbh_stems import preset_beam
+    from tlssim.beam import footprint_axes_m
+    from tlssim.scanner import get_preset
+
+    exit_m, growth = preset_beam()
+    model = get_preset("faro-ls880")
+    for distance in (2.0, 10.0):  # the footprint across a beam at normal incidence
+        assert exit_m + growth * distance == pytest.approx(footprint_axes_m(model, distance, 0.0)[1], rel=1e-6)
+    assert math.isclose(exit_m, 0.003)
+    out = tmp_path / "stems.csv"
+    assert main(["experiment", "dbh-stems", "--beam", "--diameters", "0.1", "--distances", "3", "--steps", "0.066",
+                 "--csv", str(out)]) == 0
+    assert "1/1 within 3 %" in capsys.readouterr().out and len(out.read_text().splitlines()) == 2

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tlssim.scan import write_npz
-from woody.circles import algebraic_circle, arc_coverage_deg, fit_circle
+from woody.circles import algebraic_circle, arc_coverage_deg, beam_ranges, fit_circle, fit_circle_beam
 from woody.cli import main
 from woody.dbh import measure_dbh, model_diameter_at
 from woody.errors import WoodyError
@@ -139,6 +139,48 @@ def test_dbh_of_a_cloud_without_a_stem_at_breast_height_is_an_error():
         measure_dbh([[1, 1, 1], [2, 2, 2], [3, 3, 3], [4, 4, 4]])
 
 
+def widened_stem(radius, distance, footprint, spacing_deg, noise, seed, height=1.5):
+    """Single-scan points of an upright stem on the ground z = 0, the scanner ``height`` m up at the origin: each
+    ray of a grid of ``spacing_deg`` that passes within half a footprint of the stem returns at the range the
+    beam gives (:func:`beam_ranges`; its silhouette widened), with Gaussian range noise."""
+    rng = np.random.default_rng(seed)
+    half = np.degrees(np.arctan2(radius + footprint, distance))
+    azimuth = np.radians(np.arange(-half, half, spacing_deg) + rng.uniform(0, spacing_deg))
+    elevation = np.radians(np.arange(np.degrees(np.arctan2(-height, distance)), 0.0, spacing_deg))
+    az, el = (a.ravel() for a in np.meshgrid(azimuth, elevation))
+    planar = np.column_stack([np.cos(az), np.sin(az)])
+    ranges, lateral = beam_ranges([distance, 0.0, radius], planar, [0.0, 0.0], footprint)
+    seen = lateral <= radius + footprint / 2
+    flat = ranges[seen] + rng.normal(0.0, noise, seen.sum())
+    return np.column_stack([planar[seen] * flat[:, None], height + flat * np.tan(el[seen])])
+
+
+@pytest.mark.parametrize("diameter, distance", [(0.05, 4.0), (0.05, 8.0), (0.1, 8.0), (0.4, 8.0)])
+def test_a_footprint_aware_dbh_removes_the_widening_of_a_thin_stems_silhouette(diameter, distance):
+    # FARO LS880-like beam (3 mm exit, 0.49 mm per metre), 0.036 deg, 1 mm range noise
+    footprint = 0.003 + 0.00049 * distance
+    points = widened_stem(diameter / 2, distance, footprint, 0.036, 0.001, seed=12)
+    plain = measure_dbh(points, ground_z=0.0)[0]
+    aware = measure_dbh(points, ground_z=0.0, viewpoint=[0, 0, 1.5], footprint=(0.003, 0.00049))[0]
+    assert aware.dbh_m == pytest.approx(diameter, rel=0.03)  # plain: +4 to +16 % on 5 cm (seeds 12-17)
+    assert abs(aware.dbh_m / diameter - 1) < abs(plain.dbh_m / diameter - 1) or diameter > 0.2
+    if diameter < 0.1:
+        assert plain.dbh_m > 1.02 * diameter  # the widening the footprint-aware fit removes
+    assert measure_dbh(points, ground_z=0.0, viewpoint=[0, 0, 1.5])[0].dbh_m == plain.dbh_m  # no beam: plain
+
+
+def test_a_beam_fit_with_a_thin_beam_is_exact_on_exact_points_and_refuses_a_negative_footprint():
+    xy = arc_points(0.2, 150, 300, 0.0, seed=13, centre=(6.0, 0.5))
+    fit = fit_circle_beam(xy, [0.0, 0.0], 0.0)
+    assert fit.radius_m == pytest.approx(0.2, abs=1e-7) and np.allclose(fit.centre, (6.0, 0.5), atol=1e-7)
+    with pytest.raises(WoodyError, match="footprint_m"):
+        fit_circle_beam(xy, [0.0, 0.0], -0.001)
+    with pytest.raises(WoodyError, match="viewpoint"):
+        measure_dbh(stem_cloud(0.2, seed=7), viewpoint=[0, 0], footprint=(0.003, 0.0005))
+    with pytest.raises(WoodyError, match="footprint"):
+        measure_dbh(stem_cloud(0.2, seed=7), viewpoint=[0, 0, 1], footprint=(0.003, -1.0))
+
+
 def test_model_diameter_at_a_height_interpolates_the_thickest_frustum():
     cylinders = [{"start": [0, 0, 0], "end": [0, 0, 2], "radius_m": 0.2, "radius_end_m": 0.1},
                  {"start": [0, 0, 1], "end": [1, 0, 1.6], "radius_m": 0.05}]
@@ -156,6 +198,8 @@ def test_woody_dbh_prints_and_writes_json(tmp_path, capsys):
     assert stems[0]["dbh_m"] == pytest.approx(0.25, rel=0.02) and stems[0]["flag"] == "ok"
     assert main(["dbh", str(path), "--ground-z", "5"]) == 2
     assert "no stem" in capsys.readouterr().err
+    assert main(["dbh", str(path), "--json", "--viewpoint", "-3", "0", "1.5", "--footprint", "0.003", "0.0005"]) == 0
+    assert json.loads(capsys.readouterr().out)["stems"][0]["dbh_m"] == pytest.approx(0.25, rel=0.02)
 
 
 def test_reconstruct_writes_the_dbh_of_the_points_and_of_the_model(tmp_path):

@@ -70,6 +70,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="ground height, m (default: found from the lowest points under each stem)")
     p.add_argument("--height", type=float, default=1.3, help="measurement height above the ground, m (default 1.3)")
     p.add_argument("--slice", type=float, default=0.1, help="height of the fitted slice, m (default 0.1)")
+    p.add_argument("--viewpoint", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                   help="scanner position of a single scan, m; with --footprint the circles model the beam's "
+                        "widening of thin stems' silhouettes")
+    p.add_argument("--footprint", type=float, nargs=2, default=None, metavar=("EXIT_M", "GROWTH"),
+                   help="the scanner's beam: 1/e2 diameter at the exit, m, and its growth per metre of range "
+                        "(twice the tangent of the divergence half-angle), e.g. 0.003 0.000489 for the FARO LS880")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run_dbh)
 
@@ -131,7 +137,7 @@ def run_dbh(args) -> int:
     from woody.dbh import measure_dbh
 
     stems = measure_dbh(read_cloud(args.cloud).points, ground_z=args.ground_z, height_m=args.height,
-                        slice_m=args.slice)
+                        slice_m=args.slice, viewpoint=args.viewpoint, footprint=args.footprint)
     if args.json:
         print(json.dumps({"cloud": str(args.cloud), "stems": [s.to_dict() for s in stems]}, indent=2))
         return 0

@@ -33,7 +33,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from scenes.primitives import orthonormal_frame
-from woody.circles import CircleFit, fit_circle
+from woody.circles import CircleFit, fit_circle, fit_circle_beam
 from woody.cloud import check_points
 from woody.errors import WoodyError
 from woody.geometry import cylinder_arrays
@@ -110,7 +110,8 @@ class StemDBH:
 
 
 def measure_dbh(points, ground_z: float | None = None, height_m: float = BREAST_HEIGHT_M,
-                slice_m: float = 0.1, min_dbh_m: float = 0.02, max_dbh_m: float = 3.0) -> list[StemDBH]:
+                slice_m: float = 0.1, min_dbh_m: float = 0.02, max_dbh_m: float = 3.0, viewpoint=None,
+                footprint: tuple[float, float] | None = None) -> list[StemDBH]:
     """DBH of every stem that crosses breast height in a point cloud.
 
     Parameters
@@ -128,6 +129,17 @@ def measure_dbh(points, ground_z: float | None = None, height_m: float = BREAST_
         four times on stems with fewer than 300 points in it).
     min_dbh_m, max_dbh_m : float
         Diameters outside this range are not stems, m.
+    viewpoint : array_like, (3,), optional
+        Position of the scanner of a single scan, m (a single scan's own
+        origin). With ``footprint``, each stem's final circle models the
+        widening of its silhouette by the beam
+        (:func:`woody.circles.fit_circle_beam`).
+    footprint : tuple of float, optional
+        The scanner's beam: its 1/e² diameter at the exit, m, and its
+        growth per metre of range, m/m (twice the tangent of the divergence
+        half-angle); the footprint at a stem is ``footprint[0] + range x
+        footprint[1]`` (e.g. the FARO LS880 preset of :mod:`tlssim.scanner`:
+        0.003 m and 0.000489).
 
     Returns
     -------
@@ -146,6 +158,7 @@ def measure_dbh(points, ground_z: float | None = None, height_m: float = BREAST_
             raise WoodyError(f"{name} must be a positive length in metres, got {value}")
     if ground_z is not None and not np.isfinite(ground_z):
         raise WoodyError(f"ground_z must be a finite height in metres, got {ground_z}")
+    beam = _check_beam(viewpoint, footprint)
     grid = None if ground_z is not None else ground_grid(points)
     heights = points[:, 2] - ground_z if grid is None else grid.heights(points)
     in_slice = np.abs(heights - height_m) <= slice_m / 2.0
@@ -163,7 +176,7 @@ def measure_dbh(points, ground_z: float | None = None, height_m: float = BREAST_
         if not (min_dbh_m <= 2 * first.radius_m <= max_dbh_m) or first.n_inliers < MIN_POINTS:
             continue
         ground = ground_z if grid is None else _stem_ground(points, grid, first)
-        stem = _measure_stem(points, tree, first, ground, height_m, slice_m)
+        stem = _measure_stem(points, tree, first, ground, height_m, slice_m, beam)
         if stem is not None and min_dbh_m <= stem.dbh_m <= max_dbh_m:
             stems.append(stem)
     if not stems:
@@ -283,8 +296,25 @@ def _stem_ground(points: np.ndarray, grid, first: CircleFit) -> float:
     return foot if plane - foot > ENVELOPE_M else plane
 
 
-def _measure_stem(points, tree, first: CircleFit, ground: float, height_m: float, slice_m: float):
-    """Axis from sub-slices, then the circle of the slice at breast height along that axis."""
+def _check_beam(viewpoint, footprint) -> tuple[np.ndarray, float, float] | None:
+    """``(viewpoint, exit diameter, growth per metre)`` of :func:`measure_dbh`'s beam, or None when not both given."""
+    if viewpoint is None or footprint is None:
+        return None
+    viewpoint = np.asarray(viewpoint, float)
+    if viewpoint.shape != (3,) or not np.isfinite(viewpoint).all():
+        raise WoodyError(f"viewpoint must be a finite (x, y, z) position in metres, got {viewpoint.tolist()}")
+    try:
+        exit_m, growth = (float(v) for v in footprint)
+    except (TypeError, ValueError):
+        raise WoodyError(f"footprint must be (exit diameter m, growth m/m), got {footprint!r}") from None
+    if not (np.isfinite(exit_m) and exit_m >= 0 and np.isfinite(growth) and growth >= 0):
+        raise WoodyError(f"footprint must be (exit diameter m, growth m/m), both >= 0, got {footprint!r}")
+    return viewpoint, exit_m, growth
+
+
+def _measure_stem(points, tree, first: CircleFit, ground: float, height_m: float, slice_m: float, beam=None):
+    """Axis from sub-slices, then the circle of the slice at breast height along that axis (with the beam's
+    widening modelled when ``beam``, from :func:`_check_beam`, is given)."""
     reach = 1.5 * first.radius_m + 0.05
     centre = np.array([first.centre[0], first.centre[1], ground + height_m])
     near = np.asarray(tree.query_ball_point(centre, np.hypot(reach, AXIS_BAND_M + slice_m)), dtype=np.int64)
@@ -302,6 +332,11 @@ def _measure_stem(points, tree, first: CircleFit, ground: float, height_m: float
     planar = np.column_stack([(section - centre) @ u, (section - centre) @ v])
     try:
         fit = fit_circle(planar)
+        if beam is not None:
+            viewpoint, exit_m, growth = beam
+            seen = viewpoint - centre
+            footprint_m = exit_m + growth * float(np.linalg.norm(seen))
+            fit = fit_circle_beam(planar, [seen @ u, seen @ v], footprint_m, start=fit)
     except WoodyError:
         return None
     on_axis = centre + fit.centre[0] * u + fit.centre[1] * v

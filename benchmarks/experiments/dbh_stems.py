@@ -6,14 +6,19 @@ from ``distance`` metres at an angular step of ``step`` degrees, the scanner
 1.5 m above the ground. :func:`woody.dbh.measure_dbh` gets the points alone
 (no scanner position, the ground found from the cloud) and its DBH is
 compared with the tube's diameter. The issue's goal: stems of 5-50 cm seen
-from 2-10 m within 3 %.
+from 2-10 m within 3 %. With ``--beam`` it also gets what a single scan's
+user knows besides the points: the scan's origin (the scanner position) and
+the instrument's beam (exit diameter and divergence of the preset,
+:meth:`tlssim.scanner.ScannerModel.beam_radius_m`), and models the widening
+of thin stems' silhouettes by the footprint (:func:`woody.circles.fit_circle_beam`).
 
 Run ``tlsbench experiment dbh-stems`` (``--quick`` for a smaller grid,
 ``--csv FILE`` to keep the table). ``--densities`` instead reconstructs a
 one-sided 30 cm stem, 3 m tall (points drawn on its lit half with 1 mm of
 noise), at 0.75, 3 and 30 pts/cm² with :func:`woody.trunk.follow_tree`
 (``--plain`` adds plain cylinder following, minutes per density) and prints
-the model's diameter at 1.3 m and its volume error.
+the model's diameter at 1.3 m and its volume error. ``--diameters``,
+``--distances``, ``--steps`` replace the grid.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ import numpy as np
 
 from scenes import scene_from_spec
 from scenes.builtin import window_around
+from tlssim.scanner import get_preset
 from tlssim.simulate import setup_from_section, simulate
 from woody.dbh import measure_dbh
 from woody.errors import WoodyError
@@ -68,7 +74,26 @@ def stem_scan(diameter_m: float, distance_m: float, step_deg: float, seed: int =
     return simulate(scene, setup, seed=seed, progress=False).points()
 
 
-def run(diameters=DIAMETERS_M, distances=DISTANCES_M, steps=STEPS_DEG, seed: int = 0) -> list[dict]:
+def preset_beam(name: str = "faro-ls880") -> tuple[float, float]:
+    """A scanner preset's beam as :func:`woody.dbh.measure_dbh` takes it.
+
+    Parameters
+    ----------
+    name : str
+        Preset name (:func:`tlssim.scanner.get_preset`).
+
+    Returns
+    -------
+    tuple of float
+        The 1/e² diameter at the exit, m, and its growth per metre of range (twice the tangent of the
+        divergence half-angle), m/m.
+    """
+    model = get_preset(name)
+    return 2.0 * model.beam_radius_m(0.0), 2.0 * (model.beam_radius_m(1.0) - model.beam_radius_m(0.0))
+
+
+def run(diameters=DIAMETERS_M, distances=DISTANCES_M, steps=STEPS_DEG, seed: int = 0,
+        beam: bool = False) -> list[dict]:
     """One row per (diameter, distance, step): true and measured DBH, error, arc, residual, flag, times.
 
     Parameters
@@ -79,11 +104,14 @@ def run(diameters=DIAMETERS_M, distances=DISTANCES_M, steps=STEPS_DEG, seed: int
         Angular steps, degrees.
     seed : int
         Seed of every simulation.
+    beam : bool
+        Give :func:`woody.dbh.measure_dbh` the scanner position and the preset's beam (:func:`preset_beam`).
 
     Returns
     -------
     list of dict
     """
+    known = {"viewpoint": [0.0, 0.0, SCANNER_HEIGHT_M], "footprint": preset_beam()} if beam else {}
     rows = []
     for step in steps:
         for distance in distances:
@@ -94,7 +122,7 @@ def run(diameters=DIAMETERS_M, distances=DISTANCES_M, steps=STEPS_DEG, seed: int
                 row = {"diameter_m": diameter, "distance_m": distance, "step_deg": step, "points": len(points),
                        "spacing_mm": 1e3 * distance * np.radians(step)}
                 try:
-                    stem = measure_dbh(points)[0]
+                    stem = measure_dbh(points, **known)[0]
                     row.update(dbh_m=stem.dbh_m, error_pct=100 * (stem.dbh_m / diameter - 1), arc_deg=stem.arc_deg,
                                residual_mm=1e3 * stem.residual_m, fitted=stem.n_points, flag=stem.flag,
                                ground_z_mm=1e3 * stem.ground_z_m)
@@ -165,6 +193,11 @@ def add_parser(sub) -> None:
                        description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="3 diameters x 2 distances x 1 step")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--beam", action="store_true",
+                   help="give the DBH the scanner position and the preset's beam (footprint-aware circles)")
+    p.add_argument("--diameters", default=None, help="comma-separated stem diameters, m (replace the grid's)")
+    p.add_argument("--distances", default=None, help="comma-separated distances, m (replace the grid's)")
+    p.add_argument("--steps", default=None, help="comma-separated angular steps, deg (replace the grid's)")
     p.add_argument("--csv", default=None, help="write the table to this CSV file")
     p.add_argument("--densities", action="store_true",
                    help="instead: a one-sided 30 cm stem reconstructed at 0.75, 3 and 30 pts/cm2")
@@ -178,7 +211,9 @@ def run_command(args) -> int:
         densities(plain=args.plain, seed=args.seed)
         return 0
     grid = ((0.05, 0.2, 0.5), (2.0, 10.0), (0.066,)) if args.quick else (DIAMETERS_M, DISTANCES_M, STEPS_DEG)
-    rows = run(*grid, seed=args.seed)
+    grid = tuple(default if given is None else tuple(float(v) for v in given.split(","))
+                 for given, default in zip((args.diameters, args.distances, args.steps), grid))
+    rows = run(*grid, seed=args.seed, beam=args.beam)
     errors = np.abs([r["error_pct"] for r in rows])
     within = np.nan_to_num(errors, nan=np.inf) <= 3.0
     print(f"{int(within.sum())}/{len(rows)} within 3 %; |error| median {np.nanmedian(errors):.2f} %, "
