@@ -1,6 +1,23 @@
-"""Shared fixtures: every test that traces rays uses the CPU (LLVM) backend; the hand-made Y tree of the woody tests."""
+"""Shared fixtures: the ray-tracing backends (the CPU's LLVM everywhere; a CUDA GPU where one is present) and the
+hand-made Y tree of the woody tests."""
 
 import pytest
+
+
+def _has_backend(name):
+    """Whether Dr.Jit can run the backend ``name`` ("llvm" or "cuda") on this machine."""
+    try:
+        import drjit as dr
+    except ImportError:
+        return False
+    return dr.has_backend(getattr(dr.JitBackend, name.upper()))
+
+
+#: Skips a test or parameter that needs a CUDA GPU where Dr.Jit finds none: the GPU path (``--backend cuda``) is
+#: checked wherever one is present and never needed by the suite.
+needs_cuda = pytest.mark.skipif(not _has_backend("cuda"), reason="no CUDA GPU here: the GPU path runs where one is")
+#: Skips a test or parameter that needs the CPU backend where Dr.Jit cannot load libLLVM (a bare GPU machine).
+needs_llvm = pytest.mark.skipif(not _has_backend("llvm"), reason="Dr.Jit finds no libLLVM here")
 
 
 @pytest.fixture(scope="session")
@@ -9,6 +26,12 @@ def llvm():
     from tlssim.backend import select_backend
 
     return select_backend("llvm")
+
+
+@pytest.fixture(scope="module", params=[pytest.param("llvm", marks=needs_llvm), pytest.param("cuda", marks=needs_cuda)])
+def backend(request):
+    """Each backend this machine can run, in turn (LLVM always; CUDA where a GPU is present)."""
+    return request.param
 
 
 @pytest.fixture(scope="session")

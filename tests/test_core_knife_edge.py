@@ -20,13 +20,13 @@ from tlssim.simulate import setup_from_section, simulate
 PLATE, WALL = 1.5, 2.0
 
 
-def _knife_scan(n_subrays, seed=0, with_wall=True):
+def _knife_scan(n_subrays, seed=0, with_wall=True, backend="llvm"):
     scene = scenes.build("knife-edge")
     if not with_wall:
         scene = Scene(objects=scene.objects[:1], scanner=scene.scanner, name="knife-edge-over-sky")
     # Noise-free: these tests pin the geometry of mixing, not the detector noise.
     setup = setup_from_section(scene.scanner, model=get_preset("faro-ls880").noise_free(), n_subrays=n_subrays)
-    return simulate(scene, setup, seed=seed, progress=False, backend="llvm"), setup.model
+    return simulate(scene, setup, seed=seed, progress=False, backend=backend), setup.model
 
 
 def _foreground_beam_share(scan, model):
@@ -50,8 +50,8 @@ def _edge_offset(scan, model):
 
 
 @pytest.fixture(scope="module")
-def scans(llvm):
-    return {n: _knife_scan(n) for n in (19, 91)}
+def scans(backend):
+    return {n: _knife_scan(n, backend=backend) for n in (19, 91)}
 
 
 def test_power_split_follows_gaussian_erfc(scans):
