@@ -72,6 +72,7 @@ RULES = {
     "rop_after_1cm": Rule("lower", "fraction"),
     "rop_reduction_1cm": Rule("higher", "fraction"),
     "good_points_lost": Rule("lower", "fraction"),
+    "good_points_lost_pooled": Rule("lower", "fraction"),
     "outliers_restored": Rule("higher", "fraction"),
     "good_points_damaged": Rule("lower", "fraction"),
     "completeness": Rule("higher", "fraction"),

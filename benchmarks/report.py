@@ -635,6 +635,7 @@ COLUMNS = {
     "rop_before": ("ROP before", "%"), "rop_after": ("ROP after", "%"), "rop_reduction": ("ROP reduction", "%"),
     "rop_before_1cm": ("ROP before, 1 cm", "%"), "rop_after_1cm": ("ROP after, 1 cm", "%"),
     "rop_reduction_1cm": ("ROP reduction, 1 cm", "%"), "good_points_lost": ("good points lost", "%"),
+    "good_points_lost_pooled": ("good points lost, pooled", "%"),
     "outliers_restored": ("outliers restored", "%"), "good_points_damaged": ("good points damaged", "%"),
     "completeness": ("completeness", "%"), "flag_precision": ("flag precision", "%"),
     "flag_recall": ("flag recall", "%"), "rppp_0": ("pixels with 0 values", "%"),
@@ -832,7 +833,7 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
     parts += ["<h2>By kind of scene</h2>", "<div class='wide'>",
               _table([r for r in document["by_scene"] if r["n_targets"] or r["n_errors"]], ["scene", "variant", "n_targets", "n_errors", "rop_before", "rop_after",
                                             "rop_reduction", "outliers_restored", "good_points_lost",
-                                            "area_rel_err_median", "area_rel_err_bias", "runtime_s"]), "</div>"]
+                                            "good_points_lost_pooled", "area_rel_err_median", "area_rel_err_bias", "runtime_s"]), "</div>"]
     if document["validation"]:
         parts += [f"<h2>Validation table (thesis ch.7)</h2><p class='meta'>Over the leaves at least "
                   f"{metrics.MIN_VISIBILITY:.0%} visible; regressions, BIAS (eq 2.1) and precisions (standard "

@@ -11,6 +11,12 @@ drown 60 single-leaf cases):
   ``completeness``, ``flag_precision``, ``flag_recall`` and ``rppp_1`` (the
   share of pixels with exactly one PROP-SFS candidate): mean over cases of
   the mean over leaves;
+- ``good_points_lost_pooled``: mean over cases of the good points lost
+  pooled over each case's leaves (good pulses removed / good pulses). In a
+  canopy the per-leaf mean above is carried by leaves with a handful of good
+  pulses (a grazing sliver before a wall: 1 of 27), where one removed pulse
+  is 4-100 %; the pooled share says what part of the good points a user
+  loses;
 - height-field cases (:mod:`benchmarks.heightfields`): ``abs_eps_mean``
   (the thesis' mean |relative height error|), ``within_5pct`` and
   ``completeness``, means over cases;
@@ -58,7 +64,7 @@ GOAL_AREA_REL_ERR = 0.05
 #: Keys of a summary row, in display order.
 SUMMARY_KEYS = ("suite", "variant", "family", "n_cases", "n_targets", "n_leaves_traits", "n_errors", "rop_before",
                 "rop_after", "rop_reduction", "rop_before_1cm", "rop_after_1cm", "rop_reduction_1cm", "good_points_lost",
-                "outliers_restored", "good_points_damaged", "completeness", "flag_precision", "flag_recall",
+                "good_points_lost_pooled", "outliers_restored", "good_points_damaged", "completeness", "flag_precision", "flag_recall",
                 "rppp_1", "abs_eps_mean", "within_5pct", "surface_rmse_m",
                 "area_rel_err_median", "area_rel_err_bias", "area_seen_rel_err_median", "elevation_err_median_deg",
                 "azimuth_err_median_deg", "n_found", "n_missed", "n_false", "found_visible",
@@ -102,6 +108,20 @@ def _over_cases(rows: list[dict], key: str, reduce=np.mean, absolute: bool = Fal
         if len(values):
             per_case.append(reduce(values))
     return float(reduce(per_case)) if per_case else None
+
+
+def _pooled_lost(rows: list[dict]):
+    """Mean over cases of the good points lost pooled over the case's leaves (None when no case has good points)."""
+    per_case = []
+    for row in rows:
+        leaves = [leaf for leaf in row["metrics"]["targets"]
+                  if leaf.get("n_points") is not None and leaf.get("good_points_lost") is not None]
+        good = np.array([leaf["n_points"] - leaf["n_outliers"] for leaf in leaves], dtype=float)
+        lost = np.array([leaf["good_points_lost"] for leaf in leaves], dtype=float)
+        scored = (good > 0) & np.isfinite(lost)
+        if scored.any():
+            per_case.append(float(np.sum(lost[scored] * good[scored]) / np.sum(good[scored])))
+    return float(np.mean(per_case)) if per_case else None
 
 
 def _reduction(before, after):
@@ -169,6 +189,7 @@ def _summary_row(mine: list[dict], labels: dict) -> dict:
     for key in ("good_points_lost", "outliers_restored", "good_points_damaged", "completeness", "flag_precision",
                 "flag_recall", "rppp_1", "abs_eps_mean", "within_5pct"):
         row[key] = _over_cases(ok, key)
+    row["good_points_lost_pooled"] = _pooled_lost(ok)
     row["surface_rmse_m"] = _over_cases(ok, "surface_rmse_m", np.median)
     row["n_leaves_traits"] = sum(1 for leaf in leaves if (leaf.get("visibility") or 0.0) >= metrics.MIN_VISIBILITY)
     row["area_rel_err_median"] = _over_cases(ok, "area_rel_err", np.median, absolute=True, visible=True)

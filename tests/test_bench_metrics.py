@@ -146,6 +146,21 @@ def test_summaries_weigh_cases_equally_and_gate_traits_on_visibility():
     assert by_scene[2]["n_errors"] == 1 and by_scene[2]["rop_before"] is None
 
 
+def test_pooled_good_points_lost_weighs_leaves_by_their_good_pulses():
+    def row(case, leaves):
+        return {"case_name": case, "variant": "fused", "family": "prop-sfs", "case_spec": {"scene": {"builtin": case}},
+                "metrics": {"targets": leaves}, "runtime_s": 1.0, "peak_mem_mb": 2.0, "error": None}
+
+    # A leaf of 100 good pulses losing 1, and a grazing sliver whose one good pulse (of 5) is removed.
+    tree = [{"n_points": 100, "n_outliers": 0, "good_points_lost": 0.01},
+            {"n_points": 5, "n_outliers": 4, "good_points_lost": 1.0},
+            {"n_points": 3, "n_outliers": 3, "good_points_lost": None}]  # no good pulse: not scored
+    single = [{"n_points": 50, "n_outliers": 10, "good_points_lost": 0.0}]
+    (summary,) = summarize([row("tree", tree), row("leaf", single)], "s")
+    assert summary["good_points_lost_pooled"] == pytest.approx((2 / 101 + 0.0) / 2)
+    assert summary["good_points_lost"] == pytest.approx((0.505 + 0.0) / 2)
+
+
 def test_height_errors_follow_the_thesis_definition():
     truth = np.array([[0.0, 1.0], [2.0, 4.0]])
     mask = np.array([[True, True], [True, False]])  # h_tot = 2 on the mask
