@@ -181,6 +181,23 @@ def test_a_beam_fit_with_a_thin_beam_is_exact_on_exact_points_and_refuses_a_nega
         measure_dbh(stem_cloud(0.2, seed=7), viewpoint=[0, 0, 1], footprint=(0.003, -1.0))
 
 
+def test_woody_dbh_takes_the_scanner_position_from_a_single_scan_file(tmp_path, capsys):
+    points = widened_stem(0.025, 4.0, 0.003 + 0.00049 * 4.0, 0.036, 0.001, seed=12)
+    aware = measure_dbh(points, ground_z=0.0, viewpoint=[0, 0, 1.5], footprint=(0.003, 0.00049))[0].dbh_m
+    plain = measure_dbh(points, ground_z=0.0)[0].dbh_m
+    beam = ["--json", "--ground-z", "0", "--footprint", "0.003", "0.00049"]
+    one = write_npz(tmp_path / "one.npz", {"points": points, "scanner_position": np.array([0.0, 0.0, 1.5])})
+    assert main(["dbh", str(one), *beam]) == 0
+    assert json.loads(capsys.readouterr().out)["stems"][0]["dbh_m"] == aware != plain
+    # two scan positions: no single viewpoint, so the plain fit, and the user is told why
+    two = np.tile([0.0, 0.0, 1.5], (len(points), 1))
+    two[::2, 0] = 8.0
+    assert main(["dbh", str(write_npz(tmp_path / "two.npz", {"points": points, "scanner_position": two})),
+                 *beam]) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["stems"][0]["dbh_m"] == plain and "--viewpoint" in captured.err
+
+
 def test_model_diameter_at_a_height_interpolates_the_thickest_frustum():
     cylinders = [{"start": [0, 0, 0], "end": [0, 0, 2], "radius_m": 0.2, "radius_end_m": 0.1},
                  {"start": [0, 0, 1], "end": [1, 0, 1.6], "radius_m": 0.05}]

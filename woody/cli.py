@@ -72,7 +72,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--slice", type=float, default=0.1, help="height of the fitted slice, m (default 0.1)")
     p.add_argument("--viewpoint", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
                    help="scanner position of a single scan, m; with --footprint the circles model the beam's "
-                        "widening of thin stems' silhouettes")
+                        "widening of thin stems' silhouettes (default: the file's scanner position, when it holds "
+                        "one scan: E57 pose, tlssim scan)")
     p.add_argument("--footprint", type=float, nargs=2, default=None, metavar=("EXIT_M", "GROWTH"),
                    help="the scanner's beam: 1/e2 diameter at the exit, m, and its growth per metre of range "
                         "(twice the tangent of the divergence half-angle), e.g. 0.003 0.000489 for the FARO LS880")
@@ -133,11 +134,18 @@ def run_reconstruct(args) -> int:
 
 
 def run_dbh(args) -> int:
-    from woody.cloud import read_cloud
+    from woody.cloud import read_cloud, single_viewpoint
     from woody.dbh import measure_dbh
 
-    stems = measure_dbh(read_cloud(args.cloud).points, ground_z=args.ground_z, height_m=args.height,
-                        slice_m=args.slice, viewpoint=args.viewpoint, footprint=args.footprint)
+    cloud = read_cloud(args.cloud)
+    viewpoint = args.viewpoint
+    if viewpoint is None and args.footprint is not None:
+        viewpoint = single_viewpoint(cloud)
+        if viewpoint is None:
+            print("woody dbh: --footprint needs the scanner position: the file holds none (or several scans); "
+                  "give --viewpoint X Y Z, or the plain circle fit is used", file=sys.stderr)
+    stems = measure_dbh(cloud.points, ground_z=args.ground_z, height_m=args.height,
+                        slice_m=args.slice, viewpoint=viewpoint, footprint=args.footprint)
     if args.json:
         print(json.dumps({"cloud": str(args.cloud), "stems": [s.to_dict() for s in stems]}, indent=2))
         return 0

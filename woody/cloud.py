@@ -38,6 +38,13 @@ class Cloud:
     normals: np.ndarray | None = None
 
 
+def single_viewpoint(cloud: Cloud) -> np.ndarray | None:
+    """The scanner position of a cloud seen from one position, m (``(3,)``), or None (unknown or several scans)."""
+    if cloud.viewpoints is None or not np.all(cloud.viewpoints == cloud.viewpoints[0]):
+        return None
+    return cloud.viewpoints[0]
+
+
 def check_points(points, name: str = "points") -> np.ndarray:
     """Validate a point array and return it as ``(n, 3)`` float64.
 
