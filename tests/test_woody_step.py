@@ -9,7 +9,8 @@ from woody.hough import HoughGrid, HoughSpace
 from woody.snake import Snake, data_energy
 from scipy.spatial import cKDTree
 
-from woody.step import Tuboid, arc_support
+from woody.density import point_spacing
+from woody.step import Tuboid, arc_support, hough_cells
 from woody.synthetic import add_noise, sample_cylinders, straight_cylinder
 
 CELLS = {"cell_m": 0.02, "radius_step_m": 0.01, "r_min_m": 0.08, "r_max_m": 0.25}
@@ -131,3 +132,18 @@ def test_absurd_parameters_are_refused():
         step(cloud.points, cloud.normals[:-1])
     with pytest.raises(WoodyError, match="alpha"):
         SnakeParams(alpha=-1.0)
+
+
+def test_hough_cells_follow_a_sparse_clouds_spacing():
+    # 250 points per m² (about 6 cm apart) on a 40 cm stem with 5 mm noise: the paper's 2 cm cells collect too few
+    # votes per cell to find it; cells of two point spacings do.
+    cloud = sample_cylinders(straight_cylinder(0.2, 3.0), 250, seed=11)
+    points = cloud.points + np.random.default_rng(11).normal(0.0, 0.005, cloud.points.shape)
+    cell, radius_step, r_min = hough_cells(point_spacing(points))
+    assert cell > 0.1 and cell >= 2 * radius_step and radius_step < r_min
+    assert hough_cells(0.004) == (0.02, 0.01, 0.02)  # dense clouds keep the paper's cells
+    result = step(points)
+    assert result.diameter_at_height(1.5) == pytest.approx(0.4, rel=0.03)
+    assert result.volume == pytest.approx(np.pi * 0.2**2 * 3.0, rel=0.1)
+    paper = step(points, cell_m=0.02, radius_step_m=0.01, r_min_m=0.02)
+    assert paper.volume < 0.5 * result.volume

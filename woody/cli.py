@@ -39,9 +39,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--normals", choices=("auto", "pca", "file"), default="auto",
                    help="STEP normals: from the file (e.g. a simulated scan's truth), PCA, or the file's when present "
                         "(default auto)")
-    p.add_argument("--cell-m", type=float, default=0.02, help="STEP Hough cell in x, y, z, m (default 0.02)")
-    p.add_argument("--radius-step-m", type=float, default=0.01, help="STEP Hough cell in r, m (default 0.01)")
-    p.add_argument("--r-min-m", type=float, default=0.02, help="STEP smallest radius, m (default 0.02)")
+    p.add_argument("--cell-m", type=float, default=None,
+                   help="STEP Hough cell in x, y, z, m (default: 0.02, or two point spacings on sparser clouds)")
+    p.add_argument("--radius-step-m", type=float, default=None,
+                   help="STEP Hough cell in r, m (default: 0.01, or 0.4 cells on sparse clouds)")
+    p.add_argument("--r-min-m", type=float, default=None,
+                   help="STEP smallest radius, m (default: 0.02, or 1.5 radius cells on sparse clouds)")
     p.add_argument("--r-max-m", type=float, default=0.30, help="STEP largest radius, m (default 0.30)")
     p.add_argument("--max-tuboids", type=int, default=None, help="STEP: stop after this many tuboids")
     p.add_argument("--no-refine", action="store_true", help="STEP: keep the Hough-space circles (no point re-fit)")

@@ -147,8 +147,8 @@ class StepResult:
         return np.array([self.diameter_at_height(float(z)) for z in np.atleast_1d(heights)])
 
 
-def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_step_m: float = 0.01,
-         r_min_m: float = 0.02, r_max_m: float = 0.30, oriented: bool | None = None, normal_k: int = 16,
+def step(points, normals=None, *, viewpoints=None, cell_m: float | None = None, radius_step_m: float | None = None,
+         r_min_m: float | None = None, r_max_m: float = 0.30, oriented: bool | None = None, normal_k: int = 16,
          normal_levels: int = 0, samples_per_bin: int = 1, min_votes: int = 2, params: SnakeParams | None = None,
          max_tuboids: int | None = None, max_seeds: int | None = 5000, min_vertices: int = 3,
          min_length_radii: float = 1.0, max_mean_energy: float = -0.3, weak_energy: float = -0.4,
@@ -167,12 +167,15 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
         at the scale of least surface variation).
     viewpoints : array_like, (3,) or (n, 3), optional
         Scanner position(s), m: estimated normals are flipped to face them.
-    cell_m, radius_step_m : float
+    cell_m, radius_step_m : float, optional
         Hough cell sizes in x, y, z and in r, m (paper: 2 cm / 1 cm for
         single stems, up to 5 cm / 1 cm for sparse trees). Rules:
         ``cell_m >= 2 radius_step_m`` and ``radius_step_m < r_min_m``.
+        By default they follow the cloud's point spacing
+        (:func:`hough_cells`): 2 cm / 1 cm up to 1 cm spacing.
     r_min_m, r_max_m : float
-        Radius range sought, m.
+        Radius range sought, m (``r_min_m`` by default from
+        :func:`hough_cells`: 2 cm up to 1 cm spacing).
     oriented : bool, optional
         Whether normals point outwards (vote on one half-line, eq. 5) or
         have an arbitrary sign (both half-lines, eq. 6). Default True:
@@ -266,6 +269,10 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float = 0.02, radius_
     if max_tuboids is not None and max_tuboids < 1:
         raise WoodyError(f"max_tuboids must be at least 1, got {max_tuboids}")
     params = params or SnakeParams()
+    if None in (cell_m, radius_step_m, r_min_m):
+        auto = hough_cells(point_spacing(points))
+        cell_m, radius_step_m, r_min_m = (auto[i] if value is None else value
+                                          for i, value in enumerate((cell_m, radius_step_m, r_min_m)))
     grid = HoughGrid.around(points, cell_m, radius_step_m, r_min_m, r_max_m)
     if normals is not None:
         normals = check_normals(normals, len(points))
@@ -332,6 +339,41 @@ def _check_not_a_line(points: np.ndarray) -> None:
         raise WoodyError(f"all {len(points)} points coincide: no tube can be fitted to them")
     if singular[1] <= 1e-6 * singular[0]:
         raise WoodyError(f"the {len(points)} points lie on a straight line: no tube can be fitted to them")
+
+
+#: Hough cells per point spacing: a cell of two spacings is crossed by the normal lines of several points of a
+#: stem (assumption; the paper's 2 cm cells on clouds of about 1 cm spacing, and its "up to 5 cm for sparse
+#: trees"). Chosen on the real cloud aRchi Tree_1 (69 mm spacing: 2 cm cells give no trunk; cells of 5 and 10 cm
+#: give 2.2 and 4.0 m³ against TreeQSM's 3.9); rTwig's cloud (12.7 mm) was run after the choice.
+CELLS_PER_SPACING = 2.0
+
+
+def hough_cells(spacing_m: float) -> tuple[float, float, float]:
+    """STEP's default Hough cell, radius cell and smallest radius for a cloud's point spacing, m.
+
+    The cell is the larger of 2 cm (the paper's) and :data:`CELLS_PER_SPACING` spacings; the radius cell the
+    larger of 1 cm and 0.4 cells (so that ``cell >= 2 radius cell``); the smallest radius the larger of 2 cm and
+    1.5 radius cells (so that a radius cell is below it). Up to 1 cm spacing: the paper's 2 cm / 1 cm / 2 cm.
+
+    Parameters
+    ----------
+    spacing_m : float
+        Point spacing (:func:`woody.density.point_spacing`), m.
+
+    Returns
+    -------
+    cell_m, radius_step_m, r_min_m : float
+
+    Examples
+    --------
+    >>> hough_cells(0.005)
+    (0.02, 0.01, 0.02)
+    >>> [round(v, 3) for v in hough_cells(0.05)]
+    [0.1, 0.04, 0.06]
+    """
+    cell = max(0.02, CELLS_PER_SPACING * spacing_m)
+    radius_step = max(0.01, 0.4 * cell)
+    return cell, radius_step, max(0.02, 1.5 * radius_step)
 
 
 def _subsample(points: np.ndarray, cell_m: float, subsample_m: float | None) -> np.ndarray | None:
