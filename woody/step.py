@@ -269,15 +269,15 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float | None = None, 
     if max_tuboids is not None and max_tuboids < 1:
         raise WoodyError(f"max_tuboids must be at least 1, got {max_tuboids}")
     params = params or SnakeParams()
-    if None in (cell_m, radius_step_m, r_min_m):
-        auto = hough_cells(point_spacing(points))
-        cell_m, radius_step_m, r_min_m = (auto[i] if value is None else value
-                                          for i, value in enumerate((cell_m, radius_step_m, r_min_m)))
-    grid = HoughGrid.around(points, cell_m, radius_step_m, r_min_m, r_max_m)
     if normals is not None:
         normals = check_normals(normals, len(points))
     count = len(points)
     _check_not_a_line(points)
+    if None in (cell_m, radius_step_m, r_min_m):
+        auto = hough_cells(point_spacing(points)) if count >= 7 else hough_cells(0.0)
+        cell_m, radius_step_m, r_min_m = (auto[i] if value is None else value
+                                          for i, value in enumerate((cell_m, radius_step_m, r_min_m)))
+    grid = HoughGrid.around(points, cell_m, radius_step_m, r_min_m, r_max_m)
     kept = _subsample(points, cell_m, subsample_m)
     if kept is not None:
         points = points[kept]
