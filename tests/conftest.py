@@ -34,6 +34,14 @@ def backend(request):
     return request.param
 
 
+@pytest.fixture
+def cuda_and_llvm():
+    """Skips a test that compares the two backends unless this machine runs both (a GPU machine with libLLVM)."""
+    missing = [name for name in ("cuda", "llvm") if not _has_backend(name)]
+    if missing:
+        pytest.skip(f"no {' or '.join(missing)} backend here: the backends are compared where both run")
+
+
 @pytest.fixture(scope="session")
 def y_tree():
     """A Y-shaped tree's truth cylinders: a 10 cm stem 0.8 m tall forking into two 6 cm arms (m)."""

@@ -9,7 +9,6 @@ import trimesh
 
 import scenes
 import tlssim
-from conftest import needs_cuda, needs_llvm
 from tlssim.cli import main as tlssim_main
 from tlssim.compare import compare_scans
 from tlssim.errors import ScanError
@@ -89,9 +88,7 @@ def test_same_seed_same_bytes_different_seed_differs(backend, tmp_path):
     assert data[0] != data[2]
 
 
-@needs_cuda
-@needs_llvm
-def test_cuda_scan_matches_llvm_scan():
+def test_cuda_scan_matches_llvm_scan(cuda_and_llvm):
     """Both backends trace the same sub-rays: the same seed gives the same knife-edge scan to within float rounding."""
     scene = scenes.build("knife-edge")
     setup = setup_from_section(scene.scanner)

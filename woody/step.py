@@ -273,12 +273,14 @@ def step(points, normals=None, *, viewpoints=None, cell_m: float | None = None, 
         normals = check_normals(normals, len(points))
     count = len(points)
     _check_not_a_line(points)
-    if None in (cell_m, radius_step_m, r_min_m):
-        auto = hough_cells(point_spacing(points)) if count >= 7 else hough_cells(0.0)
+    auto_cells = None in (cell_m, radius_step_m, r_min_m)
+    spacing = point_spacing(points) if count >= 7 and (auto_cells or subsample_m is None) else 0.0
+    if auto_cells:
+        auto = hough_cells(spacing)
         cell_m, radius_step_m, r_min_m = (auto[i] if value is None else value
                                           for i, value in enumerate((cell_m, radius_step_m, r_min_m)))
     grid = HoughGrid.around(points, cell_m, radius_step_m, r_min_m, r_max_m)
-    kept = _subsample(points, cell_m, subsample_m)
+    kept = _subsample(points, cell_m, subsample_m, spacing)
     if kept is not None:
         points = points[kept]
         normals = None if normals is None else normals[kept]
@@ -376,14 +378,16 @@ def hough_cells(spacing_m: float) -> tuple[float, float, float]:
     return cell, radius_step, max(0.02, 1.5 * radius_step)
 
 
-def _subsample(points: np.ndarray, cell_m: float, subsample_m: float | None) -> np.ndarray | None:
-    """Indices of the points STEP uses (None: all of them); see ``subsample_m`` of :func:`step`."""
+def _subsample(points: np.ndarray, cell_m: float, subsample_m: float | None,
+               spacing_m: float) -> np.ndarray | None:
+    """Indices of the points STEP uses (None: all of them); see ``subsample_m`` of :func:`step` (``spacing_m``: the
+    cloud's point spacing, m)."""
     if subsample_m is not None and not (np.isfinite(subsample_m) and subsample_m >= 0):
         raise WoodyError(f"subsample_m must be a length >= 0 in metres, got {subsample_m}")
     if subsample_m == 0 or len(points) < 7:
         return None
     voxel = cell_m / 4.0 if subsample_m is None else subsample_m
-    if subsample_m is None and point_spacing(points) >= voxel:
+    if subsample_m is None and spacing_m >= voxel:
         return None
     return voxel_subsample(points, voxel)
 
