@@ -833,7 +833,8 @@ def write_html(store: Store, run_id: str, path, before_after: bool = True) -> Pa
     parts += ["<h2>By kind of scene</h2>", "<div class='wide'>",
               _table([r for r in document["by_scene"] if r["n_targets"] or r["n_errors"]], ["scene", "variant", "n_targets", "n_errors", "rop_before", "rop_after",
                                             "rop_reduction", "outliers_restored", "good_points_lost",
-                                            "good_points_lost_pooled", "area_rel_err_median", "area_rel_err_bias", "runtime_s"]), "</div>"]
+                                            "good_points_lost_pooled", "area_rel_err_median", "area_rel_err_bias",
+                                            "runtime_s"]), "</div>"]
     if document["validation"]:
         parts += [f"<h2>Validation table (thesis ch.7)</h2><p class='meta'>Over the leaves at least "
                   f"{metrics.MIN_VISIBILITY:.0%} visible; regressions, BIAS (eq 2.1) and precisions (standard "

@@ -64,7 +64,8 @@ GOAL_AREA_REL_ERR = 0.05
 #: Keys of a summary row, in display order.
 SUMMARY_KEYS = ("suite", "variant", "family", "n_cases", "n_targets", "n_leaves_traits", "n_errors", "rop_before",
                 "rop_after", "rop_reduction", "rop_before_1cm", "rop_after_1cm", "rop_reduction_1cm", "good_points_lost",
-                "good_points_lost_pooled", "outliers_restored", "good_points_damaged", "completeness", "flag_precision", "flag_recall",
+                "good_points_lost_pooled", "outliers_restored", "good_points_damaged", "completeness", "flag_precision",
+                "flag_recall",
                 "rppp_1", "abs_eps_mean", "within_5pct", "surface_rmse_m",
                 "area_rel_err_median", "area_rel_err_bias", "area_seen_rel_err_median", "elevation_err_median_deg",
                 "azimuth_err_median_deg", "n_found", "n_missed", "n_false", "found_visible",
