@@ -15,17 +15,18 @@ from woody.dbh import measure_dbh
 def test_real_clouds_read_without_viewpoint_or_normals_and_round_trip(tmp_path, name, cloud, ref):
     read = read_cloud(DATA / cloud)
     assert read.viewpoints is None and read.normals is None and len(read.points) > 10000
+    local = read.points - read.points.min(axis=0)  # trimesh's PLY is float32: georeferenced x, y would round
     ply, xyz, las = (tmp_path / f"{name}.{suffix}" for suffix in ("ply", "xyz", "las"))
-    trimesh.PointCloud(read.points).export(ply)
-    np.savetxt(xyz, read.points, fmt="%.6f")
+    trimesh.PointCloud(local).export(ply)
+    np.savetxt(xyz, local, fmt="%.6f")
     header = laspy.LasHeader(point_format=3, version="1.2")
-    header.scales, header.offsets = [1e-5] * 3, read.points.min(axis=0)
+    header.scales, header.offsets = [1e-5] * 3, [0.0] * 3
     out = laspy.LasData(header)
-    out.x, out.y, out.z = read.points.T
+    out.x, out.y, out.z = local.T
     out.write(las)
-    for path, tolerance in ((ply, 5e-5), (xyz, 1e-6), (las, 1e-5)):  # PLY of trimesh: float32
+    for path, tolerance in ((ply, 5e-5), (xyz, 1e-6), (las, 1e-5)):
         again = read_cloud(path)
-        assert again.viewpoints is None and np.allclose(again.points, read.points, atol=tolerance, rtol=0)
+        assert again.viewpoints is None and np.allclose(again.points, local, atol=tolerance, rtol=0)
 
 
 def test_treeqsm_references_match_the_published_tree_data():
@@ -35,6 +36,12 @@ def test_treeqsm_references_match_the_published_tree_data():
     assert rtwig["dbh_m"] == pytest.approx(0.073514, rel=1e-4)
     archi = treeqsm_reference(DATA / "archi_tree1_treeqsm.txt")
     assert archi["cylinders"] == 2271 and 0.45 < archi["dbh_m"] < 0.55
+    # tReeTraits' table has a header and its own volume column; its stem's first cylinder spans 0-1.52 m, r 7 cm
+    pine = treeqsm_reference(DATA / "treetraits_tree_0744_qsm.txt")
+    published = np.genfromtxt(DATA / "treetraits_tree_0744_qsm.txt", names=True)["volume"]
+    assert pine["cylinders"] == len(published) == 288
+    assert pine["volume_m3"] == pytest.approx(published.sum(), rel=1e-9)
+    assert pine["dbh_m"] == pytest.approx(0.14)
 
 
 def test_dbh_of_the_rtwig_tree_is_within_5_percent_of_its_treeqsm_model():
@@ -44,6 +51,13 @@ def test_dbh_of_the_rtwig_tree_is_within_5_percent_of_its_treeqsm_model():
     assert stem.ground_z_m == pytest.approx(points[:, 2].min(), abs=0.05)
     assert stem.dbh_m == pytest.approx(treeqsm_reference(DATA / "rtwig_treeqsm.mat")["dbh_m"], rel=0.05)
     assert stem.flag == "ok"
+
+
+def test_dbh_of_the_treetraits_pine_with_its_needles_is_within_5_percent_of_its_treeqsm_model():
+    # not looked at before the DBH code was written: a pine scanned with its needles, its QSM made from the wood
+    points = read_cloud(DATA / "treetraits_tree_0744.laz").points
+    stem = measure_dbh(points)[0]
+    assert stem.dbh_m == pytest.approx(treeqsm_reference(DATA / "treetraits_tree_0744_qsm.txt")["dbh_m"], rel=0.05)
 
 
 def test_cloud_dbh_reference_fits_the_stem_and_trims_a_branch_beside_it():

@@ -30,9 +30,12 @@ from benchmarks.errors import BenchError
 DATA = Path(__file__).resolve().parents[2] / "tests" / "data" / "real"
 #: The shipped clouds: name, cloud file, reference model file (TreeQSM ``.mat`` or cylinder text table).
 CLOUDS = (("rtwig-tree", "rtwig_cloud.txt", "rtwig_treeqsm.mat"),
-          ("archi-tree1", "archi_tree1.las", "archi_tree1_treeqsm.txt"))
+          ("archi-tree1", "archi_tree1.las", "archi_tree1_treeqsm.txt"),
+          ("treetraits-0744", "treetraits_tree_0744.laz", "treetraits_tree_0744_qsm.txt"))
 #: Methods: DBH alone, STEP, cylinder following with the trunk first (``woody reconstruct`` defaults).
 METHODS = ("dbh", "step", "cylinders")
+#: Columns a cylinder table with a header line must have (tReeTraits' export of a TreeQSM model).
+HEADED_COLUMNS = frozenset({"startX", "startY", "startZ", "endX", "endY", "endZ", "radius_cyl", "length"})
 #: Breast height of the references, m (TreeQSM's DBHqsm uses 1.3 m).
 BREAST_HEIGHT_M = 1.3
 #: Height of the horizontal slice of the cloud-based DBH reference, m (assumption: thin enough that a leaning
@@ -51,7 +54,8 @@ def treeqsm_reference(path) -> dict:
     """Volume and DBH of a TreeQSM model: a ``.mat`` (``OptQSM`` or ``QSM`` struct) or its cylinder text table.
 
     The text table's columns are those TreeQSM's ``save_model_text`` writes: radius, length, start (3),
-    axis (3), then parent, extension and more (only the first eight are read).
+    axis (3), then parent, extension and more (only the first eight are read); a table with a header line is
+    read by its column names instead (``startX`` ... ``endZ``, ``radius_cyl``, ``length``: tReeTraits' export).
 
     Parameters
     ----------
@@ -80,17 +84,38 @@ def treeqsm_reference(path) -> dict:
         c = model.cylinder
         radius, length = np.atleast_1d(c.radius).astype(float), np.atleast_1d(c.length).astype(float)
         start, axis = np.atleast_2d(c.start).astype(float), np.atleast_2d(c.axis).astype(float)
+        end = start + axis * length[:, None]
+    elif _has_header(path):
+        table = np.genfromtxt(path, names=True)
+        missing = HEADED_COLUMNS - set(table.dtype.names)
+        if missing:
+            raise BenchError(f"{path}: a cylinder table with a header needs the columns {', '.join(sorted(missing))}")
+        table = np.atleast_1d(table)
+        radius, length = table["radius_cyl"].astype(float), table["length"].astype(float)
+        start = np.column_stack([table[k] for k in ("startX", "startY", "startZ")]).astype(float)
+        end = np.column_stack([table[k] for k in ("endX", "endY", "endZ")]).astype(float)
     else:
         table = np.loadtxt(path, ndmin=2)
         if table.shape[1] < 8:
             raise BenchError(f"{path}: a TreeQSM cylinder table has at least 8 columns, this one {table.shape[1]}")
         radius, length, start, axis = table[:, 0], table[:, 1], table[:, 2:5], table[:, 5:8]
-    end = start + axis * length[:, None]
+        end = start + axis * length[:, None]
     base = float(start[:, 2].min())
     z = base + BREAST_HEIGHT_M
     crossing = (np.minimum(start[:, 2], end[:, 2]) <= z) & (np.maximum(start[:, 2], end[:, 2]) >= z)
     return {"volume_m3": float((np.pi * radius**2 * length).sum()), "base_z_m": base, "cylinders": len(radius),
             "dbh_m": float(2 * radius[crossing].max()) if crossing.any() else float("nan")}
+
+
+def _has_header(path: Path) -> bool:
+    """Whether a text table's first line holds column names (not numbers)."""
+    with open(path) as handle:
+        first = handle.readline().split()
+    try:
+        [float(x) for x in first]
+    except ValueError:
+        return True
+    return False
 
 
 def cloud_dbh_reference(points, ground_z: float) -> dict:
