@@ -4,10 +4,13 @@ Starting from the main stem at breast height (:func:`woody.dbh.measure_dbh`;
 at 0.9 or 0.5 m when no stem fits well there: a tree forking lower),
 slabs of the stem perpendicular to its axis are fitted with circles
 (:func:`woody.circles.fit_circle`), stepping down to the ground and up
-until a fit fails twice in a row (a fork, the crown, the top of the stem):
-a fit fails when its quality flag is ``unreliable`` or ``high-residual``,
+until a fit fails twice in a row (a fork, the crown, the top of the stem).
+A fit fails when its quality flag is ``unreliable`` or ``high-residual``,
 its radius or centre jumps from the previous slab's, or, above breast
-height, its radius exceeds the breast-height radius by a quarter. The axis follows
+height, its radius exceeds the breast-height radius by a quarter; a slab
+whose fit fails is fitted once more on its points within the radius jump
+of the previous circle (the stem's own surface, without the bases of a
+whorl's branches or the root flare beside it). The axis follows
 the centres of the last slabs, so a leaning or curved stem is followed.
 
 The trunk is returned as a cylinder list (frusta between consecutive
@@ -211,17 +214,19 @@ def _slab_fit(points, tree, target, axis, radius, thickness):
     u, v = orthonormal_frame(axis)[:2]
     planar = np.column_stack([local @ u, local @ v])
     keep = (np.abs(along) <= thickness / 2) & (np.hypot(*planar.T) <= reach)
-    if keep.sum() < 10:
-        return None
-    try:
-        fit = fit_circle(planar[keep])
-    except WoodyError:
-        return None
-    if not _trunk_like(quality_flag(fit), fit.arc_deg, fit.residual_m, fit.radius_m) \
-            or abs(fit.radius_m / radius - 1) > MAX_RADIUS_JUMP \
-            or np.hypot(*fit.centre) > MAX_CENTRE_JUMP * radius:
-        return None
-    return target + fit.centre[0] * u + fit.centre[1] * v, fit.radius_m, fit.residual_m
+    band = keep & (np.abs(np.hypot(*planar.T) - radius) <= MAX_RADIUS_JUMP * radius)
+    for chosen in (keep, band):  # the slab, then only its points near the expected circle (a whorl's branch bases)
+        if chosen.sum() < 10:
+            return None
+        try:
+            fit = fit_circle(planar[chosen])
+        except WoodyError:
+            continue
+        if _trunk_like(quality_flag(fit), fit.arc_deg, fit.residual_m, fit.radius_m) \
+                and abs(fit.radius_m / radius - 1) <= MAX_RADIUS_JUMP \
+                and np.hypot(*fit.centre) <= MAX_CENTRE_JUMP * radius:
+            return target + fit.centre[0] * u + fit.centre[1] * v, fit.radius_m, fit.residual_m
+    return None
 
 
 def _claim(points, tree, centres, radii, members, tolerance, residual):
