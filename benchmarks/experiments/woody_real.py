@@ -44,6 +44,9 @@ CLOUD_SLICE_M = 0.1
 #: Points of the slice closer than this are one stem, m (assumption: four times the 5 cm spacing of the sparser
 #: cloud, so that its stem is one group; a branch linked to it is trimmed by the fit).
 CLOUD_LINK_M = 0.2
+#: The points of the slice are linked through one point per cell of this size, m (assumption: small next to
+#: ``CLOUD_LINK_M``).
+LINK_CELL_M = 0.01
 #: Points farther from the circle than this many robust sigmas (1.4826 x their median absolute distance) are
 #: left out and the circle fitted again (the usual 3-sigma rule), up to ``CLOUD_ITERATIONS`` times.
 CLOUD_TRIM_SIGMAS = 3.0
@@ -153,8 +156,13 @@ def cloud_dbh_reference(points, ground_z: float) -> dict:
     if len(xy) < 10:
         raise BenchError(f"{len(xy)} point(s) in the {CLOUD_SLICE_M} m slice {BREAST_HEIGHT_M} m above z = "
                          f"{ground_z:.3f} m: no stem there")
-    _, label = connected_components(cKDTree(xy).sparse_distance_matrix(cKDTree(xy), CLOUD_LINK_M), directed=False)
-    xy = xy[label == np.bincount(label).argmax()]
+    # linked through one point per LINK_CELL_M cell: a dense slice (12,000 points on one 14 cm stem) would link
+    # every pair of its points
+    _, first, cell = np.unique(np.floor(xy / LINK_CELL_M).astype(np.int64), axis=0, return_index=True,
+                               return_inverse=True)
+    reps = cKDTree(xy[first])
+    _, label = connected_components(reps.sparse_distance_matrix(reps, CLOUD_LINK_M), directed=False)
+    xy = xy[label[cell.ravel()] == np.bincount(label[cell.ravel()]).argmax()]
     local = xy - xy.mean(axis=0)
     kept = np.ones(len(local), bool)
     for _ in range(CLOUD_ITERATIONS):  # trimmed least squares: a branch or twig next to the stem leaves the fit
