@@ -38,6 +38,21 @@ def test_a_one_sided_tapering_stem_is_followed_from_the_ground_to_its_top(lean_d
     assert np.abs(trunk.centres[:, 0] - t * top[0]).max() < 0.03  # the leaning axis is followed
 
 
+@pytest.mark.parametrize("stub_radius, rise", [(0.03, 0.05), (0.015, 0.3)])
+def test_the_trunk_is_followed_through_a_whorl_of_branch_bases(stub_radius, rise):
+    # a 6-5 cm stem 5 m tall with five branch stubs leaving it at 2.5 m (before: the trunk ended at the whorl)
+    cylinders = stem([0, 0, 5.0], 0.06, 0.05) + [
+        {"id": k + 1, "parent": 0, "order": 1, "branch": k + 1, "start": [0.0, 0.0, 2.5],
+         "end": [0.3 * np.cos(a), 0.3 * np.sin(a), 2.5 + rise], "radius_m": stub_radius}
+        for k, a in enumerate(np.linspace(0, 2 * np.pi, 5, endpoint=False))]
+    rng = np.random.default_rng(1)
+    points = sample_cylinders(cylinders, 2e4, seed=rng).points
+    trunk = follow_trunk(points + rng.normal(0, 0.001, points.shape))
+    assert trunk.centres[-1, 2] > 4.8
+    expected = 0.06 - 0.002 * trunk.centres[:, 2]
+    assert np.abs(trunk.radii - expected).max() < 0.006
+
+
 def test_follow_tree_attaches_the_branches_to_the_trunk_and_keeps_the_volume():
     cylinders = stem([0, 0, 2.5], 0.12) + [
         {"id": 1, "parent": 0, "order": 1, "branch": 1, "start": [0.0, 0.0, 1.8], "end": [0.0, 0.9, 2.6],
