@@ -172,3 +172,23 @@ def test_a_few_side_twig_points_do_not_move_a_leaders_axis():
     branch.points = list(range(len(points)))
     branch.refit(np.array([0.0, 0.0, 1.0]))
     assert branch.fitted and np.linalg.norm(branch.axis_point[:2]) < 0.003
+
+
+def test_parts_out_of_reach_of_growth_are_bridged_from_anchors():
+    # two branch pieces 1.6 m apart, beyond the 1 m bridge of each other; a trunk's points (anchors) run past both
+    def piece(start, end, radius, seed):
+        record = {"id": 0, "parent": -1, "order": 0, "branch": 0, "start": start, "end": end, "radius_m": radius}
+        return sample_cylinders([record], 2e4, seed=seed).points
+
+    low = piece([0.1, 0, 0.2], [0.6, 0, 0.6], 0.02, 1)
+    high = piece([0.1, 0, 2.2], [0.6, 0, 2.8], 0.025, 2)
+    points = np.vstack([low, high])
+    alone = follow_cylinders(points)
+    assert (alone.labels[len(low):] < 0).all()  # growth starts at the lowest point and never reaches the high piece
+    trunk_axis = np.column_stack([np.zeros(300), np.zeros(300), np.linspace(0.0, 3.0, 300)])
+    anchored = follow_cylinders(points, anchors=trunk_axis)
+    assert (anchored.labels[len(low):] >= 0).mean() > 0.95
+    roots = [b for b in anchored.branches if b["parent"] == -1]
+    assert sorted(round(b["radius_m"], 3) for b in roots) == pytest.approx([0.02, 0.025], abs=0.003)
+    truth = np.pi * (0.02**2 * np.hypot(0.5, 0.4) + 0.025**2 * np.hypot(0.5, 0.6))
+    assert anchored.volume == pytest.approx(truth, rel=0.05)

@@ -449,7 +449,8 @@ class FollowResult:
         return cylinders_mesh(self.cylinders(), sections)
 
 
-def follow_cylinders(points, params: FollowParams | None = None, *, progress: bool = False, **overrides) -> FollowResult:
+def follow_cylinders(points, params: FollowParams | None = None, *, progress: bool = False, anchors=None,
+                     **overrides) -> FollowResult:
     """Reconstruct a leafless tree as a hierarchy of cylinders (Méndez et al.).
 
     Parameters
@@ -465,6 +466,11 @@ def follow_cylinders(points, params: FollowParams | None = None, *, progress: bo
         recommendations).
     progress : bool
         Show a progress bar over the included points.
+    anchors : array_like, (m, 3), optional
+        Points of the tree reconstructed beforehand and not in ``points``
+        (a trunk's surface), m: strict mode bridges the parts of the cloud
+        that growth does not reach from them too, each started as a root
+        branch.
     **overrides
         Fields of :class:`FollowParams` to override, e.g. ``k_r=(1.05, 1.05)``.
 
@@ -504,8 +510,8 @@ def follow_cylinders(points, params: FollowParams | None = None, *, progress: bo
     clock = time.perf_counter()
     keep = _subsample(points, params.resolve_radius_m)
     if keep is None:
-        return _follow(points, params, progress, {})
-    result = _follow(points[keep], params, progress, {"subsample_s": time.perf_counter() - clock})
+        return _follow(points, params, progress, {}, anchors)
+    result = _follow(points[keep], params, progress, {"subsample_s": time.perf_counter() - clock}, anchors)
     clock = time.perf_counter()
     _, nearest = cKDTree(points[keep]).query(points, workers=-1)
     result.labels = result.labels[nearest]
@@ -532,7 +538,7 @@ def _subsample(points: np.ndarray, resolve_radius_m: float) -> np.ndarray | None
     return keep if len(keep) < len(points) else None
 
 
-def _follow(points: np.ndarray, params: FollowParams, progress: bool, timings: dict) -> FollowResult:
+def _follow(points: np.ndarray, params: FollowParams, progress: bool, timings: dict, anchors=None) -> FollowResult:
     """Cylinder following on exactly these points (see :func:`follow_cylinders`)."""
     clock = time.perf_counter()
     tree = cKDTree(points)
@@ -552,7 +558,7 @@ def _follow(points: np.ndarray, params: FollowParams, progress: bool, timings: d
 
     clock = time.perf_counter()
     normals = pca_normals(points, min(10, len(points))) if params.direction == "normals" else None
-    branches, owner = grow((points, normals), graph, params, precision, progress)
+    branches, owner = grow((points, normals), graph, params, precision, progress, anchors)
     timings["growth_s"] = time.perf_counter() - clock
     grown = len(branches)
     clock = time.perf_counter()

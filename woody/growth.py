@@ -18,7 +18,7 @@ from woody.branch import Branch, is_significant
 
 
 def grow(cloud: tuple, graph: np.ndarray, params, precision: float,
-         progress: bool) -> tuple[list[Branch], np.ndarray]:
+         progress: bool, anchors: np.ndarray | None = None) -> tuple[list[Branch], np.ndarray]:
     """The round-robin growth loop (Table 1), with the closest-point search of Table 2.
 
     Parameters
@@ -34,6 +34,10 @@ def grow(cloud: tuple, graph: np.ndarray, params, precision: float,
         Largest point-to-branch distance for inclusion, m.
     progress : bool
         Show a progress bar over the included points.
+    anchors : ndarray, (m, 3), optional
+        Points of the tree reconstructed beforehand (a trunk's surface), m:
+        strict mode's bridging counts them as grown, and a part bridged from
+        one starts as a root branch.
 
     Returns
     -------
@@ -45,7 +49,7 @@ def grow(cloud: tuple, graph: np.ndarray, params, precision: float,
     from tqdm import tqdm
 
     points = cloud[0]
-    state = _Growth(cloud, graph, params, precision)
+    state = _Growth(cloud, graph, params, precision, anchors)
     branches = state.branches
     for index in _root_points(points, graph, params, precision):
         if not branches:
@@ -150,11 +154,14 @@ class _Growth:
         Settings.
     precision : float
         Largest point-to-branch distance for inclusion, m.
+    anchors : ndarray, (m, 3), optional
+        Points reconstructed beforehand that bridging counts as grown, m.
     """
 
-    def __init__(self, cloud: tuple, graph: np.ndarray, params, precision: float):
+    def __init__(self, cloud: tuple, graph: np.ndarray, params, precision: float, anchors: np.ndarray | None = None):
         self.cloud, self.points, self.graph = cloud, cloud[0], graph
         self.params, self.precision = params, precision
+        self.anchors = np.empty((0, 3)) if anchors is None else np.asarray(anchors, float).reshape(-1, 3)
         self.owner = np.full(len(self.points), -1, np.int64)
         self.branches: list[Branch] = []
 
@@ -250,8 +257,8 @@ class _Growth:
         large = sizes[part] >= self.params.min_branch_points
         if not large.any():
             return []
-        gap, nearest = cKDTree(self.points[grown]).query(self.points[free[large]],
-                                                         distance_upper_bound=self.params.bridge_m)
+        gap, nearest = cKDTree(np.vstack([self.points[grown], self.anchors])).query(
+            self.points[free[large]], distance_upper_bound=self.params.bridge_m)
         parts = part[large]
         order = np.lexsort((gap, parts))  # within each part, its nearest point first
         first = order[np.r_[True, np.diff(parts[order]) != 0]]
@@ -261,6 +268,10 @@ class _Growth:
         first = first[gap[first] <= 2.0 * gap[first].min() + self.precision]
         started = []
         for row in first[np.argsort(gap[first], kind="stable")]:
+            index = int(free[large][row])
+            if nearest[row] >= len(grown):  # across the gap lies an anchor: a root of its own
+                started.append(self.new_branch(index, None, 1))
+                continue
             parent = self.branches[int(self.owner[grown[nearest[row]]])]
-            started.append(self.new_branch(int(free[large][row]), parent, parent.order + 1))
+            started.append(self.new_branch(index, parent, parent.order + 1))
         return started

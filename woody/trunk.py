@@ -47,6 +47,9 @@ TRUNK_RESIDUAL_REL = 0.1
 MIN_COMPONENT_POINTS = 10
 #: A trunk of fewer circles is no trunk (a short piece of a leader): cylinder following alone is used.
 MIN_TRUNK_CIRCLES = 4
+#: Spacing of the trunk points the rest's bridging measures its gaps from, m (assumption: fine next to the 1 m
+#: bridge, coarse enough to keep a dense trunk's query cheap).
+ANCHOR_SPACING_M = 0.02
 
 
 @dataclass
@@ -255,7 +258,9 @@ def follow_tree(points, ground_z: float | None = None, ground_clearance_m: float
     (:func:`woody.cylinders.follow_cylinders`) reconstructs the points the
     trunk does not explain, less the ground (points within
     ``ground_clearance_m`` of it), as one cloud (its unconnected parts
-    bridged, see ``FollowParams.bridge_m``), and each of its root branches
+    bridged from what grew and from the trunk's points, see
+    ``FollowParams.bridge_m``: a crown above a trunk that ended below it is
+    reached from the trunk's top), and each of its root branches
     that starts within two trunk radii of the trunk's surface becomes a
     child of the trunk. A cloud without a stem (fitted over at least four slabs, from
     1.3, 0.9 or 0.5 m above the ground) is reconstructed by cylinder
@@ -338,8 +343,9 @@ def _follow_parts(points, parts, trunk, labels, branches, progress, follow):
     from woody.cylinders import follow_cylinders
 
     stats = {}
+    anchors = None if trunk is None else _surface_samples(points, trunk)
     for chosen in parts:
-        result = follow_cylinders(points[chosen], progress=progress, **follow)
+        result = follow_cylinders(points[chosen], progress=progress, anchors=anchors, **follow)
         stats = result.stats if not stats else stats
         offset = len(branches)
         labels[chosen] = np.where(result.labels >= 0, result.labels + offset, -1)
@@ -359,6 +365,14 @@ def _follow_parts(points, parts, trunk, labels, branches, progress, follow):
             depth[b["id"]] = record["order"]
             branches.append(record)
     return branches, {**stats, "parts": len(parts)}
+
+
+def _surface_samples(points: np.ndarray, trunk: Trunk) -> np.ndarray:
+    """The trunk's points thinned to ``ANCHOR_SPACING_M``: where the rest's bridging may reach the trunk, m."""
+    from woody.density import thin_to_spacing
+
+    members = points[trunk.members]
+    return members[thin_to_spacing(members, ANCHOR_SPACING_M)] if len(members) >= 7 else members
 
 
 def _components(points: np.ndarray) -> list[np.ndarray]:
