@@ -192,3 +192,16 @@ def test_parts_out_of_reach_of_growth_are_bridged_from_anchors():
     assert sorted(round(b["radius_m"], 3) for b in roots) == pytest.approx([0.02, 0.025], abs=0.003)
     truth = np.pi * (0.02**2 * np.hypot(0.5, 0.4) + 0.025**2 * np.hypot(0.5, 0.6))
     assert anchored.volume == pytest.approx(truth, rel=0.05)
+
+
+@pytest.mark.parametrize("normal, up", [((1, 0, 0), (1, 0, 0)), ((-2, 0, 0), (3, 0, 0)), ((0, 0, 1), (0, 0, 1)),
+                                        ((0.3, -0.4, 0.5), (0, 0, 1))])
+def test_frames_are_right_handed_and_orthonormal_whatever_up(normal, up):
+    # the scene library's frame and reconstruction's copy of it (a normal and an up both along x gave NaN)
+    from scenes.primitives import orthonormal_frame as scene_frame
+    from woody.geometry import orthonormal_frame
+
+    for frame in (orthonormal_frame, scene_frame):
+        u, v, n = frame(normal, up)
+        assert np.allclose(np.array([u, v, n]) @ np.array([u, v, n]).T, np.eye(3), atol=1e-12)
+        assert np.allclose(np.cross(u, v), n) and np.allclose(n, np.asarray(normal) / np.linalg.norm(normal))

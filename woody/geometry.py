@@ -26,7 +26,7 @@ def orthonormal_frame(normal, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarra
         Direction of the frame's third axis (need not be unit length).
     up : array_like, shape (3,), optional
         Preferred direction of the second axis; replaced by +x when it is
-        parallel to ``normal``.
+        parallel to ``normal`` (+y when ``normal`` is along x too).
 
     Returns
     -------
@@ -42,6 +42,8 @@ def orthonormal_frame(normal, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarra
     v = up - np.dot(up, n) * n
     if np.linalg.norm(v) < 1e-9:
         v = np.array([1.0, 0.0, 0.0]) - n[0] * n
+    if np.linalg.norm(v) < 1e-9:  # normal and up both along x
+        v = np.array([0.0, 1.0, 0.0]) - n[1] * n
     v /= np.linalg.norm(v)
     # v x n element by element, with the products and differences of np.cross (same bits, less overhead).
     (v0, v1, v2), (n0, n1, n2) = v.tolist(), n.tolist()
