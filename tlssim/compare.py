@@ -4,7 +4,8 @@
 how many only one did, and the distribution of the absolute differences; for
 the layers in metres it also counts the pulses that differ by more than a
 tolerance. It is what ``tlssim diff A B`` prints, and how the CUDA backend is
-checked against the LLVM one (README, "GPU path").
+checked against the LLVM one (README, "GPU path"; every measurement in
+docs/notebook/tlssim.md, "GPU path").
 """
 
 from __future__ import annotations

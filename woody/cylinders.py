@@ -253,7 +253,8 @@ class FollowParams:
         spacing, or scattered about) follow the pipe model from their
         nearest resolved ancestor (an addition, on by default since round
         11: paired with the covered-clamp rule it halves the leafless
-        trees' and the real clouds' volume errors; see the README).
+        trees' and the real clouds' volume errors; see
+        docs/notebook/woody.md, round 11).
         Sections clamped at their parent's radius whose points do not cover
         their fitted circle follow it in strict mode whatever this says.
     resolve_radius_m : float

@@ -5,8 +5,9 @@ scanner places the point on the beam's central ray. Seen from one scanner
 position, the points of a cylinder of radius ``r`` therefore spread across
 the line of sight (perpendicular to it and to the axis) over ``2 r + D``, with
 ``D`` the beam's footprint diameter at that range, whatever the point spacing
-(a branch thinner than the beam is widened by it; the README's DBH paragraph
-shows the same widening at a stem's silhouette). Range
+(a branch thinner than the beam is widened by it; the one-sided stems' DBH
+paragraph of docs/notebook/woody.md shows the same widening at a stem's
+silhouette). Range
 noise moves points along the line of sight only, so it does not widen that
 spread. For points spread evenly across the width (the scan grid is even in
 angle), ``sqrt(12 var)`` of their lateral coordinate estimates ``2 r + D``,

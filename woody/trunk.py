@@ -282,7 +282,8 @@ def follow_tree(points, ground_z: float | None = None, ground_clearance_m: float
         Without a stem, follow every connected part of the cloud, not only
         the lowest (occlusion cuts a single scan of a leafless tree into
         many parts; on a leafy crown the parts' first cylinders swallow
-        leaves and twigs, see the README).
+        leaves and twigs, see docs/notebook/woody.md, the
+        ``all_parts`` paragraph).
     **follow
         Settings of :func:`woody.cylinders.follow_cylinders` (e.g.
         ``precision_m``, ``section_radii``).
