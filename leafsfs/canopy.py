@@ -822,21 +822,55 @@ def dark_surfaces(surfaces: np.ndarray, range_m: np.ndarray, alpha: np.ndarray, 
     with np.errstate(invalid="ignore", divide="ignore"):
         gi = (moments[1][1] * rhs[0] - moments[0][1] * rhs[1]) / det
         gj = (moments[0][0] * rhs[1] - moments[1][0] * rhs[0]) / det
-    median_range = np.full(count, np.nan)
-    present = np.unique(label)
-    median_range[present] = ndimage.median(range_m, np.where(sel, surfaces, 0), present)
+    median_range = labelled_medians(range_m[sel], label, count)
     plane = np.arctan(np.hypot(gi, gj) / (median_range * step_rad))
     residual = dr - gi[label] * di - gj[label] * dj
     flat = np.bincount(label, residual ** 2, minlength=count) / safe <= (3 * noise_m) ** 2
     known = sel & np.isfinite(alpha)
-    median_alpha = np.full(count, np.nan)
-    present = np.unique(surfaces[known])
-    if len(present):
-        median_alpha[present] = ndimage.median(alpha, np.where(known, surfaces, 0), present)
+    median_alpha = labelled_medians(alpha[known], surfaces[known], count)
     with np.errstate(invalid="ignore"):
         dark = (median_alpha > plane + tolerance_rad) & (n >= 3) & flat
     dark[0] = False
     return dark
+
+
+def labelled_medians(values: np.ndarray, labels: np.ndarray, count: int) -> np.ndarray:
+    """Median of the values of each label, as :func:`scipy.ndimage.median` gives it (the same bits).
+
+    ``scipy.ndimage.median`` sorts every pixel of the image, those of no
+    label included (on the leafy tree at 0.018 deg, 5.6 M pulses, 0.4 s a
+    call); this sorts only the labelled values, by label then value, and
+    takes the middle one, or the mean of the middle two, as it does.
+
+    Parameters
+    ----------
+    values : ndarray, 1-D
+        The labelled values (no NaN).
+    labels : ndarray of int, 1-D
+        Their labels, in ``[0, count)``.
+    count : int
+        Number of labels.
+
+    Returns
+    -------
+    ndarray, (count,)
+        Median per label; NaN for labels without values.
+
+    Examples
+    --------
+    >>> labelled_medians(np.array([3.0, 1.0, 2.0, 5.0, 4.0]), np.array([1, 1, 1, 2, 2]), 4)
+    array([nan, 2. , 4.5, nan])
+    """
+    order = np.lexsort((values, labels))
+    values, labels = values[order], labels[order]
+    n = np.bincount(labels, minlength=count)
+    first = np.cumsum(n) - n  # where each label's sorted values start
+    lo = first + (n - 1) // 2
+    hi = first + n // 2
+    out = np.full(count, np.nan)
+    present = n > 0
+    out[present] = (values[lo[present]] + values[hi[present]]) / 2.0
+    return out
 
 
 def _range_plane(rows: np.ndarray, cols: np.ndarray, range_m: np.ndarray) -> np.ndarray:
