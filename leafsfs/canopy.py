@@ -155,10 +155,16 @@ def plane_fits_at(range_m: np.ndarray, radius_px: float, centres: np.ndarray, si
 
     Parameters
     ----------
-    range_m, radius_px, side, behind_rise_m, behind_tol_m
-        As for :func:`plane_fits`.
+    range_m : ndarray, 2-D
+        Ranges, m (NaN: no return).
+    radius_px : float
+        Neighbourhood radius, pixels (at least 1).
     centres : ndarray of int, (n, 2)
         The pulses (row, column), each with a range.
+    side : pair of int, optional
+        As for :func:`plane_fits`.
+    behind_rise_m, behind_tol_m : ndarray or float, optional
+        As for :func:`plane_fits`.
 
     Returns
     -------

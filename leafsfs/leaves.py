@@ -66,8 +66,10 @@ def neighbour_steps(theta: np.ndarray, psi: np.ndarray, alpha: np.ndarray | None
     ----------
     theta, psi : ndarray, 2-D
         Azimuth and zenith of every beam, rad.
-    alpha, max_slope_deg, alpha_margin_deg
-        As for :func:`link_components`.
+    alpha : ndarray, 2-D, optional
+        Incidence from the intensity, rad (as for :func:`link_components`).
+    max_slope_deg, alpha_margin_deg : float
+        As for :func:`link_components`, degrees.
 
     Returns
     -------
