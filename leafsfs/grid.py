@@ -255,9 +255,12 @@ def gaussian_planes(height: np.ndarray, known: np.ndarray, sigma_px: float
     kernels = [gauss, offsets * gauss, offsets**2 * gauss]
 
     def moments(image, pairs):  # sum over the window of w * image * du^a * dv^b per (a, b) of pairs
-        # the filter along the rows is the same for every b: once per a
-        rows = {a: ndimage.correlate1d(image, kernels[a], axis=0, mode="constant") for a in {a for a, _ in pairs}}
-        return {(a, b): ndimage.correlate1d(rows[a], kernels[b], axis=1, mode="constant") for a, b in pairs}
+        out = {}
+        for a in sorted({a for a, _ in pairs}):  # the filter along the rows is the same for every b: once per a
+            rows = ndimage.correlate1d(image, kernels[a], axis=0, mode="constant")
+            for b in [b for row, b in pairs if row == a]:
+                out[a, b] = ndimage.correlate1d(rows, kernels[b], axis=1, mode="constant")
+        return out
 
     w = known.astype(float)
     h = np.where(known, height, 0.0)

@@ -139,9 +139,12 @@ def _window_planes(range_m: np.ndarray, valid: np.ndarray, half_px: int, at: np.
     h = np.where(valid, range_m - base, 0.0)
 
     def moments(image, pairs):  # sum over the window of image * di^a * dj^b (di, dj: the neighbour's offsets)
-        # the filter along the rows is the same for every b: once per a
-        rows = {a: ndimage.correlate1d(image, kernels[a], axis=0, mode="constant") for a in {a for a, _ in pairs}}
-        return {(a, b): ndimage.correlate1d(rows[a], kernels[b], axis=1, mode="constant")[at] for a, b in pairs}
+        out = {}
+        for a in sorted({a for a, _ in pairs}):  # the filter along the rows is the same for every b: once per a
+            rows = ndimage.correlate1d(image, kernels[a], axis=0, mode="constant")
+            for b in [b for row, b in pairs if row == a]:
+                out[a, b] = ndimage.correlate1d(rows, kernels[b], axis=1, mode="constant")[at]
+        return out
 
     m = moments(w, ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)))
     normal = np.stack([np.stack([m[0, 0], m[1, 0], m[0, 1]], -1), np.stack([m[1, 0], m[2, 0], m[1, 1]], -1),
