@@ -138,13 +138,45 @@ def plane_fits(range_m: np.ndarray, radius_px: float, side: tuple[int, int] | No
 
     All NaN where fewer than 5 neighbours returned, and off ``where``.
     """
+    centres = np.argwhere(np.isfinite(range_m) if where is None else np.isfinite(range_m) & where)
+    out = np.full((4, *range_m.shape), np.nan)
+    out[:, centres[:, 0], centres[:, 1]] = plane_fits_at(range_m, radius_px, centres, side, behind_rise_m,
+                                                         behind_tol_m)
+    return out[0], out[1], out[2], out[3]
+
+
+def plane_fits_at(range_m: np.ndarray, radius_px: float, centres: np.ndarray, side: tuple[int, int] | None = None,
+                  behind_rise_m: np.ndarray | float | None = None, behind_tol_m: np.ndarray | float = 0.0
+                  ) -> np.ndarray:
+    """:func:`plane_fits` at the pulses ``centres`` only, without its whole-scan images.
+
+    :func:`edge_pulses` needs the fits at a few pulses per side; four images
+    of the scan per side took a second of the leafy tree at 0.018 deg.
+
+    Parameters
+    ----------
+    range_m : ndarray, 2-D
+        Ranges, m (NaN: no return).
+    radius_px : float
+        Neighbourhood radius, pixels (at least 1).
+    centres : ndarray of int, (n, 2)
+        The pulses (row, column), each with a range.
+    side : pair of int, optional
+        As for :func:`plane_fits`.
+    behind_rise_m, behind_tol_m : ndarray or float, optional
+        As for :func:`plane_fits`.
+
+    Returns
+    -------
+    ndarray, (4, n)
+        :func:`plane_fits`' ``rms``, ``slope``, ``slope_noise`` and ``deviation`` at the pulses.
+    """
     offsets = _disc_offsets(radius_px, side)
     r = int(np.abs(offsets).max())
     design = np.stack([np.ones(len(offsets)), offsets[:, 0], offsets[:, 1]], axis=1).astype(float)
     outer = (design[:, :, None] * design[:, None, :]).reshape(len(design), 9)  # weights are 0/1: same sums
     padded = np.pad(range_m, r, constant_values=np.nan)
-    centres = np.argwhere(np.isfinite(range_m) if where is None else np.isfinite(range_m) & where)
-    out = np.full((4, *range_m.shape), np.nan)
+    out = np.full((4, len(centres)), np.nan)
     for start in range(0, len(centres), CHUNK):
         c = centres[start:start + CHUNK]
         h = padded[c[:, None, 0] + r + offsets[None, :, 0], c[:, None, 1] + r + offsets[None, :, 1]]
@@ -166,13 +198,13 @@ def plane_fits(range_m: np.ndarray, radius_px: float, side: tuple[int, int] | No
         inverse = np.linalg.inv(normal)
         beta = np.einsum("nab,nb->na", inverse, np.einsum("nk,ka->na", w[ok] * h[ok], design))
         rss = np.sum(w[ok] * (h[ok] - beta @ design.T) ** 2, axis=1)
-        rows, cols = c[ok, 0], c[ok, 1]
-        out[0, rows, cols] = np.sqrt(rss / np.maximum(n[ok] - 3, 1))
-        out[1, rows, cols] = np.hypot(beta[:, 1], beta[:, 2])
-        out[2, rows, cols] = np.sqrt(np.maximum(inverse[:, 1, 1], inverse[:, 2, 2]))
+        fitted = start + np.nonzero(ok)[0]
+        out[0, fitted] = np.sqrt(rss / np.maximum(n[ok] - 3, 1))
+        out[1, fitted] = np.hypot(beta[:, 1], beta[:, 2])
+        out[2, fitted] = np.sqrt(np.maximum(inverse[:, 1, 1], inverse[:, 2, 2]))
         # the pulse's own relative range is 0 and its design row (1, 0, 0): residual -beta_0, leverage inverse_00
-        out[3, rows, cols] = -beta[:, 0] / np.sqrt(np.maximum(1 - inverse[:, 0, 0], 1e-6))
-    return out[0], out[1], out[2], out[3]
+        out[3, fitted] = -beta[:, 0] / np.sqrt(np.maximum(1 - inverse[:, 0, 0], 1e-6))
+    return out
 
 
 def _disc_offsets(radius_px: float, side: tuple[int, int] | None) -> np.ndarray:
@@ -264,17 +296,15 @@ def edge_pulses(range_m: np.ndarray, radius_px: float, noise_m: np.ndarray | flo
     if not np.all(np.asarray(noise_m) > 0) or not factor > 0:
         raise SfsError(f"noise_m and factor must be positive, got {noise_m!r} and {factor!r}")
     plausible = np.zeros(range_m.shape, dtype=bool)
+    rise = spacing_m * max_slope
+    if np.ndim(behind_gap):  # only the given pulses: elsewhere no neighbour lies behind an implausible step
+        rise = np.where(behind_gap, rise, math.inf)
+    behind = {"behind_rise_m": rise, "behind_tol_m": factor * noise_m} if np.ndim(behind_gap) or behind_gap else {}
     for side in HALF_DISC_SIDES:
         # Only the pulses no side has shown plausible yet: most are plausible on the first side.
         todo = np.isfinite(range_m) & ~plausible
         at = np.nonzero(todo)
-        rise = spacing_m * max_slope
-        if np.ndim(behind_gap):  # only the given pulses: elsewhere no neighbour lies behind an implausible step
-            rise = np.where(behind_gap, rise, math.inf)
-        behind = ({"behind_rise_m": rise, "behind_tol_m": factor * noise_m}
-                  if np.ndim(behind_gap) or behind_gap else {})
-        rms, slope, slope_noise, deviation = (v[at] for v in plane_fits(range_m, radius_px, side, where=todo,
-                                                                        **behind))
+        rms, slope, slope_noise, deviation = plane_fits_at(range_m, radius_px, np.stack(at, axis=1), side, **behind)
         offsets = _disc_offsets(radius_px, side)
         steepest = _least_at(max_slope, offsets, at) if np.ndim(max_slope) else max_slope
         # rms^2 / sigma^2 of a plane is chi-square over its n - 3 degrees of freedom: mean 1, variance 2 / (n - 3)
@@ -822,21 +852,55 @@ def dark_surfaces(surfaces: np.ndarray, range_m: np.ndarray, alpha: np.ndarray, 
     with np.errstate(invalid="ignore", divide="ignore"):
         gi = (moments[1][1] * rhs[0] - moments[0][1] * rhs[1]) / det
         gj = (moments[0][0] * rhs[1] - moments[1][0] * rhs[0]) / det
-    median_range = np.full(count, np.nan)
-    present = np.unique(label)
-    median_range[present] = ndimage.median(range_m, np.where(sel, surfaces, 0), present)
+    median_range = labelled_medians(range_m[sel], label, count)
     plane = np.arctan(np.hypot(gi, gj) / (median_range * step_rad))
     residual = dr - gi[label] * di - gj[label] * dj
     flat = np.bincount(label, residual ** 2, minlength=count) / safe <= (3 * noise_m) ** 2
     known = sel & np.isfinite(alpha)
-    median_alpha = np.full(count, np.nan)
-    present = np.unique(surfaces[known])
-    if len(present):
-        median_alpha[present] = ndimage.median(alpha, np.where(known, surfaces, 0), present)
+    median_alpha = labelled_medians(alpha[known], surfaces[known], count)
     with np.errstate(invalid="ignore"):
         dark = (median_alpha > plane + tolerance_rad) & (n >= 3) & flat
     dark[0] = False
     return dark
+
+
+def labelled_medians(values: np.ndarray, labels: np.ndarray, count: int) -> np.ndarray:
+    """Median of the values of each label, as :func:`scipy.ndimage.median` gives it (the same bits).
+
+    ``scipy.ndimage.median`` sorts every pixel of the image, those of no
+    label included (on the leafy tree at 0.018 deg, 5.6 M pulses, 0.4 s a
+    call); this sorts only the labelled values, by label then value, and
+    takes the middle one, or the mean of the middle two, as it does.
+
+    Parameters
+    ----------
+    values : ndarray, 1-D
+        The labelled values (no NaN).
+    labels : ndarray of int, 1-D
+        Their labels, in ``[0, count)``.
+    count : int
+        Number of labels.
+
+    Returns
+    -------
+    ndarray, (count,)
+        Median per label; NaN for labels without values.
+
+    Examples
+    --------
+    >>> labelled_medians(np.array([3.0, 1.0, 2.0, 5.0, 4.0]), np.array([1, 1, 1, 2, 2]), 4)
+    array([nan, 2. , 4.5, nan])
+    """
+    order = np.lexsort((values, labels))
+    values, labels = values[order], labels[order]
+    n = np.bincount(labels, minlength=count)
+    first = np.cumsum(n) - n  # where each label's sorted values start
+    lo = first + (n - 1) // 2
+    hi = first + n // 2
+    out = np.full(count, np.nan)
+    present = n > 0
+    out[present] = (values[lo[present]] + values[hi[present]]) / 2.0
+    return out
 
 
 def _range_plane(rows: np.ndarray, cols: np.ndarray, range_m: np.ndarray) -> np.ndarray:

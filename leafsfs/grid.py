@@ -254,16 +254,21 @@ def gaussian_planes(height: np.ndarray, known: np.ndarray, sigma_px: float
     gauss = np.exp(-0.5 * (offsets / sigma_px) ** 2)
     kernels = [gauss, offsets * gauss, offsets**2 * gauss]
 
-    def moment(image, a, b):  # sum over the window of w * image * du^a * dv^b
-        return ndimage.correlate1d(ndimage.correlate1d(image, kernels[a], axis=0, mode="constant"),
-                                   kernels[b], axis=1, mode="constant")
+    def moments(image, pairs):  # sum over the window of w * image * du^a * dv^b per (a, b) of pairs
+        out = {}
+        for a in sorted({a for a, _ in pairs}):  # the filter along the rows is the same for every b: once per a
+            rows = ndimage.correlate1d(image, kernels[a], axis=0, mode="constant")
+            for b in [b for row, b in pairs if row == a]:
+                out[a, b] = ndimage.correlate1d(rows, kernels[b], axis=1, mode="constant")
+        return out
 
     w = known.astype(float)
     h = np.where(known, height, 0.0)
-    m = {ab: moment(w, *ab) for ab in ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))}
+    m = moments(w, ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)))
     normal = np.stack([np.stack([m[0, 0], m[1, 0], m[0, 1]], -1), np.stack([m[1, 0], m[2, 0], m[1, 1]], -1),
                        np.stack([m[0, 1], m[1, 1], m[0, 2]], -1)], -2)
-    rhs = np.stack([moment(h, 0, 0), moment(h, 1, 0), moment(h, 0, 1)], -1)
+    mh = moments(h, ((0, 0), (1, 0), (0, 1)))
+    rhs = np.stack([mh[0, 0], mh[1, 0], mh[0, 1]], -1)
     full = gauss.sum() ** 2  # the weight of a whole window
     det = np.linalg.det(normal)
     fitted = (m[0, 0] > 0.1 * full) & (det > 1e-3 * full**3 * sigma_px**4)
