@@ -226,7 +226,8 @@ class _Growth:
         the grown points is at most ``bridge_m`` and at most twice the
         smallest such gap plus ``precision`` is started at its point nearest
         to the grown points, as a child of the branch that owns the grown
-        point across the gap: it grows away from the tree, with the
+        point across the gap (a root of its own when what lies across the
+        gap is one of the ``anchors``): it grows away from the tree, with the
         free-seed count of its order and under its significant ancestor's
         radius, instead of as a trunk of its own. Parts farther off wait for
         the next round, when the parts attached now may have brought the
