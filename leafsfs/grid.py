@@ -254,20 +254,12 @@ def gaussian_planes(height: np.ndarray, known: np.ndarray, sigma_px: float
     gauss = np.exp(-0.5 * (offsets / sigma_px) ** 2)
     kernels = [gauss, offsets * gauss, offsets**2 * gauss]
 
-    def moments(image, pairs):  # sum over the window of w * image * du^a * dv^b per (a, b) of pairs
-        out = {}
-        for a in sorted({a for a, _ in pairs}):  # the filter along the rows is the same for every b: once per a
-            rows = ndimage.correlate1d(image, kernels[a], axis=0, mode="constant")
-            for b in [b for row, b in pairs if row == a]:
-                out[a, b] = ndimage.correlate1d(rows, kernels[b], axis=1, mode="constant")
-        return out
-
     w = known.astype(float)
     h = np.where(known, height, 0.0)
-    m = moments(w, ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)))
+    m = window_moments(w, kernels, ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)))
     normal = np.stack([np.stack([m[0, 0], m[1, 0], m[0, 1]], -1), np.stack([m[1, 0], m[2, 0], m[1, 1]], -1),
                        np.stack([m[0, 1], m[1, 1], m[0, 2]], -1)], -2)
-    mh = moments(h, ((0, 0), (1, 0), (0, 1)))
+    mh = window_moments(h, kernels, ((0, 0), (1, 0), (0, 1)))
     rhs = np.stack([mh[0, 0], mh[1, 0], mh[0, 1]], -1)
     full = gauss.sum() ** 2  # the weight of a whole window
     det = np.linalg.det(normal)
@@ -275,3 +267,34 @@ def gaussian_planes(height: np.ndarray, known: np.ndarray, sigma_px: float
     normal[~fitted] = np.eye(3)
     coef = np.linalg.solve(normal, rhs[..., None])[..., 0]
     return coef[..., 0], coef[..., 1:], fitted
+
+
+def window_moments(image: np.ndarray, kernels: list, pairs, at=None) -> dict:
+    """Window sums of ``image * du^a * dv^b`` for each ``(a, b)`` of ``pairs``, by separable filters.
+
+    The filter along the rows is the same for every ``b`` of one ``a``, so it
+    runs once per ``a`` and only one row-filtered image is held at a time.
+
+    Parameters
+    ----------
+    image : ndarray, 2-D
+        Values (0 where none).
+    kernels : list of ndarray
+        ``kernels[k]``: the window's weights times the offset to the power ``k`` (offsets in pixels).
+    pairs : sequence of (int, int)
+        Powers ``(a, b)`` of the row and column offsets.
+    at : index, optional
+        Keep only these pixels of each sum (default: the whole image).
+
+    Returns
+    -------
+    dict
+        ``(a, b)`` -> the sums (the image's shape, or ``image[at]``'s).
+    """
+    out = {}
+    for a in sorted({a for a, _ in pairs}):
+        rows = ndimage.correlate1d(image, kernels[a], axis=0, mode="constant")
+        for b in [b for row, b in pairs if row == a]:
+            whole = ndimage.correlate1d(rows, kernels[b], axis=1, mode="constant")
+            out[a, b] = whole if at is None else whole[at]
+    return out

@@ -35,7 +35,7 @@ from leafsfs.darkparts import bark_surfaces, dark_parts
 from leafsfs.edges import MixedPulses, attribute_mixed, band_pixels
 from leafsfs.errors import SfsError
 from leafsfs.splits import split_merged
-from tlssim.pattern import beam_frame
+from tlssim.pattern import beam_axis
 
 #: Smallest neighbourhood radius of the edge test, pixels, for a footprint of a pixel or more (a 5 x 5 disc: the mixed
 #: pulses between two surfaces then form a ramp, which a plane in fewer pixels takes for a steep surface).
@@ -81,10 +81,7 @@ def neighbour_steps(theta: np.ndarray, psi: np.ndarray, alpha: np.ndarray | None
     """
     if not 0 < max_slope_deg < 90:
         raise SfsError(f"max_slope_deg must lie in ]0, 90[ degrees, got {max_slope_deg!r}")
-    # The beam axis as tlssim.pattern.beam_frame computes it (the same expression: the same bits), without the two
-    # vectors across the beam that it also computes and the angles do not need.
-    st, ct, sp, cp = np.sin(theta), np.cos(theta), np.sin(psi), np.cos(psi)
-    axis = np.stack([sp * ct, sp * st, cp], axis=-1)
+    axis = beam_axis(theta, psi)
     limit = math.radians(max_slope_deg)
     slope = np.full(theta.shape, limit) if alpha is None else \
         np.minimum(np.nan_to_num(alpha, nan=limit) + math.radians(alpha_margin_deg), limit)
@@ -207,7 +204,7 @@ def angular_step(theta: np.ndarray, psi: np.ndarray, samples: int = 64) -> float
     pairs = (((rows, slice(None)), (rows + 1, slice(None))), ((slice(None), cols), (slice(None), cols + 1)))
     steps = []
     for first, second in pairs:
-        dot = np.sum(beam_frame(theta[first], psi[first])[0] * beam_frame(theta[second], psi[second])[0], axis=-1)
+        dot = np.sum(beam_axis(theta[first], psi[first]) * beam_axis(theta[second], psi[second]), axis=-1)
         steps.append(np.arccos(np.clip(dot, -1, 1)).ravel())
     return float(np.median(np.concatenate(steps)))
 

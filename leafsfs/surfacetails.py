@@ -69,6 +69,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
+from leafsfs.grid import window_moments
+
 #: Half-width of the square window the plane is fitted on, pixels (81 pulses; :data:`leafsfs.fusion.TAIL_RADIUS_PX`
 #: fits a disc of the same count on leaves).
 SURFACE_TAIL_HALF_PX = 4
@@ -138,24 +140,16 @@ def _window_planes(range_m: np.ndarray, valid: np.ndarray, half_px: int, at: np.
     base = float(np.median(range_m[valid])) if valid.any() else 0.0
     h = np.where(valid, range_m - base, 0.0)
 
-    def moments(image, pairs):  # sum over the window of image * di^a * dj^b (di, dj: the neighbour's offsets)
-        out = {}
-        for a in sorted({a for a, _ in pairs}):  # the filter along the rows is the same for every b: once per a
-            rows = ndimage.correlate1d(image, kernels[a], axis=0, mode="constant")
-            for b in [b for row, b in pairs if row == a]:
-                out[a, b] = ndimage.correlate1d(rows, kernels[b], axis=1, mode="constant")[at]
-        return out
-
-    m = moments(w, ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)))
+    m = window_moments(w, kernels, ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)), at)
     normal = np.stack([np.stack([m[0, 0], m[1, 0], m[0, 1]], -1), np.stack([m[1, 0], m[2, 0], m[1, 1]], -1),
                        np.stack([m[0, 1], m[1, 1], m[0, 2]], -1)], -2)
-    mh = moments(h, ((0, 0), (1, 0), (0, 1)))
+    mh = window_moments(h, kernels, ((0, 0), (1, 0), (0, 1)), at)
     rhs = np.stack([mh[0, 0], mh[1, 0], mh[0, 1]], -1)
     count = np.rint(m[0, 0]).astype(int)
     ok = (count >= 4) & (np.abs(np.linalg.det(normal)) > 1e-6)
     normal[~ok] = np.eye(3)
     coef = np.linalg.solve(normal, rhs[..., None])[..., 0]
-    rss = moments(h * h, ((0, 0),))[0, 0] - np.einsum("na,na->n", coef, rhs)
+    rss = window_moments(h * h, kernels, ((0, 0),), at)[0, 0] - np.einsum("na,na->n", coef, rhs)
     rms = np.sqrt(np.clip(rss, 0, None) / np.maximum(count - 3, 1))
     plane, spread, counts = np.full(at.shape, np.nan), np.full(at.shape, np.nan), np.zeros(at.shape, dtype=int)
     plane[at], spread[at], counts[at] = np.where(ok, coef[:, 0] + base, np.nan), np.where(ok, rms, np.nan), count

@@ -142,6 +142,23 @@ def _count(limits, step) -> int:
     return int(math.floor((limits[1] - limits[0]) / step + 1e-9)) + 1
 
 
+def beam_axis(theta: np.ndarray, psi: np.ndarray) -> np.ndarray:
+    """Beam direction in the scanner frame (:func:`beam_frame`'s first vector, without the two across it).
+
+    Parameters
+    ----------
+    theta, psi : ndarray
+        Azimuth and zenith of each beam, radians (same shape).
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        Unit beam directions.
+    """
+    sp = np.sin(psi)
+    return np.stack([sp * np.cos(theta), sp * np.sin(theta), np.cos(psi)], axis=-1)
+
+
 def beam_frame(theta: np.ndarray, psi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Beam axis and the two unit vectors across it, in the scanner frame.
 
@@ -157,7 +174,7 @@ def beam_frame(theta: np.ndarray, psi: np.ndarray) -> tuple[np.ndarray, np.ndarr
         mirror axis) and of increasing ``theta``.
     """
     st, ct, sp, cp = np.sin(theta), np.cos(theta), np.sin(psi), np.cos(psi)
-    axis = np.stack([sp * ct, sp * st, cp], axis=-1)
+    axis = beam_axis(theta, psi)
     e_psi = np.stack([cp * ct, cp * st, -sp], axis=-1)
     e_theta = np.stack([-st, ct, np.zeros_like(st)], axis=-1)
     return axis, e_psi, e_theta
