@@ -540,9 +540,10 @@ def branch(distance_m: float = 3.0, radius_m: float = 0.05, length_m: float = 0.
 
 
 @generator("tree", "a procedural tree of the scenes package with its leaves (preset, seed, leaf count), standing "
-                   "distance_m in front of the scanner, optionally before a wall; the window covers the whole tree")
+                   "distance_m in front of the scanner, turned heading_deg about its trunk, optionally before a wall; the "
+                   "window covers the whole tree")
 def tree(preset: str = "conference-pear", seed: int = 1, distance_m: float = 4.0, base_below_m: float = 1.3,
-         leaf_count: int | None = None, background_gap_m: float | None = None,
+         leaf_count: int | None = None, heading_deg: float = 0.0, background_gap_m: float | None = None,
          background_reflectance: float = 0.3) -> Scene:
     """A tree grown by :func:`scenes.tree.grow_tree` from a preset and a seed (``leafy-tree`` is preset
     ``conference-pear``, seed 1, 4 m, base 1.3 m below the scanner, no wall).
@@ -559,11 +560,16 @@ def tree(preset: str = "conference-pear", seed: int = 1, distance_m: float = 4.0
         Height of the scanner above the trunk's base, m.
     leaf_count : int, optional
         Number of leaves (default: the preset's).
+    heading_deg : float
+        Turn of the tree about the vertical through its trunk's base, deg (counter-clockwise seen from above;
+        0: as grown, e.g. a vine's cordons along the line of sight, 90: across it as seen from an inter-row).
     background_gap_m, background_reflectance : float
         Wall behind the trunk (``None``: no wall, the tree against the sky).
     """
     entry = {"name": "tree", "type": "tree", "preset": preset, "seed": seed,
              "pose": {"translate": [distance_m, 0.0, -base_below_m]}}
+    if heading_deg:
+        entry["pose"]["rotate"] = {"axis": [0.0, 0.0, 1.0], "angle_deg": heading_deg}
     if leaf_count is not None:
         entry["leaf_count"] = leaf_count
     objects = scenes.scene_from_spec({"scanner": {"preset": "faro-ls880", "position": [0, 0, 0]},

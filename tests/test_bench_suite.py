@@ -86,6 +86,9 @@ def test_builtin_suites_hold_what_they_promise():
     assert min(distances) == 0.8 and max(distances) == 5.0
     assert min(incidences) == 0 and max(incidences) == 80
     assert {"leaf-cluster", "leafy-tree", "orchard-row"} <= {c.scene.get("builtin") for c in standard.cases}
+    trees = load_suite("trees").cases
+    assert {c.scene["preset"] for c in trees} == {"apple", "vine", "conference-pear"}
+    assert {c.scene.get("leaf_count") for c in trees if c.scene["preset"] == "apple"} == {0, None}
     synthetic = load_suite("sfs-synthetic").cases
     assert all("heightfield" in c.scene for c in synthetic)
     assert {c.scene.get("alpha_noise_deg") for c in synthetic} >= {1.4, 2.8, 5.7}
@@ -124,6 +127,21 @@ def test_single_leaf_is_a_seeded_procedural_leaf():
     assert np.array_equal(leaf.vertices, b.objects[0].vertices)
     assert not np.array_equal(leaf.vertices, c.objects[0].vertices)
     assert a.objects[1].name == "background" and a.objects[1].vertices[:, 0].min() == pytest.approx(2.5)
+
+
+def test_tree_heading_turns_the_tree_about_its_trunk():
+    spec = {"generator": "tree", "preset": "vine", "seed": 1, "leaf_count": 0, "distance_m": 4.0}
+    grown = build_scene(spec).objects[0]
+    turned = build_scene({**spec, "heading_deg": 90.0}).objects[0]
+    # A quarter turn about the vertical through the trunk's base at (4, 0): (x, y) -> (4 - y, x - 4); the woody
+    # truth turns exactly (the tube mesh is rebuilt about the turned axes, so its vertices are compared by extent).
+    for key in ("start", "end"):
+        before, after = (np.array([c[key] for c in tree.truth["cylinders"]]) for tree in (grown, turned))
+        np.testing.assert_allclose(after, np.column_stack([4.0 - before[:, 1], before[:, 0] - 4.0, before[:, 2]]),
+                                   atol=1e-9)
+    # The vine's cordons run along the line of sight as grown and across it once turned.
+    extent = np.ptp(grown.vertices, axis=0), np.ptp(turned.vertices, axis=0)
+    assert extent[0][0] > 3 * extent[0][1] and extent[1][1] > 3 * extent[1][0]
 
 
 def test_generator_errors():
