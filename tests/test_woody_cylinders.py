@@ -103,6 +103,8 @@ def test_free_seed_table_reads_order_thresholds():
     ({"radius": "biggest"}, "radius"),
     ({"precision_m": -1.0}, "precision_m"),
     ({"no_such_setting": 1}, "unknown"),
+    ({"footprint_m": None}, r"invalid .*footprint_m=None"),
+    ({"bridge_m": "1 m"}, r"invalid .*bridge_m='1 m'"),
 ])
 def test_absurd_parameters_are_refused(overrides, message):
     with pytest.raises(WoodyError, match=message):

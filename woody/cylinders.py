@@ -157,6 +157,8 @@ the settings, the entry point and the output records.
 from __future__ import annotations
 
 import copy
+import math
+import numbers
 import time
 from dataclasses import dataclass, field
 
@@ -350,11 +352,11 @@ class FollowParams:
             problems.append(f"section_radii={self.section_radii} (need >= 0)")
         if self.min_branch_points < 1:
             problems.append(f"min_branch_points={self.min_branch_points} (need >= 1)")
-        if not (np.isfinite(self.bridge_m) and self.bridge_m >= 0):
+        if not _non_negative(self.bridge_m):
             problems.append(f"bridge_m={self.bridge_m!r} (need a length >= 0 in m)")
-        if not (np.isfinite(self.resolve_radius_m) and self.resolve_radius_m >= 0):
+        if not _non_negative(self.resolve_radius_m):
             problems.append(f"resolve_radius_m={self.resolve_radius_m!r} (need a radius >= 0 in m)")
-        if not (np.isfinite(self.footprint_m) and self.footprint_m >= 0):
+        if not _non_negative(self.footprint_m):
             problems.append(f"footprint_m={self.footprint_m!r} (need a diameter >= 0 in m)")
         if self.viewpoint is not None and (np.shape(self.viewpoint) != (3,) or
                                            not np.all(np.isfinite(np.asarray(self.viewpoint, float)))):
@@ -370,6 +372,11 @@ class FollowParams:
             if order <= threshold:
                 return int(count)
         return int(self.free_seed[-1][1])
+
+
+def _non_negative(value) -> bool:
+    """Whether a parameter is a finite real number >= 0 (``None`` or a string is not)."""
+    return isinstance(value, numbers.Real) and math.isfinite(value) and value >= 0
 
 
 @dataclass
