@@ -4,30 +4,38 @@ Wood is what the tree's paths run through: leaves and needles hang at the
 ends of them. The cloud is thinned to one point per voxel (``VOXEL_M``, or
 the point spacing of a sparser cloud) and linked into a graph of each
 point's ``NEIGHBOURS`` nearest neighbours, weighted by their distance. The
-shortest paths from the lowest point of each connected part (Dijkstra) form
-a tree; a point's *reach* is how far the paths through it go on beyond it
-(the largest path length of its descendants less its own). A leaf, a needle
-tuft or a stray point is a dead end: its points reach no farther than its
-own size. A point of the trunk or of a branch carries the paths to
-everything above it and reaches on to the tips. Points that reach
-``REACH_M`` or more are the wood's core; every point within two voxels of
-the core is wood (the paths run along a few lines of a stem's surface: the
-margin gives the surface between them back). The idea of tracing the paths
-from the base and keeping the points many paths cross is the path
-retracing of TLSeparation (Vicari et al. 2019, Methods in Ecology and
-Evolution 10: 680-694; also Wang et al. 2020's LeWoS, which segments the
-graph instead); this is a plain version of it on a k-nearest-neighbour
-graph.
+shortest paths (Dijkstra) from the base of each connected part (its points
+within ``BASE_M`` of its lowest) form a tree; a point's *reach* is how far
+the paths through it go on beyond it (the largest path length of its
+descendants less its own). A leaf, a needle tuft or a stray point is a dead
+end: its points reach no farther than its own size. A point of the trunk or
+of a branch carries the paths to everything above it and reaches on to the
+tips. Points that reach ``REACH_M`` or more are the wood's core. The paths
+run up a stem along a few lines of its surface; the surface between them is
+given back: a point off the core is wood when nothing the paths reach
+through it lies farther than ``MARGIN_VOXELS`` from the core (a dead end
+that leads into a leaf or a tuft does not), and so are the base's points
+within ``REACH_M`` of the core (the stem's foot all round).
 
-Assumptions: the tree's wood is one connected structure from its base
-(occluded wood seen as a detached piece is kept only if that piece is
-longer than ``REACH_M``); no leaf or needle cluster reaches more than
-``REACH_M`` beyond where its path leaves the wood; the last ``REACH_M`` of
-every twig is lost with the leaves (on a leafless cloud that is the cost of
-the separation: a small volume, see the README's measurements). Leaves that
-touch one another can carry a path beyond ``REACH_M``: such chains stay in.
-The cost is a k-d tree, a sparse graph of ``NEIGHBOURS`` edges per point
-and one Dijkstra run: O(n log n) in the voxel count.
+The idea of tracing the paths from the base and keeping the points they run
+through is TLSeparation's path retracing (Vicari et al. 2019, Methods in
+Ecology and Evolution 10: 680-694); LeWoS (Wang 2020, Methods in Ecology and
+Evolution 11: 376-389) segments the graph and keeps linear segments
+instead. Per-point eigenvalue features (linearity, planarity, scattering
+of neighbourhoods of 2-16 cm; Demantké et al. 2011) were tried first and
+told the synthetic pear's wood from its leaves poorly (woody notebook,
+round 30).
+
+Assumptions: the wood of a tree is connected from its base (occluded wood
+seen as a detached piece is kept only if the paths run on through it for
+``REACH_M``); no leaf or needle cluster reaches more than ``REACH_M``
+beyond where its path leaves the wood; so the last ``REACH_M`` of every
+twig and twigs shorter than that go with the leaves: on a leafless cloud
+that is the cost of the separation (rTwig's tree: 14 % of its points,
+woody notebook, round 30). Leaves that touch one another can carry a path
+beyond ``REACH_M``: such chains stay in. The cost is a k-d tree, a sparse
+graph of ``NEIGHBOURS`` edges per point, one Dijkstra run and two passes
+over the path tree: O(n log n) in the voxel count.
 """
 
 from __future__ import annotations
@@ -48,18 +56,15 @@ VOXEL_M = 0.01
 #: Nearest neighbours each graph point is linked to (assumption: enough to link a surface's points across scan
 #: lines, few enough that an edge stays within a few voxels).
 NEIGHBOURS = 10
-#: Smallest reach of the wood's core, m (assumption: longer than the pear leaves of scenes.tree, 6-10 cm, and the
-#: 7-10 cm needles of a pine; chosen on the synthetic conference pear, seed 1, and checked on others: see the
-#: woody notebook, round 30).
-REACH_M = 0.15
-#: The wood grows on beyond the core into a point whose dead end (the point and all it leads to) spreads less than
-#: this many voxels across its own axis (standard deviation): a twig's tip (assumption: a twig thinner than a
-#: voxel is a line of voxels, spread near 0; a leaf 4 cm wide spreads 1.2 cm, a needle tuft more).
-TIP_SPREAD_VOXELS = 0.5
+#: Smallest reach of the wood's core, m (assumption: about the blade of the conference-pear leaves of scenes.tree,
+#: 6.5 cm times the preset's median size 1.3, and the 7-10 cm needles of a pine; 0.10 rather than 0.15 chosen on
+#: rTwig's leafless tree, whose twigs 0.15 took 3 points of volume from, and the synthetic pear seed 1; woody
+#: notebook, round 30).
+REACH_M = 0.10
 #: The paths start from every point this close above the lowest point of its connected part, m (assumption: a
 #: stem's foot all round, so that the paths run up along its whole surface, not fanned out from one point).
 BASE_M = 0.05
-#: A dead end that hangs off the core is wood when none of its points lies farther than this many voxels from the
+#: A point off the core is wood when nothing the paths reach through it lies farther than this many voxels from the
 #: core: the surface of a stem between the paths that run along it (assumption: leaves and needles, 6 cm and
 #: longer, stick out farther).
 MARGIN_VOXELS = 3.0
@@ -91,14 +96,15 @@ def separate_wood(points, voxel_m: float = VOXEL_M, reach_m: float = REACH_M, ne
 
     Examples
     --------
-    A 1 m pole (points 5 mm apart) with a 5 cm blob of points beside its top: the pole is wood, the blob is not.
+    A 1 m pole (points 5 mm apart) with a 5 cm blob of points 8 cm beside its top: the pole is wood, the blob is
+    not.
 
     >>> import numpy as np
     >>> z = np.arange(0.0, 1.0, 0.005)
     >>> pole = np.column_stack([0.01 * np.cos(z * 900), 0.01 * np.sin(z * 900), z])
-    >>> blob = np.array([0.05, 0.0, 0.9]) + np.random.default_rng(0).uniform(-0.025, 0.025, (200, 3))
+    >>> blob = np.array([0.08, 0.0, 0.9]) + np.random.default_rng(0).uniform(-0.025, 0.025, (200, 3))
     >>> wood = separate_wood(np.vstack([pole, blob]))
-    >>> bool(wood[z < 0.8].all()), int(wood[len(pole):].sum())
+    >>> bool(wood[:len(pole)][z < 0.8].all()), int(wood[len(pole):].sum())
     (True, 0)
     """
     points = check_points(points)
@@ -111,20 +117,19 @@ def separate_wood(points, voxel_m: float = VOXEL_M, reach_m: float = REACH_M, ne
     if len(centres) <= neighbours:
         raise WoodyError(f"{len(centres)} voxels of {voxel:.3f} m are too few for {neighbours} neighbours each")
     tree = cKDTree(centres)
-    reach, parent = path_reach(centres, tree, int(neighbours))
+    reach, parent, part = path_reach(centres, tree, int(neighbours))
     core = reach >= reach_m
     if not core.any():
         return np.zeros(len(points), bool)
     # a point off the core is wood when nothing the paths reach through it lies farther than the margin from the core
     away, _ = cKDTree(centres[core]).query(centres)
     wood = core | (_subtree_max(away, parent, reach) <= MARGIN_VOXELS * voxel)
-    wood |= (parent < 0) & (away <= reach_m)  # a stem's foot all round: the paths start from all of it
-    # a twig's tip: the wood grows on along the paths into every point whose dead end is a thin line
-    thin = _subtree_spread(centres, parent, reach, ~core) <= TIP_SPREAD_VOXELS * voxel
-    return _extend(wood, parent, reach, thin)[cell]
+    # a stem's foot all round (the paths start from all of it): the base of a part with a core
+    wood |= (parent < 0) & (np.bincount(part, weights=core)[part] > 0) & (away <= reach_m)
+    return wood[cell]
 
 
-def path_reach(centres: np.ndarray, tree: cKDTree, neighbours: int) -> np.ndarray:
+def path_reach(centres: np.ndarray, tree: cKDTree, neighbours: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """How far the shortest paths from each connected part's base (``BASE_M``) go on beyond each point, m.
 
     Parameters
@@ -143,6 +148,8 @@ def path_reach(centres: np.ndarray, tree: cKDTree, neighbours: int) -> np.ndarra
         dead end).
     parent : ndarray of int, (m,)
         Each point's predecessor in the shortest-path tree (negative for a base point).
+    part : ndarray of int, (m,)
+        The connected part of the graph each point belongs to.
     """
     count = len(centres)
     distance, index = tree.query(centres, k=neighbours + 1)
@@ -161,7 +168,7 @@ def path_reach(centres: np.ndarray, tree: cKDTree, neighbours: int) -> np.ndarra
         up = parent[node]
         if up >= 0 and farthest[node] > farthest[up]:
             farthest[up] = farthest[node]
-    return farthest - length, parent
+    return farthest - length, parent, part
 
 
 def _subtree_max(values: np.ndarray, parent: np.ndarray, reach: np.ndarray) -> np.ndarray:
@@ -172,35 +179,6 @@ def _subtree_max(values: np.ndarray, parent: np.ndarray, reach: np.ndarray) -> n
         if up >= 0 and out[node] > out[up]:
             out[up] = out[node]
     return out
-
-
-def _extend(wood: np.ndarray, parent: np.ndarray, reach: np.ndarray, allowed: np.ndarray) -> np.ndarray:
-    """``wood`` grown along the shortest-path tree into the ``allowed`` children of wood points, and on."""
-    wood = wood.copy()
-    for node in np.argsort(-reach, kind="stable"):  # ancestors before their descendants
-        up = parent[node]
-        if not wood[node] and allowed[node] and up >= 0 and wood[up]:
-            wood[node] = True
-    return wood
-
-
-def _subtree_spread(centres: np.ndarray, parent: np.ndarray, reach: np.ndarray, counted: np.ndarray) -> np.ndarray:
-    """The spread of each ``counted`` point's subtree across its principal axis: the square root of the second
-    eigenvalue of the covariance of the point and its descendants, m (the sums are passed up the shortest-path
-    tree; points not ``counted`` pass nothing up and get infinity)."""
-    x, y, z = centres.T
-    sums = np.column_stack([np.ones(len(centres)), x, y, z, x * x, x * y, x * z, y * y, y * z, z * z])
-    sums[~counted] = 0.0
-    for node in np.argsort(reach, kind="stable"):  # descendants before their ancestors
-        up = parent[node]
-        if up >= 0 and counted[node] and counted[up]:
-            sums[up] += sums[node]
-    n = np.maximum(sums[:, 0], 1.0)
-    mean = sums[:, 1:4] / n[:, None]
-    second = sums[:, [4, 5, 6, 5, 7, 8, 6, 8, 9]].reshape(-1, 3, 3) / n[:, None, None]
-    cov = second - mean[:, :, None] * mean[:, None, :]
-    spread = np.sqrt(np.maximum(np.linalg.eigvalsh(cov)[:, 1], 0.0))
-    return np.where(counted, spread, np.inf)
 
 
 def _voxels(points: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
