@@ -59,6 +59,12 @@ def test_a_bare_stem_is_all_wood_and_a_stray_blob_is_not():
     assert not wood[len(stem):].any()
 
 
+def test_a_cloud_too_sparse_to_show_a_leaf_is_left_whole():
+    points, _ = _stem_with_leaves_and_tufts(1)
+    sparse = points[np.random.default_rng(0).choice(len(points), 100, replace=False)]  # some 4 cm apart
+    assert separate_wood(sparse).all()
+
+
 def test_separation_is_deterministic_and_checks_its_settings():
     points, _ = _stem_with_leaves_and_tufts(1)
     assert np.array_equal(separate_wood(points), separate_wood(points))
