@@ -58,7 +58,7 @@ VOXEL_M = 0.01
 NEIGHBOURS = 10
 #: Smallest reach of the wood's core, m (assumption: about the blade of the conference-pear leaves of scenes.tree,
 #: 6.5 cm times the preset's median size 1.3, and the 7-10 cm needles of a pine; 0.10 rather than 0.15 chosen on
-#: rTwig's leafless tree, whose twigs 0.15 took 3 points of volume from, and the synthetic pear seed 1; woody
+#: rTwig's leafless tree, whose twigs 0.15 took 3.3 points of volume from, and the synthetic pear seed 1; woody
 #: notebook, round 30).
 REACH_M = 0.10
 #: A cloud whose voxel (its point spacing) is coarser than ``REACH_M`` over this is left whole, all wood: a leaf or
