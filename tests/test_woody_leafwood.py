@@ -72,3 +72,15 @@ def test_separation_is_deterministic_and_checks_its_settings():
         separate_wood(points, reach_m=0.0)
     with pytest.raises(WoodyError, match="too few"):
         separate_wood(points[:5])
+
+
+def test_follow_tree_reconstructs_only_the_wood_when_asked():
+    from woody.trunk import follow_tree
+
+    points, labels = _stem_with_leaves_and_tufts(2)
+    wood = separate_wood(points)
+    result = follow_tree(points, separate=True)
+    assert result.stats["wood_points"] == wood.sum() and len(result.labels) == len(points)
+    assert (result.labels[~wood] == -1).all()
+    # a stem of 3 cm radius, its leaves and tufts left out: the cylinders hold about its volume (its tip is lost)
+    assert 0.7 < result.volume / (np.pi * 0.03**2 * 1.2) < 1.1
