@@ -23,6 +23,7 @@ EXAMPLES = {
     "woody.density": ("point_spacing", "voxel_subsample"),
     "woody.normals": ("pca_normals", "orient_outward"),
     "woody.pipe": ("pipe_radii",),
+    "woody.leafwood": ("separate_wood",),
 }
 
 

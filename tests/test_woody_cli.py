@@ -42,3 +42,20 @@ def test_user_errors_are_one_line_messages_with_status_2(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("woody: error:") and "empty" in err and err.count("\n") == 1
     assert main(["reconstruct", str(path), "--method", "step", "-o", str(tmp_path / "o"), "--cell-m", "0.01"]) == 2
+
+
+def test_separate_writes_the_wood_points_and_labels(tmp_path, capsys):
+    from woody.cloud import read_cloud
+
+    rng = np.random.default_rng(3)
+    angle, z = rng.uniform(0, 2 * np.pi, 20000), rng.uniform(0, 1.0, 20000)
+    stem = np.column_stack([0.03 * np.cos(angle), 0.03 * np.sin(angle), z])
+    blob = np.array([0.6, 0.0, 0.5]) + rng.uniform(-0.03, 0.03, (500, 3))  # a stray clump beside it
+    path = write_npz(tmp_path / "c.npz", {"points": np.vstack([stem, blob])})
+    for suffix in (".npz", ".ply", ".laz"):
+        out = tmp_path / f"wood{suffix}"
+        assert main(["separate", str(path), "-o", str(out), "--labels", str(tmp_path / "labels.npy")]) == 0
+        labels = np.load(tmp_path / "labels.npy")
+        assert labels[len(stem):].sum() == 0 and labels[:len(stem)][stem[:, 2] < 0.8].all()
+        assert len(read_cloud(out).points) == labels.sum()
+    assert "points are wood" in capsys.readouterr().out

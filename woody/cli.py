@@ -7,6 +7,10 @@
   and the method's own output (``tuboids.json`` for STEP; ``branches.json``
   with the skeleton and ``point_labels.npy`` for cylinder following; the
   other method's files left by an earlier run are removed);
+- ``woody separate CLOUD -o WOOD``: the cloud's wood points, leaves, needles
+  and strays left out from the geometry alone (:mod:`woody.leafwood`),
+  written as ``.npz``, ``.ply`` or ``.las``/``.laz`` (a LAS input keeps its
+  records' other fields), and with ``--labels`` a per-point 1 (wood) / 0;
 - ``woody dbh CLOUD``: diameter at breast height of every stem, with its
   arc coverage, fit residual and quality flag (``--json`` for one object).
 
@@ -60,10 +64,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pipe-model", action=argparse.BooleanOptionalAction, default=True,
                    help="cylinders: radii the points do not resolve (under one point spacing, or scattered) follow "
                         "the pipe model from their nearest resolved ancestor (default; --no-pipe-model: off)")
+    p.add_argument("--separate", action=argparse.BooleanOptionalAction, default=False,
+                   help="cylinders: leave out the points woody separate finds are not wood (leaves, needles, "
+                        "strays) before following the branches; the trunk is fitted on every point (default off)")
     p.add_argument("--resolve-radius-m", type=float, default=None,
                    help="cylinders: thinnest branch radius to resolve; denser clouds are thinned at random to a "
                         "point spacing of pi r / 6 first, 0 keeps every point (default 0.01 m)")
     p.set_defaults(func=run_reconstruct)
+
+    p = sub.add_parser("separate", help="the wood points of a tree's cloud, leaves and needles left out",
+                       description="Leaf/wood separation from the geometry alone (woody.leafwood): the points the "
+                                   "shortest paths from the tree's base run through, and those next to them.")
+    p.add_argument("cloud", help="point-cloud file")
+    p.add_argument("-o", "--output", required=True, help="the wood points: .npz, .ply, .las or .laz")
+    p.add_argument("--labels", default=None, help="also write a per-point label (1 wood, 0 not) to this .npy file")
+    p.add_argument("--reach-m", type=float, default=None,
+                   help="smallest reach of the wood's core beyond a point, m (default woody.leafwood.REACH_M)")
+    p.set_defaults(func=run_separate)
 
     p = sub.add_parser("dbh", help="diameter at breast height of the stems of a point cloud",
                        description="DBH of every stem crossing breast height: a robust circle fit on a thin slice, "
@@ -114,7 +131,7 @@ def run_reconstruct(args) -> int:
         if args.resolve_radius_m is not None:
             settings["resolve_radius_m"] = args.resolve_radius_m
         result = follow_cylinders(cloud.points, **settings) if args.no_trunk else \
-            follow_tree(cloud.points, ground_z=args.ground_z, **settings)
+            follow_tree(cloud.points, ground_z=args.ground_z, separate=args.separate, **settings)
         nodes, edges = result.skeleton()
         (out / "branches.json").write_text(json.dumps({"branches": result.branches, "skeleton": {
             "nodes": nodes.tolist(), "edges": edges.tolist()}}))
@@ -134,6 +151,48 @@ def run_reconstruct(args) -> int:
     stem = f"DBH {dbh['stems'][0]['dbh_m'] * 100:.1f} cm ({dbh['stems'][0]['flag']})" if "stems" in dbh else "no DBH"
     print(f"{count} {kind}, {len(cylinders)} cylinders, volume {result.volume * 1e3:.3f} dm^3, {stem} -> {out}")
     return 0
+
+
+def run_separate(args) -> int:
+    from woody.cloud import read_cloud
+    from woody.errors import WoodyError
+    from woody.leafwood import REACH_M, separate_wood
+
+    out = Path(args.output)
+    if out.suffix.lower() not in (".npz", ".ply", ".las", ".laz"):
+        raise WoodyError(f"{out}: the wood points are written as .npz, .ply, .las or .laz")
+    cloud = read_cloud(args.cloud)
+    wood = separate_wood(cloud.points, reach_m=REACH_M if args.reach_m is None else args.reach_m)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if out.suffix.lower() == ".npz":
+        from tlssim.scan import write_npz
+
+        write_npz(out, {"points": cloud.points[wood]})
+    elif out.suffix.lower() == ".ply":
+        from tlssim.scan import write_ply_points
+
+        write_ply_points(out, [(a, "<f8", cloud.points[wood, i]) for i, a in enumerate("xyz")])
+    else:
+        _write_las(args.cloud, cloud.points, wood, out)
+    if args.labels:
+        np.save(args.labels, wood.astype(np.uint8))
+    print(f"{int(wood.sum())} of {len(wood)} points are wood ({wood.mean() * 100:.1f} %) -> {out}")
+    return 0
+
+
+def _write_las(source, points: np.ndarray, wood: np.ndarray, out: Path) -> None:
+    """The wood points as LAS/LAZ: a LAS source's records (every field kept), else a new LAS 1.4 of x, y, z."""
+    import laspy
+
+    if Path(source).suffix.lower() in (".las", ".laz"):
+        las = laspy.read(str(source))
+        las.points = las.points[wood]
+    else:
+        las = laspy.LasData(laspy.LasHeader(point_format=6, version="1.4"))
+        las.header.offsets = points.min(axis=0)
+        las.header.scales = np.full(3, 1e-4)
+        las.x, las.y, las.z = points[wood].T
+    las.write(str(out))
 
 
 def run_dbh(args) -> int:

@@ -251,7 +251,7 @@ def _claim(points, tree, centres, radii, members, tolerance, residual):
 
 
 def follow_tree(points, ground_z: float | None = None, ground_clearance_m: float = 0.1, progress: bool = False,
-                all_parts: bool = False, **follow):
+                all_parts: bool = False, separate: bool = False, **follow):
     """Cylinder following with the trunk followed first, from the ground up, by stacked circle fits.
 
     The trunk (:func:`follow_trunk`) is branch 0; cylinder following
@@ -284,6 +284,10 @@ def follow_tree(points, ground_z: float | None = None, ground_clearance_m: float
         many parts; on a leafy crown the parts' first cylinders swallow
         leaves and twigs, see docs/notebook/woody.md, the
         ``all_parts`` paragraph).
+    separate : bool
+        Reconstruct only the points :func:`woody.leafwood.separate_wood`
+        finds are wood (leaves, needles and strays left out); the other
+        points are labelled -1.
     **follow
         Settings of :func:`woody.cylinders.follow_cylinders` (e.g.
         ``precision_m``, ``section_radii``).
@@ -294,12 +298,21 @@ def follow_tree(points, ground_z: float | None = None, ground_clearance_m: float
         Branch 0 is the trunk (one section per pair of circles);
         ``stats["trunk"]`` gives its circles' count, height and the ground,
         ``stats["parts"]`` the number of connected parts followed (with a
-        trunk or ``all_parts``).
+        trunk or ``all_parts``); with ``separate``, ``stats["wood_points"]``
+        counts the points kept.
     """
     from woody.cylinders import FollowResult, apply_pipe_model, follow_cylinders
     from woody.ground import ground_grid
 
     points = check_points(points)
+    if separate:
+        from woody.leafwood import separate_wood
+
+        wood = separate_wood(points)
+        result = follow_tree(points[wood], ground_z, ground_clearance_m, progress, all_parts, **follow)
+        labels = np.full(len(points), -1, np.int64)
+        labels[wood] = result.labels
+        return FollowResult(result.branches, labels, {**result.stats, "wood_points": int(wood.sum())})
     try:
         trunk = follow_trunk(points, ground_z=ground_z)
     except WoodyError:

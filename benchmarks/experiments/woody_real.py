@@ -32,8 +32,9 @@ DATA = Path(__file__).resolve().parents[2] / "tests" / "data" / "real"
 CLOUDS = (("rtwig-tree", "rtwig_cloud.txt", "rtwig_treeqsm.mat"),
           ("archi-tree1", "archi_tree1.las", "archi_tree1_treeqsm.txt"),
           ("treetraits-0744", "treetraits_tree_0744.laz", "treetraits_tree_0744_qsm.txt"))
-#: Methods: DBH alone, STEP, cylinder following with the trunk first (``woody reconstruct`` defaults).
-METHODS = ("dbh", "step", "cylinders")
+#: Methods: DBH alone, STEP, cylinder following with the trunk first (``woody reconstruct`` defaults), and the same
+#: on the points :func:`woody.leafwood.separate_wood` finds are wood (``woody reconstruct --separate``).
+METHODS = ("dbh", "step", "cylinders", "cylinders-separated")
 #: Columns a cylinder table with a header line must have (tReeTraits' export of a TreeQSM model).
 HEADED_COLUMNS = frozenset({"startX", "startY", "startZ", "endX", "endY", "endZ", "radius_cyl", "length"})
 #: Breast height of the references, m (TreeQSM's DBHqsm uses 1.3 m).
@@ -209,7 +210,9 @@ def _measure(method: str, cloud_path: str, queue) -> None:
             else:
                 from woody.trunk import follow_tree
 
-                result = follow_tree(points)
+                result = follow_tree(points, separate=method == "cylinders-separated")
+                if "wood_points" in result.stats:
+                    row["wood_points"] = result.stats["wood_points"]
             row.update(volume_m3=result.volume, model_dbh_m=dbh_summary(points, result.cylinders())["model_dbh_m"])
     except Exception as exc:  # noqa: BLE001 - a method that fails on a real cloud is a result of the experiment
         row["error"] = f"{type(exc).__name__}: {exc}"
@@ -278,7 +281,7 @@ def _cell(value, scale: float, digits: int) -> str:
 
 def _line(row: dict) -> str:
     dbh = row.get("dbh_m", row.get("model_dbh_m"))
-    text = (f"{row['cloud']:<14} {row['method']:<10} {row['points']:>8} {_cell(row.get('ref_dbh_m'), 100, 2):>8} "
+    text = (f"{row['cloud']:<14} {row['method']:<19} {row['points']:>8} {_cell(row.get('ref_dbh_m'), 100, 2):>8} "
             f"{_cell(row.get('ref_cloud_dbh_m'), 100, 2):>8} {_cell(dbh, 100, 2):>8} "
             f"{_cell(row.get('dbh_error'), 100, 1):>7} {_cell(row.get('cloud_dbh_error'), 100, 1):>7} "
             f"{_cell(row.get('ref_volume_m3'), 1e3, 2):>9} {_cell(row.get('volume_m3'), 1e3, 2):>9} "
@@ -287,10 +290,12 @@ def _line(row: dict) -> str:
         text += f"  {row['error']}"
     elif "flag" in row:
         text += f"  {row['flag']}"
+    elif "wood_points" in row:
+        text += f"  wood {row['wood_points']}"
     return text
 
 
-HEADER = (f"{'cloud':<14} {'method':<10} {'points':>8} {'refDBH':>8} {'cloudDBH':>8} {'DBH_cm':>8} {'err_%':>7} "
+HEADER = (f"{'cloud':<14} {'method':<19} {'points':>8} {'refDBH':>8} {'cloudDBH':>8} {'DBH_cm':>8} {'err_%':>7} "
           f"{'cerr_%':>7} "
           f"{'ref_dm3':>9} {'vol_dm3':>9} {'err_%':>7} {'time_s':>8} {'peak_MB':>8}")
 
