@@ -83,6 +83,31 @@ def voxel_subsample(points, voxel_m: float) -> np.ndarray:
     points = check_points(points)
     if not (np.isfinite(voxel_m) and voxel_m > 0):
         raise WoodyError(f"voxel_m must be a positive length in metres, got {voxel_m}")
+    voxel, centroid = voxel_centroids(points, voxel_m)
+    distance = np.linalg.norm(points - centroid[voxel], axis=1)
+    order = np.lexsort((distance, voxel))
+    first = np.ones(len(order), bool)
+    first[1:] = voxel[order][1:] != voxel[order][:-1]
+    return np.sort(order[first])
+
+
+def voxel_centroids(points: np.ndarray, voxel_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's cubic voxel and the centroid of every occupied voxel.
+
+    Parameters
+    ----------
+    points : ndarray, (n, 3)
+        Coordinates, m.
+    voxel_m : float
+        Voxel edge, m (positive).
+
+    Returns
+    -------
+    voxel : ndarray of int, (n,)
+        Each point's voxel, an index into ``centroid``.
+    centroid : ndarray, (v, 3)
+        The mean of each occupied voxel's points, m.
+    """
     index = np.floor((points - points.min(axis=0)) / voxel_m).astype(np.int64)
     shape = index.max(axis=0) + 1
     if float(np.prod(shape.astype(float))) >= 2.0**62:
@@ -92,12 +117,7 @@ def voxel_subsample(points, voxel_m: float) -> np.ndarray:
     voxel = voxel.reshape(-1)
     centroid = np.zeros((len(counts), 3))
     np.add.at(centroid, voxel, points)
-    centroid /= counts[:, None]
-    distance = np.linalg.norm(points - centroid[voxel], axis=1)
-    order = np.lexsort((distance, voxel))
-    first = np.ones(len(order), bool)
-    first[1:] = voxel[order][1:] != voxel[order][:-1]
-    return np.sort(order[first])
+    return voxel, centroid / counts[:, None]
 
 
 def thin_to_spacing(points, spacing_m: float, seed: int = 0) -> np.ndarray:

@@ -46,7 +46,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from woody.cloud import check_points
-from woody.density import point_spacing
+from woody.density import point_spacing, voxel_centroids
 from woody.errors import WoodyError
 
 #: Voxel edge of the graph's points, m (assumption: finer than a leaf's width and than the 2 cm branches cylinder
@@ -119,7 +119,7 @@ def separate_wood(points, voxel_m: float = VOXEL_M, reach_m: float = REACH_M, ne
     voxel = max(float(voxel_m), point_spacing(points)) if len(points) >= 7 else float(voxel_m)
     if voxel > reach_m / MIN_VOXELS_PER_REACH:  # too sparse to see a leaf as a dead end of several points
         return np.ones(len(points), bool)
-    cell, centres = _voxels(points, voxel)
+    cell, centres = voxel_centroids(points, voxel)
     if len(centres) <= neighbours:
         raise WoodyError(f"{len(centres)} voxels of {voxel:.3f} m are too few for {neighbours} neighbours each")
     tree = cKDTree(centres)
@@ -185,17 +185,3 @@ def _subtree_max(values: np.ndarray, parent: np.ndarray, reach: np.ndarray) -> n
         if up >= 0 and out[node] > out[up]:
             out[up] = out[node]
     return out
-
-
-def _voxels(points: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
-    """Each point's voxel (index into the centres) and the centroid of each occupied voxel, m."""
-    index = np.floor((points - points.min(axis=0)) / voxel).astype(np.int64)
-    shape = index.max(axis=0) + 1
-    if float(np.prod(shape.astype(float))) >= 2.0**62:
-        raise WoodyError(f"voxels of {voxel} m over a cloud this large overflow the voxel index; use larger voxels")
-    key = (index[:, 0] * shape[1] + index[:, 1]) * shape[2] + index[:, 2]
-    _, cell, counts = np.unique(key, return_inverse=True, return_counts=True)
-    cell = cell.reshape(-1)
-    centres = np.zeros((len(counts), 3))
-    np.add.at(centres, cell, points)
-    return cell, centres / counts[:, None]
