@@ -84,3 +84,12 @@ def test_follow_tree_reconstructs_only_the_wood_when_asked():
     assert (result.labels[~wood] == -1).all()
     # a stem of 3 cm radius, its leaves and tufts left out: the cylinders hold about its volume (its tip is lost)
     assert 0.7 < result.volume / (np.pi * 0.03**2 * 1.2) < 1.1
+
+
+def test_follow_tree_says_so_when_the_separation_finds_no_wood():
+    from woody.trunk import follow_tree
+
+    blob = np.random.default_rng(0).uniform(-0.03, 0.03, (500, 3))  # 6 cm across: no path runs on for REACH_M
+    assert not separate_wood(blob).any()
+    with pytest.raises(WoodyError, match="found 0 wood points of 500"):
+        follow_tree(blob, separate=True)

@@ -66,7 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "the pipe model from their nearest resolved ancestor (default; --no-pipe-model: off)")
     p.add_argument("--separate", action=argparse.BooleanOptionalAction, default=False,
                    help="cylinders: leave out the points woody separate finds are not wood (leaves, needles, "
-                        "strays) before following the branches; the trunk is fitted on every point (default off)")
+                        "strays) before following the trunk and the branches; they get label -1 (default off)")
     p.add_argument("--resolve-radius-m", type=float, default=None,
                    help="cylinders: thinnest branch radius to resolve; denser clouds are thinned at random to a "
                         "point spacing of pi r / 6 first, 0 keeps every point (default 0.01 m)")

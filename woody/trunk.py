@@ -306,9 +306,12 @@ def follow_tree(points, ground_z: float | None = None, ground_clearance_m: float
 
     points = check_points(points)
     if separate:
-        from woody.leafwood import separate_wood
+        from woody.leafwood import REACH_M, separate_wood
 
         wood = separate_wood(points)
+        if wood.sum() < 3:
+            raise WoodyError(f"the leaf/wood separation found {int(wood.sum())} wood points of {len(points)} (no path "
+                             f"from the base runs on for {REACH_M} m); reconstruct without --separate")
         result = follow_tree(points[wood], ground_z, ground_clearance_m, progress, all_parts, **follow)
         labels = np.full(len(points), -1, np.int64)
         labels[wood] = result.labels
