@@ -89,6 +89,7 @@ RULES = {
     "azimuth_err_median_deg": Rule("lower", "deg"),
     "diameter_err_median_m": Rule("lower", "m"),
     "volume_rel_err": Rule("lower", "fraction"),
+    "dbh_err_median_m": Rule("lower", "m"),
 }
 
 #: A variant's runtime, per trace time and in seconds, may move by this factor either way before a warning. On

@@ -539,13 +539,16 @@ def score_wood(wood: Target, output: VariantOutput) -> dict:
         ``diameter_err_bias_m``, ``diameter_err_mae_m``, ``diameter_err_rmse_m``,
         ``wood_completeness``, ``wood_seen_completeness`` (of the truth length
         the object's points reach), ``wood_precision``, ``detection_rate``,
-        ``volume_rel_err`` (signed), ``volume_true_m3``, ``volume_rec_m3``, the
-        method's stats.
+        ``volume_rel_err`` (signed), ``volume_true_m3``, ``volume_rec_m3``,
+        ``dbh_true_m`` and ``dbh_err_m`` (the stem's diameter 1.3 m above its
+        base and the reconstruction's signed error there; None where the stem
+        is shorter or not reconstructed there), the method's stats.
     """
     import woody
 
     scores = woody.score(wood.truth, output.traits["cylinders"], points=wood.scan.xyz[wood.mask])
     diameter = scores["diameter_error_m"]
+    dbh = scores["taper"]["dbh"] or {}
     return json_ready({"target": wood.name, "object_id": wood.object_id, "object_type": wood.object_type,
                        "n_points": int(wood.mask.sum()), "diameter_err_bias_m": diameter["bias"],
                        "diameter_err_mae_m": diameter["mae"], "diameter_err_rmse_m": diameter["rmse"],
@@ -553,6 +556,7 @@ def score_wood(wood: Target, output: VariantOutput) -> dict:
                        "wood_seen_completeness": scores["seen_completeness"], "wood_precision": scores["precision"],
                        "detection_rate": scores["detection_rate"], "volume_rel_err": scores["volume_error"],
                        "volume_true_m3": scores["volume_true_m3"], "volume_rec_m3": scores["volume_rec_m3"],
+                       "dbh_true_m": dbh.get("diameter_true_m"), "dbh_err_m": dbh.get("diameter_error_m"),
                        **output.stats})
 
 

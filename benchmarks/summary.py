@@ -41,7 +41,9 @@ drown 60 single-leaf cases):
   :data:`benchmarks.metrics.MIN_VISIBILITY` visible that were found;
 - woody objects (scored with :func:`woody.score`): ``diameter_err_median_m``,
   median over cases of the median over woody objects of the mean absolute
-  diameter error; ``volume_rel_err``, the same with |relative volume error|.
+  diameter error; ``volume_rel_err``, the same with |relative volume error|;
+  ``dbh_err_median_m``, the same with |DBH error| (the stem's diameter
+  1.3 m above its base).
 
 A metric that does not apply (no leaf with that truth, or a variant that
 does not estimate it) is ``None``.
@@ -69,7 +71,7 @@ SUMMARY_KEYS = ("suite", "variant", "family", "n_cases", "n_targets", "n_leaves_
                 "rppp_1", "abs_eps_mean", "within_5pct", "surface_rmse_m",
                 "area_rel_err_median", "area_rel_err_bias", "area_seen_rel_err_median", "elevation_err_median_deg",
                 "azimuth_err_median_deg", "n_found", "n_missed", "n_false", "found_visible",
-                "diameter_err_median_m", "volume_rel_err", "runtime_s", "runtime_total_s", "pulses_per_s",
+                "diameter_err_median_m", "volume_rel_err", "dbh_err_median_m", "runtime_s", "runtime_total_s", "pulses_per_s",
                 "peak_mem_mb")
 
 #: The headline table: (column title, summary key, format).
@@ -84,7 +86,8 @@ HEADLINE_HEIGHTS = (("variant", "variant", "{}"), ("mean |height err|", "abs_eps
                     ("within 5 %", "within_5pct", "{:.1%}"), ("completeness", "completeness", "{:.1%}"),
                     ("runtime/case", "runtime_s", "{:.3f} s"), ("errors", "n_errors", "{}"))
 #: Columns added for woody objects (STEP and cylinder following).
-WOODY_COLUMNS = (("diam err med", "diameter_err_median_m", "{:.4f} m"), ("|vol err| med", "volume_rel_err", "{:.1%}"))
+WOODY_COLUMNS = (("diam err med", "diameter_err_median_m", "{:.4f} m"), ("|vol err| med", "volume_rel_err", "{:.1%}"),
+                 ("|DBH err| med", "dbh_err_median_m", "{:.4f} m"))
 
 
 def target_scores(rows: list[dict]) -> list[dict]:
@@ -200,6 +203,7 @@ def _summary_row(mine: list[dict], labels: dict) -> dict:
     row["azimuth_err_median_deg"] = _over_cases(ok, "azimuth_err_deg", np.median, visible=True)
     row["diameter_err_median_m"] = _over_cases(ok, "diameter_err_mae_m", np.median)
     row["volume_rel_err"] = _over_cases(ok, "volume_rel_err", np.median, absolute=True)
+    row["dbh_err_median_m"] = _over_cases(ok, "dbh_err_m", np.median, absolute=True)
     # Runtime over the cases that gave the variant something to score (woody methods skip leaf cases).
     runtimes = [r["runtime_s"] for r in ok if r["runtime_s"] is not None and r["metrics"]["targets"]]
     peaks = [r["peak_mem_mb"] for r in ok if r["peak_mem_mb"] is not None]

@@ -173,6 +173,7 @@ def test_woody_variants_score_woody_objects(tmp_path):
         assert score["volume_rel_err"] == pytest.approx(score["volume_rec_m3"] / score["volume_true_m3"] - 1)
         assert summaries[name]["diameter_err_median_m"] == pytest.approx(score["diameter_err_mae_m"])
         assert summaries[name]["volume_rel_err"] == pytest.approx(abs(score["volume_rel_err"]))
+        assert score["dbh_true_m"] is None and summaries[name]["dbh_err_median_m"] is None  # a 0.6 m branch
     assert rows["step"]["params"]["r_max_m"] == 0.3 and rows["step"]["case_spec"]["params"] == {"step": {"r_max_m": 0.1}}
 
 

@@ -178,13 +178,14 @@ def test_headline_shows_woody_columns_only_when_woody_objects_were_scored():
         return {"case_name": case, "variant": variant, "family": "woody", "case_spec": {"scene": {"builtin": case}},
                 "metrics": {"targets": targets}, "runtime_s": runtime_s, "peak_mem_mb": 2.0, "error": None}
 
-    wood = [{"diameter_err_mae_m": 0.004, "volume_rel_err": -0.2}]
+    wood = [{"diameter_err_mae_m": 0.004, "volume_rel_err": -0.2, "dbh_err_m": -0.003}]
     leaf = [{"rop_before": 0.2, "rop_after": 0.1}]
     # Leaf cases give a woody method nothing to do: they do not count for its runtime.
     woody_only = summarize([row("tree", "step", wood)] + [row(f"leaf{i}", "step", [], 0.0) for i in range(3)], "s")
     assert woody_only[0]["runtime_s"] == 1.0
     titles = [title for title, _, _ in headline_columns(woody_only)]
-    assert titles == ["variant", "diam err med", "|vol err| med", "runtime/case", "errors"]
+    assert titles == ["variant", "diam err med", "|vol err| med", "|DBH err| med", "runtime/case", "errors"]
+    assert woody_only[0]["dbh_err_median_m"] == 0.003
     assert "|vol err| med" in headline_table(woody_only) and "20.0%" in headline_table(woody_only)
     mixed = summarize([row("tree", "step", wood), row("leaf", "raw", leaf)], "s")
     assert [t for t, _, _ in headline_columns(mixed)][:2] == ["variant", "ROP after"]

@@ -134,3 +134,14 @@ def test_volume_budget_splits_the_error_into_wider_missed_and_spurious_volume():
     assert _budget_class(s, 0.04)["missed_m3"] == pytest.approx(branch, rel=0.05)
     assert _budget_class(s, 0.04)["reconstructed_m3"] == pytest.approx(branch, rel=0.02)
     assert s["volume_budget"]["false_positive_m3"] == pytest.approx(branch, rel=1e-6)
+
+
+def test_breast_height_diameter_is_scored_on_the_stem_at_1_3_m():
+    stem = [_cyl(0, -1, 1, 0, (0, 0, 0), (0, 0, 2), 0.06, 0.04)]  # tapers: 9.4 cm across at 1.3 m
+    wider = [_cyl(0, -1, 1, 0, (0, 0, 0), (0, 0, 2), 0.063, 0.043)]
+    dbh = score(stem, wider)["taper"]["dbh"]
+    assert dbh["diameter_true_m"] == pytest.approx(0.094, abs=2e-4)
+    assert dbh["diameter_error_m"] == pytest.approx(0.006, abs=1e-6)
+    short = [_cyl(0, -1, 1, 0, (0, 0, 0), (0, 0, 1), 0.06)]  # the reconstruction stops below breast height
+    assert score(stem, short)["taper"]["dbh"]["diameter_error_m"] is None
+    assert score([TRUTH[0]], [TRUTH[0]])["taper"]["dbh"] is None  # a 1 m stem has no breast height

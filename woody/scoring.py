@@ -30,7 +30,11 @@ Both the truth (``docs/contracts.md``: a woody object's ``truth`` has
   spurious branches;
 - taper: diameter error of the stem (the branch of the root cylinder) in
   height bins above its base; ``taper_ok_height_m`` is the height up to which
-  every bin stays within ``taper_tolerance_m``;
+  every bin stays within ``taper_tolerance_m``; ``dbh`` is the same at breast
+  height (:data:`woody.dbh.BREAST_HEIGHT_M` above the stem's base, one bin
+  wide): the true stem diameter there and the mean diameter error of its
+  matched samples (None where the stem does not reach that height or no
+  sample there is matched);
 - topology, when the reconstruction has parents and orders: each
   reconstructed branch is assigned the truth branch it mostly matches;
   parent-child edges are compared after that mapping, orders relative to the
@@ -42,6 +46,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from woody.dbh import BREAST_HEIGHT_M
 from woody.errors import WoodyError
 from woody.geometry import cylinder_arrays, cylinders_volume
 
@@ -348,7 +353,14 @@ def _taper(T: dict, gt: dict, match: dict, hit: np.ndarray, bin_m: float, tolera
             ok_height = float(lo + bin_m)
         else:
             failed = True
-    return {"stem_branch": int(stem), "bins": bins, "taper_ok_height_m": ok_height}
+    breast = on_stem & (np.abs(height - BREAST_HEIGHT_M) <= 0.5 * bin_m)
+    dbh = None
+    if breast.any():
+        matched = breast & hit
+        dbh = {"diameter_true_m": float(2 * gt["radius"][breast].mean()),
+               "diameter_error_m": (float(2 * np.mean(match["radius"][matched] - gt["radius"][matched]))
+                                    if matched.any() else None)}
+    return {"stem_branch": int(stem), "bins": bins, "taper_ok_height_m": ok_height, "dbh": dbh}
 
 
 def _topology(T: dict, R: dict, rec_cyl: list[dict], rec: dict, back: dict, detected: list[int]) -> dict | None:
