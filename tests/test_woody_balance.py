@@ -77,3 +77,45 @@ def test_a_limb_grown_from_a_thin_twig_keeps_its_own_radius_through_the_pipe_mod
     radii = [radius for _, _, radius in records[1]["sections"]]
     assert records[0]["radius_m"] < 0.005 and len(radii) >= 2
     assert all(0.017 < radius < 0.023 for radius in radii)
+
+
+def test_a_limb_seen_over_a_narrow_arc_under_an_unresolved_twig_keeps_its_own_radius():
+    """A 2 cm limb seen over 100 deg of its circle (leaves hide the rest) grown as the child of a 3 mm twig that
+    the points do not resolve (under one point spacing): the spread of a 100 deg arc caps the fitted radius at
+    0.86 of the limb's, so the points lie 16 % outside it; they still lie on one circle about its axis, and the
+    clamp at the unresolved twig's radius must not hold (on main the limb came out at the twig's 3 mm)."""
+    from woody.cylinders import _records, apply_pipe_model
+
+    rng = np.random.default_rng(12)
+    angle, z = rng.uniform(0, 2 * np.pi, 200), rng.uniform(0.0, 0.1, 200)
+    twig = np.column_stack([0.003 * np.cos(angle), 0.003 * np.sin(angle), z])
+    half = np.radians(50.0)
+    angle, z = rng.uniform(-half, half, 1500), rng.uniform(0.1, 0.4, 1500)
+    limb = np.column_stack([0.02 * np.cos(angle), 0.02 * np.sin(angle), z]) + rng.normal(0, 0.0005, (1500, 3))
+    points, params = np.vstack([twig, limb]), FollowParams()
+    parent = Branch(0, 0, None, 1, (points, None), params)
+    child = Branch(1, 200, parent, 2, (points, None), params)
+    parent.points, child.points, parent.children = list(range(200)), list(range(200, 1700)), [child]
+    for branch in (parent, child):
+        branch.refit(np.array([0.0, 0.0, 1.0]))
+    records, _ = _records([parent, child], params, len(points), 0.005)
+    apply_pipe_model(records)
+    assert records[0]["reliable"] == [False] * len(records[0]["sections"])  # the twig is not resolved
+    radii = [radius for _, _, radius in records[1]["sections"]]
+    assert len(radii) >= 2
+    assert all(0.015 < radius < 0.022 for radius in radii)
+
+
+def test_a_narrow_arc_lies_on_one_circle_and_a_cluster_of_twigs_does_not():
+    from woody.cylinders import SPREAD_FACTOR, _on_arc
+
+    rng = np.random.default_rng(13)
+    half = np.radians(50.0)
+    angle, z = rng.uniform(-half, half, 400), rng.uniform(0.0, 0.2, 400)
+    arc = np.column_stack([0.02 * np.cos(angle), 0.02 * np.sin(angle), z]) + rng.normal(0, 0.0005, (400, 3))
+    capped = 0.86 * 0.02  # the spread cap on a 100 deg arc: 1.3 sqrt(2 (1/2 - sin(2a) / (4a))) r, a = 50 deg
+    twigs = np.vstack([np.column_stack([np.full(100, d), np.zeros(100), np.linspace(0, 0.2, 100)])
+                       for d in (0.012, 0.02, 0.03)])  # three twigs 1.2-3 cm off the axis
+    assert _on_arc([((0, 0, 0), (0, 0, 0.2), capped)], arc) == [True]
+    assert _on_arc([((0, 0, 0), (0, 0, 0.2), capped)], twigs) == [False]
+    assert _on_arc([((0, 0, 0), (0, 0, 0.2), 0.02 / (SPREAD_FACTOR + 0.1))], arc) == [False]  # beyond the cap
