@@ -56,15 +56,16 @@ def test_a_clamped_section_keeps_its_own_circle_only_when_its_points_lie_on_it()
     assert _on_circle([section], limb[:5]) == [False]  # too few points to tell
 
 
-def test_a_limb_grown_from_a_thin_twig_keeps_its_own_radius_through_the_pipe_model():
-    """A 2 cm limb seen from one side (its points on the circle) grown as the child of a 3 mm twig: the clamp at
-    the twig's radius is the parent's error, and the pipe model (on by default) must not shrink it again."""
+def _limb_under_twig(seed: int, arc_deg: float, spacing_m: float) -> list[dict]:
+    """Records of a 2 cm limb (z 0.1-0.4 m, seen over ``arc_deg`` of its circle) grown as the child of a 3 mm twig
+    (z 0-0.1 m), after the pipe model, at a cloud spacing of ``spacing_m``."""
     from woody.cylinders import _records, apply_pipe_model
 
-    rng = np.random.default_rng(11)
+    rng = np.random.default_rng(seed)
     angle, z = rng.uniform(0, 2 * np.pi, 200), rng.uniform(0.0, 0.1, 200)
     twig = np.column_stack([0.003 * np.cos(angle), 0.003 * np.sin(angle), z])
-    angle, z = rng.uniform(0, np.pi, 1500), rng.uniform(0.1, 0.4, 1500)
+    half = np.radians(arc_deg / 2)
+    angle, z = rng.uniform(-half, half, 1500), rng.uniform(0.1, 0.4, 1500)
     limb = np.column_stack([0.02 * np.cos(angle), 0.02 * np.sin(angle), z]) + rng.normal(0, 0.0005, (1500, 3))
     points, params = np.vstack([twig, limb]), FollowParams()
     parent = Branch(0, 0, None, 1, (points, None), params)
@@ -72,8 +73,15 @@ def test_a_limb_grown_from_a_thin_twig_keeps_its_own_radius_through_the_pipe_mod
     parent.points, child.points, parent.children = list(range(200)), list(range(200, 1700)), [child]
     for branch in (parent, child):
         branch.refit(np.array([0.0, 0.0, 1.0]))
-    records, _ = _records([parent, child], params, len(points), 0.003)
+    records, _ = _records([parent, child], params, len(points), spacing_m)
     apply_pipe_model(records)
+    return records
+
+
+def test_a_limb_grown_from_a_thin_twig_keeps_its_own_radius_through_the_pipe_model():
+    """A 2 cm limb seen from one side (its points on the circle) grown as the child of a 3 mm twig: the clamp at
+    the twig's radius is the parent's error, and the pipe model (on by default) must not shrink it again."""
+    records = _limb_under_twig(seed=11, arc_deg=180.0, spacing_m=0.003)
     radii = [radius for _, _, radius in records[1]["sections"]]
     assert records[0]["radius_m"] < 0.005 and len(radii) >= 2
     assert all(0.017 < radius < 0.023 for radius in radii)
@@ -84,22 +92,7 @@ def test_a_limb_seen_over_a_narrow_arc_under_an_unresolved_twig_keeps_its_own_ra
     the points do not resolve (under one point spacing): the spread of a 100 deg arc caps the fitted radius at
     0.86 of the limb's, so the points lie 16 % outside it; they still lie on one circle about its axis, and the
     clamp at the unresolved twig's radius must not hold (on main the limb came out at the twig's 3 mm)."""
-    from woody.cylinders import _records, apply_pipe_model
-
-    rng = np.random.default_rng(12)
-    angle, z = rng.uniform(0, 2 * np.pi, 200), rng.uniform(0.0, 0.1, 200)
-    twig = np.column_stack([0.003 * np.cos(angle), 0.003 * np.sin(angle), z])
-    half = np.radians(50.0)
-    angle, z = rng.uniform(-half, half, 1500), rng.uniform(0.1, 0.4, 1500)
-    limb = np.column_stack([0.02 * np.cos(angle), 0.02 * np.sin(angle), z]) + rng.normal(0, 0.0005, (1500, 3))
-    points, params = np.vstack([twig, limb]), FollowParams()
-    parent = Branch(0, 0, None, 1, (points, None), params)
-    child = Branch(1, 200, parent, 2, (points, None), params)
-    parent.points, child.points, parent.children = list(range(200)), list(range(200, 1700)), [child]
-    for branch in (parent, child):
-        branch.refit(np.array([0.0, 0.0, 1.0]))
-    records, _ = _records([parent, child], params, len(points), 0.005)
-    apply_pipe_model(records)
+    records = _limb_under_twig(seed=12, arc_deg=100.0, spacing_m=0.005)
     assert records[0]["reliable"] == [False] * len(records[0]["sections"])  # the twig is not resolved
     radii = [radius for _, _, radius in records[1]["sections"]]
     assert len(radii) >= 2
