@@ -71,8 +71,8 @@ SUMMARY_KEYS = ("suite", "variant", "family", "n_cases", "n_targets", "n_leaves_
                 "rppp_1", "abs_eps_mean", "within_5pct", "surface_rmse_m",
                 "area_rel_err_median", "area_rel_err_bias", "area_seen_rel_err_median", "elevation_err_median_deg",
                 "azimuth_err_median_deg", "n_found", "n_missed", "n_false", "found_visible",
-                "diameter_err_median_m", "volume_rel_err", "dbh_err_median_m", "runtime_s", "runtime_total_s", "pulses_per_s",
-                "peak_mem_mb")
+                "diameter_err_median_m", "volume_rel_err", "dbh_err_median_m", "runtime_s", "runtime_total_s",
+                "pulses_per_s", "peak_mem_mb")
 
 #: The headline table: (column title, summary key, format).
 HEADLINE = (("variant", "variant", "{}"), ("ROP after", "rop_after", "{:.3f}"),

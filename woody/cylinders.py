@@ -750,11 +750,16 @@ def _on_circle(sections: list[tuple], points: np.ndarray) -> list[bool]:
     :data:`ON_CIRCLE_SCATTER` of the radius)."""
     out = []
     for start, end, radius in sections:
-        distance, t = segment_distance(points, np.asarray(start), np.asarray(end))
-        beside = distance[(t > 0) & (t < 1)]
+        beside = _beside(points, start, end)
         out.append(len(beside) >= RESOLVED_POINTS and radius > 0 and
                    float(np.median(np.abs(beside - radius))) <= ON_CIRCLE_SCATTER * radius)
     return out
+
+
+def _beside(points: np.ndarray, start, end) -> np.ndarray:
+    """Distances from the axis ``start``-``end`` (m) of the ``points`` (m) that project inside it, m."""
+    distance, t = segment_distance(points, np.asarray(start), np.asarray(end))
+    return distance[(t > 0) & (t < 1)]
 
 
 def released_clamps(clamped: list[bool], restored: list[bool]) -> list[bool]:
@@ -866,10 +871,16 @@ def refit_facing(records: list[dict], points: np.ndarray, labels: np.ndarray, vi
 def _parent_resolved(record: dict, parent: dict) -> bool:
     """Whether the points resolve the section of ``parent`` nearest to the start of ``record`` (its ``reliable``;
     absent: resolved), the section :func:`_cap_radii` clamps ``record`` at."""
+    reliable = parent.get("reliable", [True] * len(parent["sections"]))
+    return bool(reliable[_nearest_section(record, parent)])
+
+
+def _nearest_section(record: dict, parent: dict) -> int:
+    """Index of the section of ``parent`` nearest to the start of ``record``."""
     starts = np.array([s[0] for s in parent["sections"]])
     ends = np.array([s[1] for s in parent["sections"]])
     dist, _ = segment_distance(np.repeat(np.asarray(record["start"])[None], len(starts), 0), starts, ends)
-    return bool(parent.get("reliable", [True] * len(starts))[int(np.argmin(dist))])
+    return int(np.argmin(dist))
 
 
 def _on_arc(sections: list[tuple], points: np.ndarray) -> list[bool]:
@@ -897,8 +908,7 @@ def _on_arc(sections: list[tuple], points: np.ndarray) -> list[bool]:
     """
     out = []
     for start, end, radius in sections:
-        distance, t = segment_distance(points, np.asarray(start), np.asarray(end))
-        beside = distance[(t > 0) & (t < 1)]
+        beside = _beside(points, start, end)
         if len(beside) < RESOLVED_POINTS or radius <= 0:
             out.append(False)
             continue
@@ -916,10 +926,7 @@ def _cap_radii(record: dict, parent: dict, tolerance: float) -> list[bool]:
     +375 % volume, +102 % with the parent's cap). Returns which sections were clamped by more than the
     ``tolerance`` factor (the ``k_r`` a branch's radius may grow by): either the child's circle did not fit
     the wood (one drawn across several twigs) or the parent's did not (:func:`_covered` tells them apart)."""
-    starts = np.array([s[0] for s in parent["sections"]])
-    ends = np.array([s[1] for s in parent["sections"]])
-    dist, _ = segment_distance(np.repeat(np.asarray(record["start"])[None], len(starts), 0), starts, ends)
-    limit = parent["sections"][int(np.argmin(dist))][2]
+    limit = parent["sections"][_nearest_section(record, parent)][2]
     clamped = [r > tolerance * limit for _, _, r in record["sections"]]
     record["sections"] = [(a, b, min(r, limit)) for a, b, r in record["sections"]]
     record["radius_m"] = min(record["radius_m"], limit)
