@@ -97,7 +97,8 @@ def test_no_import_cycle_between_modules():
 
 def test_the_contract_and_reconstruction_import_without_the_simulator():
     """Reconstructing a real scan loads neither Mitsuba, Dr.Jit nor the scene library."""
-    script = ("import sys, leafsfs, woody, tlssim, tlssim.formats, tlssim.scan, tlssim.pattern, tlssim.scanner; "
+    script = ("import sys, leafsfs, woody, woody.trunk, woody.dbh, woody.leafwood, tlssim, tlssim.formats, tlssim.scan, "
+              "tlssim.pattern, tlssim.scanner; "
               "from tlssim import Scan, ScannerDescription, ScannerPose, ScanWindow, ScannerModel; "
               "from tlssim.scan import grid_to_xyz; "
               "print(sorted({m.split('.')[0] for m in sys.modules} & {'mitsuba', 'drjit', 'scenes'}))")

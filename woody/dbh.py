@@ -32,11 +32,10 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from scenes.primitives import orthonormal_frame
 from woody.circles import CircleFit, fit_circle, fit_circle_beam
 from woody.cloud import check_points
 from woody.errors import WoodyError
-from woody.geometry import cylinder_arrays
+from woody.geometry import cylinder_arrays, orthonormal_frame
 from woody.ground import ENVELOPE_M, GROUND_RANK, ground_grid, local_ground_z
 
 #: Breast height above the ground, m (the international convention; 1.37 m = 4.5 ft in the USA).

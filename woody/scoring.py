@@ -46,6 +46,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from woody.dbh import BREAST_HEIGHT_M
 from woody.errors import WoodyError
 from woody.geometry import cylinder_arrays, cylinders_volume
 
@@ -352,8 +353,6 @@ def _taper(T: dict, gt: dict, match: dict, hit: np.ndarray, bin_m: float, tolera
             ok_height = float(lo + bin_m)
         else:
             failed = True
-    from woody.dbh import BREAST_HEIGHT_M  # here, not at the top: woody.dbh loads scenes, which `import woody` must not
-
     breast = on_stem & (np.abs(height - BREAST_HEIGHT_M) <= 0.5 * bin_m)
     dbh = None
     if breast.any():

@@ -25,11 +25,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from scenes.primitives import orthonormal_frame
 from woody.circles import fit_circle
 from woody.cloud import check_points
 from woody.dbh import measure_dbh, quality_flag
 from woody.errors import WoodyError
+from woody.geometry import orthonormal_frame, segment_distance
 
 #: Largest change of radius (relative) and of centre (in radii) between consecutive slabs.
 MAX_RADIUS_JUMP, MAX_CENTRE_JUMP = 0.25, 0.5
@@ -415,8 +415,6 @@ def _components(points: np.ndarray) -> list[np.ndarray]:
 
 def _distance_to_trunk(point: np.ndarray, trunk: Trunk) -> float:
     """Distance of a point to the trunk's surface (0 inside), m."""
-    from woody.geometry import segment_distance
-
     starts, ends = trunk.centres[:-1], trunk.centres[1:]
     distance, t = segment_distance(np.repeat(point[None], len(starts), 0), starts, ends)
     radius = trunk.radii[:-1] + t * (trunk.radii[1:] - trunk.radii[:-1])
