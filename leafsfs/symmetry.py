@@ -51,6 +51,12 @@ END_FRACTION = 0.08
 FOLD_MIN_INCIDENCE_DEG = 65.0
 #: Fewest pulses a leaf needs for its halves to be compared (assumption: a 4 x 4 patch).
 MIN_PULSES = 16
+#: Smallest share of a slice side's outline pulses beside an occluder for that outline to be an occlusion boundary
+#: (assumption: the larger part).
+OCCLUDED_OUTLINE_SHARE = 0.5
+#: Largest ratio of an occluded side's area to the other side's for the slice to be completed (assumption: below it
+#: the occluder hides part of the side; above it its silhouette merely touches the outline).
+OCCLUDED_MAX_HALF_RATIO = 0.9
 
 
 def symmetric_area(points: np.ndarray, area: np.ndarray, cos_incidence: np.ndarray, outline: np.ndarray,
@@ -86,25 +92,13 @@ def symmetric_area(points: np.ndarray, area: np.ndarray, cos_incidence: np.ndarr
     total = float(np.sum(area))
     if len(points) < MIN_PULSES or not total > 0:
         return total, 0
-    midrib = axis - normal * (axis @ normal)
-    if not np.linalg.norm(midrib) > 0 or not np.linalg.norm(view) > 0:
+    sliced = _slices(points, area, normal, axis)
+    if sliced is None or not np.linalg.norm(view) > 0:
         return total, 0
-    midrib /= np.linalg.norm(midrib)
-    lateral = np.cross(normal, midrib)
+    midrib, lateral, side, slices, halves = sliced
     beam = view / np.linalg.norm(view)
     if not abs(beam @ lateral) > abs(beam @ midrib):
         return total, 0
-    centre = np.average(points, axis=0, weights=area)
-    s, t = (points - centre) @ midrib, (points - centre) @ lateral
-    lo, length = float(s.min()), float(np.ptp(s))
-    if not length > 0:
-        return total, 0
-    base, tip = s <= lo + END_FRACTION * length, s >= lo + (1 - END_FRACTION) * length
-    t0, t1 = np.average(t[base], weights=area[base]), np.average(t[tip], weights=area[tip])
-    side = t - (t0 + (t1 - t0) * (s - lo) / length)
-    slices = np.minimum(((s - lo) / length * N_SLICES).astype(int), N_SLICES - 1)
-    halves = np.array([np.bincount(slices, weights=area * (sign * side > 0), minlength=N_SLICES)
-                       for sign in (1, -1)])
     leaf_fold = [_fold_incidence(cos_incidence[outline & (sign * side > 0)]) for sign in (1, -1)]
     smaller = 0 if halves[0].sum() < halves[1].sum() else 1
     far = 0 if beam @ lateral > 0 else 1
@@ -118,6 +112,85 @@ def symmetric_area(points: np.ndarray, area: np.ndarray, cos_incidence: np.ndarr
         if _is_fold(fold[small], fold[1 - small]):
             counted[k] = 2 * halves[:, k].max()
     return float(np.sum(counted) + np.sum(area[side == 0])), 1 if smaller == 0 else -1
+
+
+def occluded_area(points: np.ndarray, area: np.ndarray, outline: np.ndarray, occluded: np.ndarray,
+                  normal: np.ndarray, axis: np.ndarray) -> tuple[float, int]:
+    """The area a leaf hides behind something in front of it, from the other half of the slices it cuts short, m².
+
+    Parameters
+    ----------
+    points, area, outline, normal, axis
+        As for :func:`symmetric_area`.
+    occluded : ndarray of bool, (n,)
+        Outline pulses beside an occluder: a pulse in front of the leaf
+        (:func:`leafsfs.canopy.nearer_ring`) lies within the ring around them.
+
+    Returns
+    -------
+    added : float
+        The hidden area, m²: in each slice whose one side's outline is an
+        occlusion boundary (at least :data:`OCCLUDED_OUTLINE_SHARE` of its
+        outline pulses occluded), whose other side's outline is a true edge
+        (under that share occluded) and whose occluded side holds at most
+        :data:`OCCLUDED_MAX_HALF_RATIO` of the other's area, the other
+        side's area less the occluded side's (the slice then counts twice
+        its other side); 0 elsewhere.
+    slices : int
+        The slices completed.
+    """
+    if len(points) < MIN_PULSES or not np.sum(area) > 0 or not np.any(occluded):
+        return 0.0, 0
+    sliced = _slices(points, area, normal, axis)
+    if sliced is None:
+        return 0.0, 0
+    side, slices, halves = sliced[2:]
+    added, done = 0.0, 0
+    for k in range(N_SLICES):
+        here = slices == k
+        share = [_mean(occluded[here & outline & (sign * side > 0)]) for sign in (1, -1)]
+        for hid in (0, 1):
+            if (share[hid] >= OCCLUDED_OUTLINE_SHARE and not share[1 - hid] >= OCCLUDED_OUTLINE_SHARE
+                    and halves[hid, k] <= OCCLUDED_MAX_HALF_RATIO * halves[1 - hid, k]):
+                added += float(halves[1 - hid, k] - halves[hid, k])
+                done += 1
+    return added, done
+
+
+def _slices(points: np.ndarray, area: np.ndarray, normal: np.ndarray, axis: np.ndarray) -> tuple | None:
+    """A leaf cut into :data:`N_SLICES` slices along its midrib, and its area on either side of the midrib in each.
+
+    Returns
+    -------
+    tuple or None
+        ``midrib`` and ``lateral`` (unit vectors in the leaf's plane), each
+        pulse's signed distance from the midrib line through the leaf's two
+        ends (m, positive towards ``lateral``), its slice, and the area of
+        each slice on the positive and the negative side ((2, N_SLICES), m²);
+        None for a leaf without an extent along its midrib.
+    """
+    midrib = axis - normal * (axis @ normal)
+    if not np.linalg.norm(midrib) > 0:
+        return None
+    midrib /= np.linalg.norm(midrib)
+    lateral = np.cross(normal, midrib)
+    centre = np.average(points, axis=0, weights=area)
+    s, t = (points - centre) @ midrib, (points - centre) @ lateral
+    lo, length = float(s.min()), float(np.ptp(s))
+    if not length > 0:
+        return None
+    base, tip = s <= lo + END_FRACTION * length, s >= lo + (1 - END_FRACTION) * length
+    t0, t1 = np.average(t[base], weights=area[base]), np.average(t[tip], weights=area[tip])
+    side = t - (t0 + (t1 - t0) * (s - lo) / length)
+    slices = np.minimum(((s - lo) / length * N_SLICES).astype(int), N_SLICES - 1)
+    halves = np.array([np.bincount(slices, weights=area * (sign * side > 0), minlength=N_SLICES)
+                       for sign in (1, -1)])
+    return midrib, lateral, side, slices, halves
+
+
+def _mean(flags: np.ndarray) -> float:
+    """Share of true flags (NaN without any)."""
+    return float(np.mean(flags)) if len(flags) else math.nan
 
 
 def _fold_incidence(cos_incidence: np.ndarray) -> float:

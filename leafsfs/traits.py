@@ -108,7 +108,7 @@ from scipy.special import ndtri
 
 from leafsfs.frame import LocalFrame
 from leafsfs.grid import gaussian_planes
-from leafsfs.symmetry import symmetric_area
+from leafsfs.symmetry import occluded_area, symmetric_area
 
 #: Smallest smoothing, pixels: fewer would let the range noise roughen the surface (and inflate the area).
 MIN_SMOOTHING_PX = 2.0
@@ -166,10 +166,13 @@ BAND_LEAF_CAP = 2.0
 #: 0.6284 / 0.7730 at 30 DN, 0.6286 / 0.7734 at 20 DN; seed 31 at 2.5 m 0.7030 / 0.8442, 0.7025 / 0.8434, 0.7028 /
 #: 0.8439).
 BAND_MAX_BACKGROUND_SPREAD_DN = 30.0
+#: Largest distance of an outline pulse from a pulse in front of the leaf for it to be an occlusion boundary, pixels
+#: (assumption: a footprint, the ring :func:`leafsfs.canopy.visibility` looks at).
+OCCLUDER_REACH_PX = 1
 
 
 def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoothing_m: float,
-                band: np.ndarray | None = None) -> dict:
+                band: np.ndarray | None = None, nearer: np.ndarray | None = None) -> dict:
     """Traits of one leaf.
 
     Parameters
@@ -193,6 +196,12 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoot
         least :data:`BAND_MIN_SECANT` counts for that share times the larger
         of that secant and the planes' area element; those pulses together
         count at most :data:`BAND_LEAF_CAP` times the planes' area of them.
+    nearer : ndarray of bool, 2-D, optional
+        Pulses of the box in front of the leaf, beside its region
+        (:func:`leafsfs.canopy.nearer_ring`): the leaf's outline pulses within
+        :data:`OCCLUDER_REACH_PX` of one are an occlusion boundary, and the
+        slices of a half they cut short are completed from the other half
+        (:func:`leafsfs.symmetry.occluded_area`) where no fold was completed.
 
     Returns
     -------
@@ -207,7 +216,7 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoot
     """
     weight = np.asarray(weight, dtype=float)
     known = (weight > 0) & np.isfinite(height)
-    empty = {"area_m2": 0.0, "visible_area_m2": 0.0, "completed_side": 0, "normal": [math.nan] * 3,
+    empty = {"area_m2": 0.0, "visible_area_m2": 0.0, "completed_side": 0, "occluded_slices": 0, "normal": [math.nan] * 3,
              "normal_zenith_deg": math.nan, "elevation_deg": math.nan, "azimuth_deg": math.nan, "length_m": 0.0}
     if known.sum() < 4:
         return empty
@@ -291,10 +300,17 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoot
     outline = (on & ~ndimage.binary_erosion(on, np.ones((3, 3), bool)))[on]
     completed, side = (area, 0) if raised else symmetric_area(points[on], area_elements[on], cos_incidence, outline,
                                                               normal, axis, centre - frame.pose.position)
+    hidden_slices = 0
+    if side == 0 and nearer is not None:
+        reach = 2 * OCCLUDER_REACH_PX + 1
+        occluded = ndimage.binary_dilation(np.asarray(nearer, bool), np.ones((reach, reach), bool))[on] & outline
+        hidden, hidden_slices = occluded_area(points[on], area_elements[on], outline, occluded, normal, axis)
+        completed += hidden
     return {
         "area_m2": completed,
         "visible_area_m2": area,
         "completed_side": side,
+        "occluded_slices": hidden_slices,
         "normal": [float(v) for v in normal],
         "normal_zenith_deg": math.degrees(math.acos(min(1.0, normal[2]))),
         "elevation_deg": math.degrees(math.asin(min(1.0, axis[2]))),
