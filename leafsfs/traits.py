@@ -303,7 +303,10 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoot
     hidden_slices = 0
     if side == 0 and nearer is not None:
         reach = 2 * OCCLUDER_REACH_PX + 1
-        occluded = ndimage.binary_dilation(np.asarray(nearer, bool), np.ones((reach, reach), bool))[on] & outline
+        # A pulse the leaf has a share of is not an occluder's: a grazing leaf's own mixed pulses beyond its region
+        # lie nearer than its outline where it turns towards the scanner.
+        occluded = ndimage.binary_dilation(np.asarray(nearer, bool) & ~(weight > 0),
+                                           np.ones((reach, reach), bool))[on] & outline
         hidden, hidden_slices = occluded_area(points[on], area_elements[on], outline, occluded, normal, axis)
         completed += hidden
     return {
