@@ -1,4 +1,4 @@
-"""A leaf's area with the far half it hides behind its own roll completed from the near half (mirror symmetry).
+"""A leaf's area with a half hidden behind its own roll or an occluder completed from the other half (mirror symmetry).
 
 One scan does not see the part of a curled leaf that turns past grazing
 incidence: a leaf rolled about its midrib and seen across it hides the far
@@ -34,6 +34,33 @@ area R² against the whole leaf, main -> completed): leafy tree 6.8 / 0.653 -> 5
 +0.005; no single leaf of the standard suite is completed. A perfect mirror image of each leaf's seen mesh cells (the
 truth) would restore 59 % / 67 % of the area the tree's / pear seed 7's scored leaves hide (the rest is hidden on both sides
 of the midrib, as the far end of a bent leaf seen along its midrib is).
+
+A leaf also hides parts behind what lies in front of it: a twig, a branch or a
+nearer leaf. On the found >= 80 %-visible leaves of canopy5 (`fused`, 0.018 deg,
+truth: the leaf's mesh samples whose first hit is another object) that hides
+more than its own roll does: leafy tree 268 cm² behind other objects against
+189 cm² behind itself (of 6,865 cm²), pear seed 7 at 3 m 214 / 256 (of
+6,448), seed 41 at 5 m 173 / 137 (of 6,552). :func:`occluded_area` completes
+it with the same slices: an outline pulse beside a pulse clearly in front of
+the leaf (:func:`leafsfs.canopy.nearer_ring`: nearer than the leaf by more
+than three range-noise deviations, not shared by the leaf) marks an occlusion
+boundary, not the leaf's edge; a slice whose one side ends at such a boundary
+and whose other side ends at a true edge, and whose occluded side holds less
+than the other, counts twice the other side. The pulses in front are those of
+the wood (56-57 % of them on those three trees), other leaves (29-32 %) and the
+leaf itself (13-15 %: its own curl in front of its region). Where an occluder
+covers a leaf's tip or base, or crosses both halves, no half tells what the
+other holds, and nothing is added; neither is anything where the occluder's
+silhouette only touches the outline (the occluded side is then not shorter
+than :data:`OCCLUDED_MAX_HALF_RATIO` of the other). Measured offline on the
+recorded inputs of canopy5's leaf traits (the constants were chosen on the
+leafy tree and pear seed 41 among outline shares 0.3 / 0.5 / 0.7, side ratios
+0.8 / 0.9 / 0.95 / 1.0 and a reach of 1 or 2 pulses; seed 7 was the check):
+median |area error| / area R² of those leaves, leafy tree 5.46 / 0.7006 ->
+5.12 / 0.7228 (66 leaves completed, 173 cm² added, of which 24 cm² on the 20
+that hide under 1 % behind other objects), seed 41 5.84 / 0.7197 -> 5.18 /
+0.7309 (51, 103 cm², 16 cm² on 13), seed 7 7.41 / 0.6999 -> 5.98 / 0.7244
+(55, 157 cm², 16 cm² on 17).
 """
 
 from __future__ import annotations
@@ -120,11 +147,19 @@ def occluded_area(points: np.ndarray, area: np.ndarray, outline: np.ndarray, occ
 
     Parameters
     ----------
-    points, area, outline, normal, axis
-        As for :func:`symmetric_area`.
+    points : ndarray, (n, 3)
+        World points of the leaf's pulses, m.
+    area : ndarray, (n,)
+        Area each pulse counts for, m².
+    outline : ndarray of bool, (n,)
+        Pulses on the leaf's outline.
     occluded : ndarray of bool, (n,)
         Outline pulses beside an occluder: a pulse in front of the leaf
-        (:func:`leafsfs.canopy.nearer_ring`) lies within the ring around them.
+        (:func:`leafsfs.canopy.nearer_ring`) lies next to them.
+    normal : ndarray, (3,)
+        Unit mean normal of the leaf.
+    axis : ndarray, (3,)
+        Unit midrib direction (the points' principal axis).
 
     Returns
     -------

@@ -86,7 +86,10 @@ seen; where a leaf seen across its midrib turns its far half edge-on and that
 half holds less area than the near one, the far half is completed from the
 near one (mirror symmetry about the midrib, :mod:`leafsfs.symmetry`; wrong for
 cut, eaten or asymmetric leaves), and ``visible_area_m2`` keeps the measured
-area.
+area. Where no such half was completed, the slices of a half cut short by
+something in front of the leaf (a twig, a branch, a nearer leaf: pulses beside
+its outline clearly nearer than it) are completed from the other half
+(:func:`leafsfs.symmetry.occluded_area`; ``occluded_slices`` says how many).
 
 The project's truth (docs/contracts.md) is the midrib: elevation above the
 horizontal in [-90, 90] deg and azimuth from +x counter-clockwise. The
@@ -199,7 +202,8 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoot
     nearer : ndarray of bool, 2-D, optional
         Pulses of the box in front of the leaf, beside its region
         (:func:`leafsfs.canopy.nearer_ring`): the leaf's outline pulses within
-        :data:`OCCLUDER_REACH_PX` of one are an occlusion boundary, and the
+        :data:`OCCLUDER_REACH_PX` of one the leaf has no share of
+        (``weight`` 0) are an occlusion boundary, and the
         slices of a half they cut short are completed from the other half
         (:func:`leafsfs.symmetry.occluded_area`) where no fold was completed.
 
@@ -208,16 +212,19 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoot
     dict
         ``area_m2`` (m², with the far half a leaf hides behind its own roll
         completed, :func:`leafsfs.symmetry.symmetric_area`, except where the
-        decomposition raised its mixed pulses), ``visible_area_m2`` (m², the
+        decomposition raised its mixed pulses; else with the parts of a half
+        hidden behind an occluder completed), ``visible_area_m2`` (m², the
         measured area), ``completed_side`` (the half completed: +1, -1 or
-        0), ``normal`` (upward unit mean normal), ``normal_zenith_deg``,
+        0), ``occluded_slices`` (the slices completed behind an occluder,
+        ``nearer``), ``normal`` (upward unit mean normal), ``normal_zenith_deg``,
         ``elevation_deg`` and ``azimuth_deg`` of the midrib estimate,
         ``length_m`` (extent along it); NaN orientation without a surface.
     """
     weight = np.asarray(weight, dtype=float)
     known = (weight > 0) & np.isfinite(height)
-    empty = {"area_m2": 0.0, "visible_area_m2": 0.0, "completed_side": 0, "occluded_slices": 0, "normal": [math.nan] * 3,
-             "normal_zenith_deg": math.nan, "elevation_deg": math.nan, "azimuth_deg": math.nan, "length_m": 0.0}
+    empty = {"area_m2": 0.0, "visible_area_m2": 0.0, "completed_side": 0, "occluded_slices": 0,
+             "normal": [math.nan] * 3, "normal_zenith_deg": math.nan, "elevation_deg": math.nan,
+             "azimuth_deg": math.nan, "length_m": 0.0}
     if known.sum() < 4:
         return empty
     sigma_px = max(smoothing_m / frame.grid.pixel_size, MIN_SMOOTHING_PX)
