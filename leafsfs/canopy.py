@@ -1186,7 +1186,7 @@ def visibility(labels: np.ndarray, range_m: np.ndarray, tolerance_m: float, ring
     return out
 
 
-def nearer_ring(inside: np.ndarray, range_m: np.ndarray, tolerance_m: float, ring_px: int = 2) -> np.ndarray:
+def nearer_ring(inside: np.ndarray, range_m: np.ndarray, tolerance_m: float, ring_px: int | None = 2) -> np.ndarray:
     """Pulses of the ring around a region that lie in front of it: an occluder's, not the region's edge.
 
     Parameters
@@ -1198,16 +1198,20 @@ def nearer_ring(inside: np.ndarray, range_m: np.ndarray, tolerance_m: float, rin
     tolerance_m : float
         Range noise margin, m: a ring pulse is in front where it is nearer
         than the region's nearest pulse (in the grid) by more than this.
-    ring_px : int
-        Width of the ring, pixels (about a footprint, where the mixed pulses of the outline lie).
+    ring_px : int or None
+        Width of the ring, pixels (about a footprint, where the mixed pulses of the outline lie); None: every pulse
+        outside the region.
 
     Returns
     -------
     ndarray of bool, 2-D
         The ring's pulses in front of the region.
     """
-    size = 2 * int(ring_px) + 1
-    ring = ndimage.binary_dilation(inside, np.ones((size, size), bool)) & ~inside
+    if ring_px is None:
+        ring = ~inside
+    else:
+        size = 2 * int(ring_px) + 1
+        ring = ndimage.binary_dilation(inside, np.ones((size, size), bool)) & ~inside
     if not inside.any():
         return np.zeros_like(ring)
     ii, jj = ndimage.distance_transform_edt(~inside, return_distances=False, return_indices=True)

@@ -1027,7 +1027,7 @@ def _assemble(scan: Scan, variant: str, params: SfsParams, regions: _Regions, gr
         # The traits of the output: corrected distances of the leaf's outliers, measured ones of its inliers.
         height = fit.frame.height(np.where(region & corrected[box], out_range[box], np.nan))
         traits = {**leaf_traits(fit.frame, height, regions.shares.crop(label, box), params.trait_smoothing_m,
-                                regions.band.crop(label, box), nearer_ring(region, scan.range[box], tolerance)),
+                                regions.band.crop(label, box), nearer_ring(region, scan.range[box], tolerance, None)),
                   "n_points": int(region.sum()), "n_outliers": int((outlier[box] & region).sum()),
                   "unreliable_alpha_fraction": float(np.mean(~reliable[box][region])),
                   "outlier_threshold_m": fit.threshold}

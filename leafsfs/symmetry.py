@@ -84,6 +84,9 @@ OCCLUDED_OUTLINE_SHARE = 0.5
 #: Largest ratio of an occluded side's area to the other side's for the slice to be completed (assumption: below it
 #: the occluder hides part of the side; above it its silhouette merely touches the outline).
 OCCLUDED_MAX_HALF_RATIO = 0.9
+#: Smallest share of a completed half's mirror image, where the leaf does not show it, that must lie behind something
+#: in front of the leaf (assumption: the larger part; the rest falls on the footprint's edge or the occluder's rim).
+OCCLUDED_MIRROR_SHARE = 0.5
 
 
 def symmetric_area(points: np.ndarray, area: np.ndarray, cos_incidence: np.ndarray, outline: np.ndarray,
@@ -142,7 +145,7 @@ def symmetric_area(points: np.ndarray, area: np.ndarray, cos_incidence: np.ndarr
 
 
 def occluded_area(points: np.ndarray, area: np.ndarray, outline: np.ndarray, occluded: np.ndarray,
-                  normal: np.ndarray, axis: np.ndarray) -> tuple[float, int]:
+                  normal: np.ndarray, axis: np.ndarray, behind=None) -> tuple[float, int]:
     """The area a leaf hides behind something in front of it, from the other half of the slices it cuts short, m².
 
     Parameters
@@ -160,6 +163,12 @@ def occluded_area(points: np.ndarray, area: np.ndarray, outline: np.ndarray, occ
         Unit mean normal of the leaf.
     axis : ndarray, (3,)
         Unit midrib direction (the points' principal axis).
+    behind : callable, optional
+        ``behind(points)``: which world points (m) the scan sees something
+        in front of, and which lie on the leaf's seen pulses. Given, a slice
+        is completed only where at least :data:`OCCLUDED_MIRROR_SHARE` of
+        its other side's mirror image that falls off the seen pulses lies
+        behind something (the hidden part must be hidden).
 
     Returns
     -------
@@ -179,14 +188,16 @@ def occluded_area(points: np.ndarray, area: np.ndarray, outline: np.ndarray, occ
     sliced = _slices(points, area, normal, axis)
     if sliced is None:
         return 0.0, 0
-    side, slices, halves = sliced[2:]
+    _, lateral, side, slices, halves = sliced
     added, done = 0.0, 0
     for k in range(N_SLICES):
         here = slices == k
         share = [_mean(occluded[here & outline & (sign * side > 0)]) for sign in (1, -1)]
         for hid in (0, 1):
             if (share[hid] >= OCCLUDED_OUTLINE_SHARE and not share[1 - hid] >= OCCLUDED_OUTLINE_SHARE
-                    and halves[hid, k] <= OCCLUDED_MAX_HALF_RATIO * halves[1 - hid, k]):
+                    and halves[hid, k] <= OCCLUDED_MAX_HALF_RATIO * halves[1 - hid, k]
+                    and (behind is None or _mirror_hidden(points, side, lateral, here & (side * (1 - 2 * hid) < 0),
+                                                          behind))):
                 added += float(halves[1 - hid, k] - halves[hid, k])
                 done += 1
     return added, done
@@ -221,6 +232,13 @@ def _slices(points: np.ndarray, area: np.ndarray, normal: np.ndarray, axis: np.n
     halves = np.array([np.bincount(slices, weights=area * (sign * side > 0), minlength=N_SLICES)
                        for sign in (1, -1)])
     return midrib, lateral, side, slices, halves
+
+
+def _mirror_hidden(points: np.ndarray, side: np.ndarray, lateral: np.ndarray, other: np.ndarray, behind) -> bool:
+    """Whether the mirror image of the ``other`` pulses about the midrib is hidden where the leaf does not show it."""
+    hidden, seen = behind(points[other] - 2 * side[other, None] * lateral)
+    missing = ~seen
+    return bool(missing.any()) and float(np.mean(hidden[missing])) >= OCCLUDED_MIRROR_SHARE
 
 
 def _mean(flags: np.ndarray) -> float:

@@ -312,9 +312,10 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoot
         reach = 2 * OCCLUDER_REACH_PX + 1
         # A pulse the leaf has a share of is not an occluder's: a grazing leaf's own mixed pulses beyond its region
         # lie nearer than its outline where it turns towards the scanner.
-        occluded = ndimage.binary_dilation(np.asarray(nearer, bool) & ~(weight > 0),
-                                           np.ones((reach, reach), bool))[on] & outline
-        hidden, hidden_slices = occluded_area(points[on], area_elements[on], outline, occluded, normal, axis)
+        front = np.asarray(nearer, bool) & ~(weight > 0)
+        occluded = ndimage.binary_dilation(front, np.ones((reach, reach), bool))[on] & outline
+        hidden, hidden_slices = occluded_area(points[on], area_elements[on], outline, occluded, normal, axis,
+                                              _pixel_lookup(frame, front, on))
         completed += hidden
     return {
         "area_m2": completed,
@@ -567,6 +568,30 @@ def _edge_secants(secant: np.ndarray, pure: np.ndarray, deviation: np.ndarray) -
     steepest = np.max(np.where(window[1], window[0] - excess * window[2], 0.0), axis=0)
     nearest = tuple(ndimage.distance_transform_edt(~pure, return_distances=False, return_indices=True))
     return steepest[nearest]
+
+
+def _pixel_lookup(frame: LocalFrame, front: np.ndarray, seen: np.ndarray):
+    """``behind(points)``: whether the box pulse each world point (m) falls on is in ``front`` / in ``seen`` (False
+    off the box); the pulse is the nearest in beam angles (affine in them over a leaf's box)."""
+    u = frame.directions
+    theta0 = math.atan2(u[..., 1].mean(), u[..., 0].mean())
+
+    def angles(v):
+        theta = np.mod(np.arctan2(v[..., 1], v[..., 0]) - theta0 + np.pi, 2 * np.pi) - np.pi
+        return np.stack([theta, np.arccos(np.clip(v[..., 2] / np.linalg.norm(v, axis=-1), -1.0, 1.0))], axis=-1)
+
+    rows, cols = np.indices(front.shape)
+    design = np.column_stack([angles(u).reshape(-1, 2), np.ones(rows.size)])
+    coef = np.linalg.lstsq(design, np.column_stack([rows.ravel(), cols.ravel()]), rcond=None)[0]
+
+    def behind(points):
+        local = (np.asarray(points) - frame.pose.position) @ frame.pose.rotation
+        pixel = np.rint(np.column_stack([angles(local), np.ones(len(local))]) @ coef).astype(int)
+        inside = np.all((pixel >= 0) & (pixel < front.shape), axis=1)
+        r, c = np.where(inside, pixel[:, 0], 0), np.where(inside, pixel[:, 1], 0)
+        return inside & front[r, c], inside & seen[r, c]
+
+    return behind
 
 
 def _quadratic_slope(height: np.ndarray, known: np.ndarray) -> np.ndarray | None:

@@ -395,7 +395,7 @@ def _bitten_leaf(cover_offset_m):
     whole_frame = local_frame(theta, psi, whole_range, leaf)
     whole = leaf_traits(whole_frame, np.where(leaf, whole_frame.height(whole_range), np.nan)[whole_frame.box],
                         leaf[whole_frame.box].astype(float), 0.005)["area_m2"]
-    return traits(region, nearer_ring(region, measured, 0.003)), whole
+    return traits(region, nearer_ring(region, measured, 0.003, None)), whole
 
 
 def test_a_leaf_half_hidden_behind_a_nearer_leaf_is_completed_from_its_other_half():
