@@ -40,27 +40,35 @@ nearer leaf. On the found >= 80 %-visible leaves of canopy5 (`fused`, 0.018 deg,
 truth: the leaf's mesh samples whose first hit is another object) that hides
 more than its own roll does: leafy tree 268 cm² behind other objects against
 189 cm² behind itself (of 6,865 cm²), pear seed 7 at 3 m 214 / 256 (of
-6,448), seed 41 at 5 m 173 / 137 (of 6,552). :func:`occluded_area` completes
-it with the same slices: an outline pulse beside a pulse clearly in front of
-the leaf (:func:`leafsfs.canopy.nearer_ring`: nearer than the leaf by more
-than three range-noise deviations, not shared by the leaf) marks an occlusion
-boundary, not the leaf's edge; a slice whose one side ends at such a boundary
-and whose other side ends at a true edge, and whose occluded side holds less
-than the other, counts twice the other side. The pulses in front are those of
-the wood (56-57 % of them on those three trees), other leaves (29-32 %) and the
-leaf itself (13-15 %: its own curl in front of its region). Where an occluder
-covers a leaf's tip or base, or crosses both halves, no half tells what the
-other holds, and nothing is added; neither is anything where the occluder's
-silhouette only touches the outline (the occluded side is then not shorter
-than :data:`OCCLUDED_MAX_HALF_RATIO` of the other). Measured offline on the
-recorded inputs of canopy5's leaf traits (the constants were chosen on the
-leafy tree and pear seed 41 among outline shares 0.3 / 0.5 / 0.7, side ratios
-0.8 / 0.9 / 0.95 / 1.0 and a reach of 1 or 2 pulses; seed 7 was the check):
-median |area error| / area R² of those leaves, leafy tree 5.46 / 0.7006 ->
-5.12 / 0.7228 (66 leaves completed, 173 cm² added, of which 24 cm² on the 20
-that hide under 1 % behind other objects), seed 41 5.84 / 0.7197 -> 5.18 /
-0.7309 (51, 103 cm², 16 cm² on 13), seed 7 7.41 / 0.6999 -> 5.98 / 0.7244
-(55, 157 cm², 16 cm² on 17).
+6,448), seed 23 at 4 m 204 / 168 (of 6,551), seed 41 at 5 m 173 / 137 (of
+6,552). :func:`occluded_area` completes it with the same slices: an outline
+pulse beside a pulse clearly in front of the leaf
+(:func:`leafsfs.canopy.nearer_ring`: nearer than the leaf by more than three
+range-noise deviations, not shared by the leaf) marks an occlusion boundary,
+not the leaf's edge; a slice whose one side ends at such a boundary, whose
+other side ends at a true edge, whose occluded side holds less than the
+other, and the mirror image of whose other side lies mostly behind those
+pulses where the leaf shows nothing (the hidden part must be hidden) counts
+twice the other side. The pulses in front are those of the wood (56-57 % of
+them on the leafy tree and seeds 7 and 41), other leaves (29-32 %) and the
+leaf itself (13-15 %: its own curl in front of its region). Where an
+occluder covers a leaf's tip or base, or crosses both halves, no half tells
+what the other holds, and nothing is added.
+Measured offline on the recorded inputs of the leaf traits (median |area
+error| / area R² of those leaves, main -> without the mirror test -> this;
+the outline share, side ratio and a reach of one pulse were chosen on the
+leafy tree and seed 41 among 0.3 / 0.5 / 0.7, 0.8-1.0 and 1-2 pulses; the
+mirror share was set to the larger part before fresh17's seed 101 was looked
+at, where 0.25 lowered R² to 0.7775): leafy tree 5.46 / 0.7006 -> 5.12 /
+0.7228 -> 5.02 / 0.7132 (45 leaves completed, 91 cm² added, 1.2 cm² of it on
+the 5 that hide under 1 % behind other objects), seed 41 5.84 / 0.7197 ->
+5.18 / 0.7309 -> 5.43 / 0.7261 (33, 64, 6.4 on 5), seed 7 7.41 / 0.6999 ->
+5.98 / 0.7244 -> 6.75 / 0.7043 (35, 87, 0.3 on 2), seed 23 5.69 / 0.6904 ->
+5.12 / 0.7016 -> 4.95 / 0.6953 (41, 71, 7.4 on 12), seed 101 4.47 / 0.7908
+-> (benchmarked) 4.47 / 0.7793 -> 4.38 / 0.7916 (38, 72, 12.7 on 11).
+Without the mirror test leaves that hid little were completed too (seed 101,
+benchmarked: leaves of 20-23 cm² whose estimate was within 2 cm² of the
+truth raised by 7-9 cm²).
 """
 
 from __future__ import annotations

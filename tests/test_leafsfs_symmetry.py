@@ -140,3 +140,18 @@ def test_a_tip_hidden_on_both_sides_of_the_midrib_is_not_completed():
     # an occluder across the tip (s > 3 cm) borders both halves: no half tells what the other holds
     points, area, outline, occluded = _occluded(lambda s, t: s < 0.03, lambda s, t: s > 0.028)
     assert occluded_area(points, area, outline, occluded, NORMAL, AXIS) == (0.0, 0)
+
+
+def test_a_half_is_completed_only_where_its_mirror_image_is_hidden():
+    # the half cut short as above, its cut outline beside pulses in front: where the scan shows the part the mirror
+    # image would fill as hidden, it is completed; where it shows that part empty (a bite beside a twig that only
+    # touches its edge), nothing is added
+    hidden = lambda s, t: (t < -0.4 * HALF_WIDTH) & (np.abs(s) < 0.02)
+    points, area, outline, occluded = _occluded(lambda s, t: ~hidden(s, t),
+                                                lambda s, t: (t < 0) & (np.abs(s) < 0.02))
+    seen = lambda p: ((p[:, 0] / HALF_LENGTH) ** 2 + (p[:, 1] / HALF_WIDTH) ** 2 <= 1) & ~hidden(p[:, 0], p[:, 1])
+    behind_occluder = lambda p: (hidden(p[:, 0], p[:, 1]), seen(p))
+    behind_nothing = lambda p: (np.zeros(len(p), bool), seen(p))
+    assert occluded_area(points, area, outline, occluded, NORMAL, AXIS, behind_occluder) == (
+        occluded_area(points, area, outline, occluded, NORMAL, AXIS))
+    assert occluded_area(points, area, outline, occluded, NORMAL, AXIS, behind_nothing) == (0.0, 0)
