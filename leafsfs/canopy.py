@@ -1179,11 +1179,42 @@ def visibility(labels: np.ndarray, range_m: np.ndarray, tolerance_m: float, ring
         box = tuple(slice(max(s.start - ring_px, 0), min(s.stop + ring_px, n)) for s, n in zip(box, shape))
         inside = labels[box] == k
         ring = ndimage.binary_dilation(inside, np.ones((size, size), bool)) & ~inside
-        ii, jj = ndimage.distance_transform_edt(~inside, return_distances=False, return_indices=True)
-        own = range_m[box][ii, jj]  # the range of the region's nearest pulse
-        with np.errstate(invalid="ignore"):
-            nearer = ring & (range_m[box] < own - tolerance_m)
+        nearer = nearer_ring(inside, range_m[box], tolerance_m, ring_px)
         fraction = float(nearer.sum() / max(ring.sum(), 1))
         out[k] = {"occluded_fraction": fraction, "border": bool(border),
                   "cut": bool(border or fraction >= OCCLUDED_RING_SHARE)}
     return out
+
+
+def nearer_ring(inside: np.ndarray, range_m: np.ndarray, tolerance_m: float, ring_px: int | None = 2) -> np.ndarray:
+    """Pulses of the ring around a region that lie in front of it: an occluder's, not the region's edge.
+
+    Parameters
+    ----------
+    inside : ndarray of bool, 2-D
+        The region.
+    range_m : ndarray, 2-D
+        Measured ranges on the same pixels, m (NaN: no return).
+    tolerance_m : float
+        Range noise margin, m: a ring pulse is in front where it is nearer
+        than the region's nearest pulse (in the grid) by more than this.
+    ring_px : int or None
+        Width of the ring, pixels (about a footprint, where the mixed pulses of the outline lie); None: every pulse
+        outside the region.
+
+    Returns
+    -------
+    ndarray of bool, 2-D
+        The ring's pulses in front of the region.
+    """
+    if ring_px is None:
+        ring = ~inside
+    else:
+        size = 2 * int(ring_px) + 1
+        ring = ndimage.binary_dilation(inside, np.ones((size, size), bool)) & ~inside
+    if not inside.any():
+        return np.zeros_like(ring)
+    ii, jj = ndimage.distance_transform_edt(~inside, return_distances=False, return_indices=True)
+    own = range_m[ii, jj]  # the range of the region's nearest pulse
+    with np.errstate(invalid="ignore"):
+        return ring & (range_m < own - tolerance_m)

@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 import trimesh
 from scipy import ndimage
 
-from leafsfs.canopy import pulse_noise, rim_shares, visibility
+from leafsfs.canopy import nearer_ring, pulse_noise, rim_shares, visibility
 from leafsfs.edges import bracketed
 from leafsfs.engine import HeightResult, reconstruct_heights
 from leafsfs.errors import SfsError
@@ -1018,14 +1019,15 @@ def _assemble(scan: Scan, variant: str, params: SfsParams, regions: _Regions, gr
     labels, corrected, out_range = regions.labels, grids.corrected, grids.range
     outlier = corrected & (out_range != scan.range)
     leaves = []
-    seen = visibility(labels, scan.range, 3 * range_noise(scan.range)) if fits else {}
+    tolerance = 3 * range_noise(scan.range) if fits else math.nan
+    seen = visibility(labels, scan.range, tolerance) if fits else {}
     for label, fit in fits:
         box = fit.frame.box
         region = labels[box] == label  # the frame's box holds the whole region
         # The traits of the output: corrected distances of the leaf's outliers, measured ones of its inliers.
         height = fit.frame.height(np.where(region & corrected[box], out_range[box], np.nan))
         traits = {**leaf_traits(fit.frame, height, regions.shares.crop(label, box), params.trait_smoothing_m,
-                                regions.band.crop(label, box)),
+                                regions.band.crop(label, box), nearer_ring(region, scan.range[box], tolerance, None)),
                   "n_points": int(region.sum()), "n_outliers": int((outlier[box] & region).sum()),
                   "unreliable_alpha_fraction": float(np.mean(~reliable[box][region])),
                   "outlier_threshold_m": fit.threshold}

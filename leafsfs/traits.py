@@ -86,7 +86,10 @@ seen; where a leaf seen across its midrib turns its far half edge-on and that
 half holds less area than the near one, the far half is completed from the
 near one (mirror symmetry about the midrib, :mod:`leafsfs.symmetry`; wrong for
 cut, eaten or asymmetric leaves), and ``visible_area_m2`` keeps the measured
-area.
+area. Where no such half was completed, the slices of a half cut short by
+something in front of the leaf (a twig, a branch, a nearer leaf: pulses beside
+its outline clearly nearer than it) are completed from the other half
+(:func:`leafsfs.symmetry.occluded_area`; ``occluded_slices`` says how many).
 
 The project's truth (docs/contracts.md) is the midrib: elevation above the
 horizontal in [-90, 90] deg and azimuth from +x counter-clockwise. The
@@ -108,7 +111,7 @@ from scipy.special import ndtri
 
 from leafsfs.frame import LocalFrame
 from leafsfs.grid import gaussian_planes
-from leafsfs.symmetry import symmetric_area
+from leafsfs.symmetry import occluded_area, symmetric_area
 
 #: Smallest smoothing, pixels: fewer would let the range noise roughen the surface (and inflate the area).
 MIN_SMOOTHING_PX = 2.0
@@ -166,10 +169,13 @@ BAND_LEAF_CAP = 2.0
 #: 0.6284 / 0.7730 at 30 DN, 0.6286 / 0.7734 at 20 DN; seed 31 at 2.5 m 0.7030 / 0.8442, 0.7025 / 0.8434, 0.7028 /
 #: 0.8439).
 BAND_MAX_BACKGROUND_SPREAD_DN = 30.0
+#: Largest distance of an outline pulse from a pulse in front of the leaf for it to be an occlusion boundary, pixels
+#: (assumption: a footprint, the ring :func:`leafsfs.canopy.visibility` looks at).
+OCCLUDER_REACH_PX = 1
 
 
 def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoothing_m: float,
-                band: np.ndarray | None = None) -> dict:
+                band: np.ndarray | None = None, nearer: np.ndarray | None = None) -> dict:
     """Traits of one leaf.
 
     Parameters
@@ -193,22 +199,32 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoot
         least :data:`BAND_MIN_SECANT` counts for that share times the larger
         of that secant and the planes' area element; those pulses together
         count at most :data:`BAND_LEAF_CAP` times the planes' area of them.
+    nearer : ndarray of bool, 2-D, optional
+        Pulses of the box in front of the leaf, beside its region
+        (:func:`leafsfs.canopy.nearer_ring`): the leaf's outline pulses within
+        :data:`OCCLUDER_REACH_PX` of one the leaf has no share of
+        (``weight`` 0) are an occlusion boundary, and the
+        slices of a half they cut short are completed from the other half
+        (:func:`leafsfs.symmetry.occluded_area`) where no fold was completed.
 
     Returns
     -------
     dict
         ``area_m2`` (m², with the far half a leaf hides behind its own roll
         completed, :func:`leafsfs.symmetry.symmetric_area`, except where the
-        decomposition raised its mixed pulses), ``visible_area_m2`` (m², the
+        decomposition raised its mixed pulses; else with the parts of a half
+        hidden behind an occluder completed), ``visible_area_m2`` (m², the
         measured area), ``completed_side`` (the half completed: +1, -1 or
-        0), ``normal`` (upward unit mean normal), ``normal_zenith_deg``,
+        0), ``occluded_slices`` (the slices completed behind an occluder,
+        ``nearer``), ``normal`` (upward unit mean normal), ``normal_zenith_deg``,
         ``elevation_deg`` and ``azimuth_deg`` of the midrib estimate,
         ``length_m`` (extent along it); NaN orientation without a surface.
     """
     weight = np.asarray(weight, dtype=float)
     known = (weight > 0) & np.isfinite(height)
-    empty = {"area_m2": 0.0, "visible_area_m2": 0.0, "completed_side": 0, "normal": [math.nan] * 3,
-             "normal_zenith_deg": math.nan, "elevation_deg": math.nan, "azimuth_deg": math.nan, "length_m": 0.0}
+    empty = {"area_m2": 0.0, "visible_area_m2": 0.0, "completed_side": 0, "occluded_slices": 0,
+             "normal": [math.nan] * 3, "normal_zenith_deg": math.nan, "elevation_deg": math.nan,
+             "azimuth_deg": math.nan, "length_m": 0.0}
     if known.sum() < 4:
         return empty
     sigma_px = max(smoothing_m / frame.grid.pixel_size, MIN_SMOOTHING_PX)
@@ -291,10 +307,21 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoot
     outline = (on & ~ndimage.binary_erosion(on, np.ones((3, 3), bool)))[on]
     completed, side = (area, 0) if raised else symmetric_area(points[on], area_elements[on], cos_incidence, outline,
                                                               normal, axis, centre - frame.pose.position)
+    hidden_slices = 0
+    if side == 0 and nearer is not None:
+        reach = 2 * OCCLUDER_REACH_PX + 1
+        # A pulse the leaf has a share of is not an occluder's: a grazing leaf's own mixed pulses beyond its region
+        # lie nearer than its outline where it turns towards the scanner.
+        front = np.asarray(nearer, bool) & ~(weight > 0)
+        occluded = ndimage.binary_dilation(front, np.ones((reach, reach), bool))[on] & outline
+        hidden, hidden_slices = occluded_area(points[on], area_elements[on], outline, occluded, normal, axis,
+                                              _pixel_lookup(frame, front, on))
+        completed += hidden
     return {
         "area_m2": completed,
         "visible_area_m2": area,
         "completed_side": side,
+        "occluded_slices": hidden_slices,
         "normal": [float(v) for v in normal],
         "normal_zenith_deg": math.degrees(math.acos(min(1.0, normal[2]))),
         "elevation_deg": math.degrees(math.asin(min(1.0, axis[2]))),
@@ -541,6 +568,30 @@ def _edge_secants(secant: np.ndarray, pure: np.ndarray, deviation: np.ndarray) -
     steepest = np.max(np.where(window[1], window[0] - excess * window[2], 0.0), axis=0)
     nearest = tuple(ndimage.distance_transform_edt(~pure, return_distances=False, return_indices=True))
     return steepest[nearest]
+
+
+def _pixel_lookup(frame: LocalFrame, front: np.ndarray, seen: np.ndarray):
+    """``behind(points)``: whether the box pulse each world point (m) falls on is in ``front`` / in ``seen`` (False
+    off the box); the pulse is the nearest in beam angles (affine in them over a leaf's box)."""
+    u = frame.directions
+    theta0 = math.atan2(u[..., 1].mean(), u[..., 0].mean())
+
+    def angles(v):
+        theta = np.mod(np.arctan2(v[..., 1], v[..., 0]) - theta0 + np.pi, 2 * np.pi) - np.pi
+        return np.stack([theta, np.arccos(np.clip(v[..., 2] / np.linalg.norm(v, axis=-1), -1.0, 1.0))], axis=-1)
+
+    rows, cols = np.indices(front.shape)
+    design = np.column_stack([angles(u).reshape(-1, 2), np.ones(rows.size)])
+    coef = np.linalg.lstsq(design, np.column_stack([rows.ravel(), cols.ravel()]), rcond=None)[0]
+
+    def behind(points):
+        local = (np.asarray(points) - frame.pose.position) @ frame.pose.rotation
+        pixel = np.rint(np.column_stack([angles(local), np.ones(len(local))]) @ coef).astype(int)
+        inside = np.all((pixel >= 0) & (pixel < front.shape), axis=1)
+        r, c = np.where(inside, pixel[:, 0], 0), np.where(inside, pixel[:, 1], 0)
+        return inside & front[r, c], inside & seen[r, c]
+
+    return behind
 
 
 def _quadratic_slope(height: np.ndarray, known: np.ndarray) -> np.ndarray | None:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from leafsfs.symmetry import FOLD_MIN_INCIDENCE_DEG, symmetric_area
+from leafsfs.symmetry import FOLD_MIN_INCIDENCE_DEG, occluded_area, symmetric_area
 
 STEP = 0.001  # m between the synthetic pulses
 HALF_LENGTH, HALF_WIDTH = 0.05, 0.025  # m, an elliptic leaf in the xy plane, midrib along x, normal +z
@@ -108,3 +108,50 @@ def test_only_the_slices_whose_cut_is_a_fold_are_completed():
     # (the cut reaches the leaf's ends, whose points put the midrib a little towards the upper side)
     assert area == pytest.approx(expected, rel=0.06)
     assert area < 2 * pulse_area[points[:, 1] > 0].sum() * 0.97
+
+
+def _occluded(keep, beside):
+    """The part ``keep`` of the elliptic leaf, with the outline pulses where ``beside(s, t)`` flagged as beside an
+    occluder."""
+    points, area, _, outline = _leaf(keep, lambda s, t: np.zeros_like(s))
+    return points, area, outline, outline & beside(points[:, 0], points[:, 1])
+
+
+def test_a_half_cut_short_by_an_occluder_is_completed_from_the_other_half():
+    # an occluder hides the lower half (t < 0) beyond -0.4 of its width for -2 cm < s < 2 cm: the slices it cuts
+    # short count twice their upper half, which restores the hidden area to the pulses' resolution
+    hidden = lambda s, t: (t < -0.4 * HALF_WIDTH) & (np.abs(s) < 0.02)
+    points, area, outline, occluded = _occluded(lambda s, t: ~hidden(s, t),
+                                                lambda s, t: (t < 0) & (np.abs(s) < 0.02))
+    whole = _leaf(lambda s, t: np.ones_like(s, bool), lambda s, t: np.zeros_like(s))[1].sum()
+    added, slices = occluded_area(points, area, outline, occluded, NORMAL, AXIS)
+    assert slices >= 3
+    assert area.sum() + added == pytest.approx(whole, rel=0.02)
+
+
+def test_an_occluder_that_touches_the_outline_adds_nothing():
+    # a whole leaf whose lower outline meets an occluder's silhouette: the occluded side is not short of the other
+    points, area, outline, occluded = _occluded(lambda s, t: np.ones_like(s, bool),
+                                                lambda s, t: (t < 0) & (np.abs(s) < 0.02))
+    assert occluded_area(points, area, outline, occluded, NORMAL, AXIS) == (0.0, 0)
+
+
+def test_a_tip_hidden_on_both_sides_of_the_midrib_is_not_completed():
+    # an occluder across the tip (s > 3 cm) borders both halves: no half tells what the other holds
+    points, area, outline, occluded = _occluded(lambda s, t: s < 0.03, lambda s, t: s > 0.028)
+    assert occluded_area(points, area, outline, occluded, NORMAL, AXIS) == (0.0, 0)
+
+
+def test_a_half_is_completed_only_where_its_mirror_image_is_hidden():
+    # the half cut short as above, its cut outline beside pulses in front: where the scan shows the part the mirror
+    # image would fill as hidden, it is completed; where it shows that part empty (a bite beside a twig that only
+    # touches its edge), nothing is added
+    hidden = lambda s, t: (t < -0.4 * HALF_WIDTH) & (np.abs(s) < 0.02)
+    points, area, outline, occluded = _occluded(lambda s, t: ~hidden(s, t),
+                                                lambda s, t: (t < 0) & (np.abs(s) < 0.02))
+    seen = lambda p: ((p[:, 0] / HALF_LENGTH) ** 2 + (p[:, 1] / HALF_WIDTH) ** 2 <= 1) & ~hidden(p[:, 0], p[:, 1])
+    behind_occluder = lambda p: (hidden(p[:, 0], p[:, 1]), seen(p))
+    behind_nothing = lambda p: (np.zeros(len(p), bool), seen(p))
+    assert occluded_area(points, area, outline, occluded, NORMAL, AXIS, behind_occluder) == (
+        occluded_area(points, area, outline, occluded, NORMAL, AXIS))
+    assert occluded_area(points, area, outline, occluded, NORMAL, AXIS, behind_nothing) == (0.0, 0)

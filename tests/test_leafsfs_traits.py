@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from leafsfs.canopy import nearer_ring
 from leafsfs.frame import local_frame
 from leafsfs.traits import (_edge_secants, _grazing_differences, _quadratic_slope, background_spread, leaf_traits,
                              mixed_band)
@@ -370,3 +371,45 @@ def test_a_noisy_flat_grazing_plates_band_rises_at_most_by_the_positive_part_of_
     band = (leaf_traits(frame, height, w, 0.005)["visible_area_m2"]
             - leaf_traits(frame, height, np.where(w < 1, 1e-9 * w, w), 0.005)["visible_area_m2"])
     assert 1.0 <= band / exact <= 1.0 + 0.4 * math.sqrt(2.0) * noise_spacings / math.tan(math.radians(82.0))
+
+
+def _bitten_leaf(cover_offset_m):
+    """An elliptic leaf (8 x 3.5 cm) on a plate at 30 deg and 3.5 m, the part of its left half between two rows
+    replaced by a second leaf ``cover_offset_m`` nearer (< 0) or farther (> 0); a wall 0.5 m behind. Returns the
+    traits of the region left, the area the whole leaf has by :func:`leaf_traits` and the region's share of it."""
+    theta, psi, range_m, _ = _tilted_plate(30.0, rows=90, cols=50)
+    rows, cols = np.mgrid[:90, :50]
+    leaf = ((rows - 45) / 36.0) ** 2 + ((cols - 25) / 16.0) ** 2 <= 1
+    cover = (cols < 21) & (rows >= 30) & (rows < 58)
+    measured = np.where(leaf & ~cover, range_m, range_m + 0.5)
+    measured = np.where(cover, range_m + cover_offset_m, measured)
+    region = leaf & ~cover
+
+    def traits(region, nearer):
+        frame = local_frame(theta, psi, measured, region)
+        height = np.where(region, frame.height(measured), np.nan)
+        return leaf_traits(frame, height[frame.box], region[frame.box].astype(float), 0.005,
+                           nearer=None if nearer is None else nearer[frame.box])
+
+    whole_range = np.where(leaf, range_m, measured)
+    whole_frame = local_frame(theta, psi, whole_range, leaf)
+    whole = leaf_traits(whole_frame, np.where(leaf, whole_frame.height(whole_range), np.nan)[whole_frame.box],
+                        leaf[whole_frame.box].astype(float), 0.005)["area_m2"]
+    return traits(region, nearer_ring(region, measured, 0.003, None)), whole
+
+
+def test_a_leaf_half_hidden_behind_a_nearer_leaf_is_completed_from_its_other_half():
+    # a second leaf 4 cm in front hides a quarter of the left half: the slices it cuts short count twice their right
+    # side, and the leaf's area is the whole leaf's to a few per cent (its visible area is 17 % short)
+    traits, whole = _bitten_leaf(-0.04)
+    assert traits["visible_area_m2"] < 0.9 * whole
+    assert traits["occluded_slices"] > 0
+    assert traits["area_m2"] == pytest.approx(whole, rel=0.03)
+
+
+def test_a_bite_with_a_leaf_behind_it_is_not_completed():
+    # the same outline, but the second leaf lies behind the gap: the cut is the leaf's own edge (eaten), nothing added
+    traits, whole = _bitten_leaf(0.04)
+    assert traits["occluded_slices"] == 0
+    assert traits["area_m2"] == pytest.approx(traits["visible_area_m2"])
+    assert traits["area_m2"] < 0.9 * whole
