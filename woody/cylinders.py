@@ -266,7 +266,8 @@ class FollowParams:
         scan falls apart behind leaves and other branches) are started as
         child branches of the tree across gaps up to this length, m (an
         addition; assumption: the cloud is one tree, whose hidden pieces are
-        shorter than this; 0 disables it).
+        shorter than this; 0 disables it). It is also the longest hidden
+        stretch of a limb that is filled with cylinders (:mod:`woody.gaps`).
     pipe_model : bool
         Strict mode: the radii the points do not resolve (under one point
         spacing, or scattered about) follow the pipe model from their

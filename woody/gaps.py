@@ -77,11 +77,13 @@ def fill_gaps(records: list[dict], bridge_m: float, section_radii: float) -> int
             continue
         fills.append((i, origin, direction, r0, hit, carried[i]))
     for i, origin, direction, r0, (gap, limit), grown in fills:
-        records[i]["sections"] = _fill(origin, direction, gap, r0, grown, limit, section_radii) + \
-            list(records[i]["sections"])
-        records[i]["reliable"] = [True] * (len(records[i]["sections"]) - len(records[i]["reliable"])) + \
-            list(records[i]["reliable"])
-        records[i]["start"] = list(records[i]["sections"][0][0])
+        record = records[i]
+        added = _fill(origin, direction, gap, r0, grown, limit, section_radii)
+        # The filled radii are the pipe model's from a resolved section: marked resolved, a later pass of the pipe
+        # model (woody.trunk.follow_tree) does not shrink them to a thin parent's.
+        record["reliable"] = [True] * len(added) + list(record.get("reliable", [True] * len(record["sections"])))
+        record["sections"] = added + list(record["sections"])
+        record["start"] = list(added[0][0])
     return len(fills)
 
 
@@ -93,7 +95,7 @@ def _chord(sections: list[tuple]) -> tuple[np.ndarray, np.ndarray, float] | None
     if r0 <= 0:
         return None
     end = np.asarray(sections[0][1], float)
-    for start_k, end_k, _ in sections[1:]:
+    for _, end_k, _ in sections[1:]:
         if np.linalg.norm(np.asarray(end_k, float) - origin) > CHORD_RADII * r0:
             break
         end = np.asarray(end_k, float)
