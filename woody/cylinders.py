@@ -90,7 +90,7 @@ test trees (spec Part D; each a documented departure in the default mode):
   runs through no resolved wood as wide as itself for more than four of
   its radii before it meets such wood within ``bridge_m`` gets cylinders
   along that line, radii from the pipe model, when it carries at least
-  the stretch's length (the gap's wood was missing: leaves hid 0.1-1.1 m
+  the stretch's length and a point lies on the line's surface (the gap's wood was missing: leaves hid 0.1-1.1 m
   of a 51 mm leader of a simulated leafy pear; the trees suite's leafy
   pears went from -26.2 / -18.1 / -28.3 to -21.8 / -15.4 / -25.7 % volume);
 - radii (strict mode, additions): a reported radius is at most 1.3 times
@@ -609,7 +609,7 @@ def _follow(points: np.ndarray, params: FollowParams, progress: bool, timings: d
         if bounds is not None:
             bound_by_footprint(records, bounds)
             refit_facing(records, points, labels, params.viewpoint, params.footprint_m)
-        filled = fill_gaps(records, params.bridge_m, params.section_radii)
+        filled = fill_gaps(records, points, params.bridge_m, params.section_radii)
     stats = {"points": len(points), "spacing_m": spacing, "precision_m": precision, "branches_grown": grown,
              "branches": len(records), "unassigned": int((labels < 0).sum()), "balance_passes": passes,
              "gaps_filled": filled, "max_order": max(b["order"] for b in records), **timings}

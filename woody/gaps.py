@@ -13,6 +13,9 @@ first cylinder to its parent's surface (Raumonen et al. 2013, Remote Sens. 5: 49
   from wood no thinner than itself, the pipe model) within ``bridge_m``, after running through no such
   wood for at least :data:`GAP_RADII` of the branch's radii (a branch that starts on its parent's surface
   has no hidden stretch);
+- the scan saw the limb somewhere in the stretch: a point lies between :data:`SHELL` times its radius from
+  the line, away from its ends by the radius (leaves let a few pulses through; a gap between two pieces of
+  wood that the scan saw empty is no hidden stretch);
 - the branch carries at least as much length (its sections and its descendants') as the stretch to fill:
   a short piece's line is too uncertain to carry far (on the trees suite's vine seed 3 a 2 cm piece was
   filled over 38 cm, 0.12 dm3 beside the wood, before this condition).
@@ -38,12 +41,15 @@ from woody.geometry import segment_distance
 #: average the wobble of the 4-radius sections of :func:`woody.cylinders.follow_cylinders` while a limb bends
 #: little over it).
 CHORD_RADII = 20.0
+#: Distances from the filled line within which a point counts as seen on the limb, in radii of the branch's
+#: first section (assumption: the surface at one radius, give or take half of it for range noise and taper).
+SHELL = (0.5, 1.5)
 #: Shortest hidden stretch that is filled, in radii of the branch's first section (assumption: one output
 #: section, 4 radii; shorter gaps are within the fit's own reach).
 GAP_RADII = 4.0
 
 
-def fill_gaps(records: list[dict], bridge_m: float, section_radii: float) -> int:
+def fill_gaps(records: list[dict], points: np.ndarray, bridge_m: float, section_radii: float) -> int:
     """Prepend to each branch record the cylinders of its hidden stretch (see the module docstring), in place.
 
     Parameters
@@ -51,6 +57,8 @@ def fill_gaps(records: list[dict], bridge_m: float, section_radii: float) -> int
     records : list of dict
         Branch records of :func:`woody.cylinders.follow_cylinders` (``id``, ``parent``, ``children``,
         ``start``, ``sections`` as ``(start, end, radius)`` in m, ``reliable`` per section), parents first.
+    points : ndarray, (n, 3)
+        The fitted cloud, m.
     bridge_m : float
         Longest stretch filled, m (``FollowParams.bridge_m``).
     section_radii : float
@@ -81,7 +89,8 @@ def fill_gaps(records: list[dict], bridge_m: float, section_radii: float) -> int
         subtree = _subtree(records, index, i)
         wood = reliable & (radii >= r0) & ~np.isin(owner, subtree)
         hit = _first_hit(origin, -direction, bridge_m, starts[wood], ends[wood], radii[wood], step=r0 / 2)
-        if hit is None or not GAP_RADII * r0 <= hit[0] <= carried[i]:
+        if hit is None or not GAP_RADII * r0 <= hit[0] <= carried[i] or \
+                not _seen(points, origin, origin - hit[0] * direction, r0):
             continue
         fills.append((i, origin, direction, r0, hit, carried[i]))
     for i, origin, direction, r0, (gap, limit), grown in fills:
@@ -133,6 +142,15 @@ def _first_hit(origin: np.ndarray, direction: np.ndarray, reach: float, starts: 
         if len(inside) and t[inside[0]] < first:
             first, width = float(t[inside[0]]), float(radii[k])
     return (first, width) if np.isfinite(first) else None
+
+
+def _seen(points: np.ndarray, close: np.ndarray, far: np.ndarray, r0: float) -> bool:
+    """Whether a point (m) lies between :data:`SHELL` times ``r0`` (m) from the line ``close -> far`` (m), at least
+    ``r0`` from both its ends."""
+    length = float(np.linalg.norm(far - close))
+    distance, t = segment_distance(points, close, far)
+    return bool(np.any((distance >= SHELL[0] * r0) & (distance <= SHELL[1] * r0) &
+                       (t * length >= r0) & ((1 - t) * length >= r0)))
 
 
 def _fill(origin: np.ndarray, direction: np.ndarray, gap: float, r0: float, grown: float, limit: float,
