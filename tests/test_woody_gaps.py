@@ -1,0 +1,100 @@
+"""Hidden stretches of a limb (woody.gaps): a limb whose stretch next to the stem left no points is filled along
+its line; twigs beside the gap are not joined to wood they do not grow from."""
+
+import numpy as np
+
+from woody import follow_cylinders
+from woody.gaps import fill_gaps
+from woody.geometry import segment_distance
+from woody.synthetic import polyline_cylinders, sample_cylinders, straight_cylinder
+
+#: The limb: from the stem (5 cm radius, 1.2 m) at 0.5 m height, 40 deg from the vertical, 0.9 m, radius 2 -> 1.5 cm;
+#: its points from 0.1 to 0.45 m along it are removed but for :data:`THROUGH` of them (leaves let a few pulses through).
+LIMB_BASE = np.array([0.0, 0.0, 0.5])
+LIMB_AXIS = np.array([np.sin(np.radians(40)), 0.0, np.cos(np.radians(40))])
+HIDDEN = (0.1, 0.45)
+THROUGH = 0.01
+
+
+def _limb() -> list[dict]:
+    return polyline_cylinders(np.array([LIMB_BASE, LIMB_BASE + 0.9 * LIMB_AXIS]), np.array([0.02, 0.015]),
+                              first_id=1, parent=0, order=2, branch=1)
+
+
+def _inside(cylinders: list[dict], start, end, samples: int = 24) -> np.ndarray:
+    """Whether each of ``samples`` points along ``start -> end`` (m) lies inside one of the ``cylinders``."""
+    points = np.asarray(start) + np.linspace(0.0, 1.0, samples)[:, None] * (np.asarray(end) - np.asarray(start))
+    inside = np.zeros(samples, bool)
+    for c in cylinders:
+        distance, t = segment_distance(points, np.asarray(c["start"]), np.asarray(c["end"]))
+        inside |= (distance <= c["radius_m"]) & (t > 0) & (t < 1)
+    return inside
+
+
+def test_a_limbs_hidden_stretch_is_filled_along_its_line_with_its_radius():
+    cloud = sample_cylinders(straight_cylinder(0.05, 1.2) + _limb(), 2e4, seed=2)
+    along = (cloud.points - LIMB_BASE) @ LIMB_AXIS
+    through = np.random.default_rng(2).random(len(cloud.points)) < THROUGH
+    hidden = (cloud.labels == 1) & (along > HIDDEN[0]) & (along < HIDDEN[1]) & ~through
+    result = follow_cylinders(cloud.points[~hidden])
+    cylinders = result.cylinders()
+    lo, hi = LIMB_BASE + (HIDDEN[0] + 0.02) * LIMB_AXIS, LIMB_BASE + (HIDDEN[1] - 0.02) * LIMB_AXIS
+    assert _inside(cylinders, lo, hi).all()  # without the fill: none of it
+    across = [c["radius_m"] for c in cylinders if segment_distance(
+        ((np.asarray(c["start"]) + np.asarray(c["end"])) / 2)[None], lo, hi)[0][0] < 0.01]
+    assert across and all(0.015 <= r <= 0.025 for r in across)  # the limb's 1.9-2 cm there, not the stem's 5 cm
+
+
+def test_twigs_beside_the_gap_are_not_joined_to_wood_they_do_not_grow_from():
+    # Twig A leaves the limb above the gap; its line extended back runs 8 cm beside the hidden stretch into the
+    # stem. Twig B's first 30 cm are hidden (a few pulses through): 6 cm of it are seen, a piece too short to carry
+    # its line to the stem.
+    a_start = LIMB_BASE + 0.7 * LIMB_AXIS
+    a_axis = (a_start - np.array([0.0, 0.0, 0.75])) / np.linalg.norm(a_start - np.array([0.0, 0.0, 0.75]))
+    b_start, b_axis = np.array([0.0, 0.05, 0.3]), np.array([0.0, 0.8, 0.6])
+    twigs = polyline_cylinders(np.array([a_start, a_start + 0.25 * a_axis]), np.array([0.008, 0.008]), first_id=2,
+                               parent=1, order=3, branch=2) + \
+        polyline_cylinders(np.array([b_start, b_start + 0.36 * b_axis]), np.array([0.008, 0.008]), first_id=3,
+                           parent=0, order=2, branch=3)
+    cloud = sample_cylinders(straight_cylinder(0.05, 1.2) + _limb() + twigs, 2e4, seed=3)
+    along = (cloud.points - LIMB_BASE) @ LIMB_AXIS
+    through = np.random.default_rng(3).random(len(cloud.points)) < THROUGH
+    hidden = (((cloud.labels == 1) & (along > HIDDEN[0]) & (along < HIDDEN[1])) |
+              ((cloud.labels == 3) & ((cloud.points - b_start) @ b_axis < 0.3))) & ~through
+    cylinders = follow_cylinders(cloud.points[~hidden]).cylinders()
+    assert _inside(cylinders, LIMB_BASE + 0.12 * LIMB_AXIS, LIMB_BASE + 0.43 * LIMB_AXIS).all()
+    assert not _inside(cylinders, a_start - 0.1 * a_axis, np.array([0.0, 0.0, 0.75]) + 0.06 * a_axis).any()
+    assert not _inside(cylinders, b_start + 0.06 * b_axis, b_start + 0.28 * b_axis).any()
+
+
+def _records(first_radius: float, gap: float, carried: float) -> tuple[list[dict], np.ndarray]:
+    """A stem record (5 cm, z 0-1 m) and a branch record along +x at 0.5 m height whose first section starts
+    ``gap`` m from the stem's surface: sections of 4 radii over ``carried`` m; and points on the branch's surface
+    in the gap, one per 4 cm."""
+    count = max(1, int(round(carried / (4 * first_radius))))
+    edges = 0.05 + gap + np.linspace(0.0, carried, count + 1)
+    sections = [([a, 0.0, 0.5], [b, 0.0, 0.5], first_radius) for a, b in zip(edges[:-1], edges[1:])]
+    x = np.arange(0.07, 0.05 + gap - 0.01, 0.04)
+    seen = np.column_stack([x, np.full(len(x), first_radius), np.full(len(x), 0.5)])
+    return [{"id": 0, "parent": -1, "children": [1], "start": [0, 0, 0], "sections": [([0, 0, 0], [0, 0, 1], 0.05)],
+             "reliable": [True]},
+            {"id": 1, "parent": 0, "children": [], "start": sections[0][0], "sections": sections,
+             "reliable": [True] * count}], seen
+
+
+def test_the_fill_follows_the_pipe_model_and_needs_evidence_on_both_sides_of_the_gap():
+    records, seen = _records(0.01, 0.3, 0.6)
+    assert fill_gaps(records, seen, 1.0, 4.0) == 1
+    filled = records[1]["sections"][:8]  # 0.3 m in pieces of 4 cm
+    assert abs(filled[0][0][0] - 0.05) <= 0.005  # from the stem's surface (the ray is sampled every r0 / 2)
+    radii = [r for _, _, r in filled]
+    assert radii == sorted(radii, reverse=True)  # thicker towards the stem
+    assert abs(radii[0] - 0.01 * np.sqrt((0.6 + 0.28) / 0.6)) < 0.001  # pipe model: r0 sqrt((G + t) / G)
+    assert records[1]["reliable"][:8] == [True] * 8 and records[1]["start"] == list(filled[0][0])
+    # A short piece, out of reach, no gap, a gap the scan saw empty.
+    for gap, carried, reach, empty in ((0.3, 0.2, 1.0, False), (0.3, 0.6, 0.2, False), (0.02, 0.6, 1.0, False),
+                                       (0.3, 0.6, 1.0, True)):
+        records, seen = _records(0.01, gap, carried)
+        sections = list(records[1]["sections"])
+        assert fill_gaps(records, seen[:0] if empty else seen, reach, 4.0) == 0
+        assert records[1]["sections"] == sections
