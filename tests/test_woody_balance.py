@@ -109,6 +109,27 @@ def test_a_narrow_arc_lies_on_one_circle_and_a_cluster_of_twigs_does_not():
     capped = 0.86 * 0.02  # the spread cap on a 100 deg arc: 1.3 sqrt(2 (1/2 - sin(2a) / (4a))) r, a = 50 deg
     twigs = np.vstack([np.column_stack([np.full(100, d), np.zeros(100), np.linspace(0, 0.2, 100)])
                        for d in (0.012, 0.02, 0.03)])  # three twigs 1.2-3 cm off the axis
-    assert _on_arc([((0, 0, 0), (0, 0, 0.2), capped)], arc) == [True]
-    assert _on_arc([((0, 0, 0), (0, 0, 0.2), capped)], twigs) == [False]
-    assert _on_arc([((0, 0, 0), (0, 0, 0.2), 0.02 / (SPREAD_FACTOR + 0.1))], arc) == [False]  # beyond the cap
+    assert _on_arc([((0, 0, 0), (0, 0, 0.2), capped)], arc, 0.005) == [True]
+    assert _on_arc([((0, 0, 0), (0, 0, 0.2), capped)], twigs, 0.005) == [False]
+    assert _on_arc([((0, 0, 0), (0, 0, 0.2), 0.02 * 1.05)], arc, 0.005) == [False]  # the points inside the radius
+
+
+def test_an_arc_of_80_deg_cut_by_the_spread_cap_lies_on_its_circle_and_a_twig_off_the_axis_does_not():
+    """The spread cap cuts the radius of an 80 deg arc to 0.69 of it (more than :data:`SPREAD_FACTOR` can
+    undo): its points still lie on one resolved arc (a leader of 43 mm seen past leaves, at the 5 mm spacing of
+    a thinned cloud). A line of points along a 4 mm twig 30 mm off the axis lies on a circle too (its distances
+    from the axis scatter little) but spans no arc."""
+    from woody.cylinders import SPREAD_FACTOR, _on_arc
+
+    rng = np.random.default_rng(14)
+    radius, half = 0.0215, np.radians(40.0)
+    angle, z = rng.uniform(-half, half, 300), rng.uniform(0.0, 0.1, 300)
+    arc = np.column_stack([radius * np.cos(angle), radius * np.sin(angle), z]) + rng.normal(0, 0.0005, (300, 3))
+    spread = np.sqrt(2 * (0.5 - np.sin(2 * half) / (4 * half))) * radius  # sqrt(2 lambda) of the arc
+    capped = SPREAD_FACTOR * spread
+    assert capped < radius / SPREAD_FACTOR  # beyond what the old bound (median <= 1.3 x radius) accepted
+    assert _on_arc([((0, 0, 0), (0, 0, 0.1), capped)], arc, 0.005) == [True]
+    twig = np.column_stack([np.full(60, 0.03), np.zeros(60), np.linspace(0, 0.1, 60)])
+    twig += rng.normal(0, 0.002, twig.shape) * [1, 1, 0]  # the twig's width and the range noise
+    line_capped = SPREAD_FACTOR * 0.002
+    assert _on_arc([((0, 0, 0), (0, 0, 0.1), line_capped)], twig, 0.005) == [False]
