@@ -763,16 +763,18 @@ def _on_circle(sections: list[tuple], points: np.ndarray) -> list[bool]:
     :data:`ON_CIRCLE_SCATTER` of the radius)."""
     out = []
     for start, end, radius in sections:
-        beside = _beside(points, start, end)
+        beside, _ = _beside(points, start, end)
         out.append(len(beside) >= RESOLVED_POINTS and radius > 0 and
                    float(np.median(np.abs(beside - radius))) <= ON_CIRCLE_SCATTER * radius)
     return out
 
 
-def _beside(points: np.ndarray, start, end) -> np.ndarray:
-    """Distances from the axis ``start``-``end`` (m) of the ``points`` (m) that project inside it, m."""
+def _beside(points: np.ndarray, start, end) -> tuple[np.ndarray, np.ndarray]:
+    """Distances from the axis ``start``-``end`` (m) of the ``points`` (m) that project inside it (m), and which
+    points those are."""
     distance, t = segment_distance(points, np.asarray(start), np.asarray(end))
-    return distance[(t > 0) & (t < 1)]
+    inside = (t > 0) & (t < 1)
+    return distance[inside], inside
 
 
 def released_clamps(clamped: list[bool], restored: list[bool]) -> list[bool]:
@@ -938,9 +940,7 @@ def _on_arc(sections: list[tuple], points: np.ndarray, spacing: float) -> list[b
     out = []
     for start, end, radius in sections:
         start, end = np.asarray(start, float), np.asarray(end, float)
-        distance, t = segment_distance(points, start, end)
-        inside = (t > 0) & (t < 1)
-        beside = distance[inside]
+        beside, inside = _beside(points, start, end)
         if len(beside) < RESOLVED_POINTS or radius <= 0 or not np.linalg.norm(end - start) > 0:
             out.append(False)
             continue
