@@ -9,11 +9,12 @@ continues it is fitted as one wide cylinder across the leaders, while the
 leaders grown beside it overlap it.
 
 :func:`cut_forks` finds the fork as the first slice of the stem whose points
-fall apart into separate limbs: at least two parts that are not joined
-within a few point spacings, none as wide as the stem (a stem that merely
-has a side branch, or whose surface a shadow cuts, goes on in a part as
-wide as itself) and the second of them wide enough to be a leader (a twig
-leaving the stem is none). The stem's points past the fork that lie on a
+fall apart into separate limbs: its two largest parts, not joined within a
+few point spacings, each fit a circle narrower than the stem and wide
+enough to be a leader (a stem whose surface a shadow cuts in two fits its
+own circle with each part; a stem that merely has a side branch goes on
+in a part as wide as itself; a twig leaving it is no leader), and they stay
+apart in the next slice. The stem's points past the fork that lie on a
 leader's surface behind its start (its axis line extended back to the fork)
 go to that leader, so that the leaders start at the fork; the stem keeps the
 others. Lengths in m.
@@ -27,6 +28,9 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from woody.branch import Branch
+from woody.circles import fit_circle
+from woody.errors import WoodyError
+from woody.geometry import orthonormal_frame
 
 #: A slice's part counts when it holds at least this fraction of the slice's points (assumption: chosen by
 #: round 31 on pear seeds 1 and 4 of the trees suite: 0.05 gave pear 1 -26.1 % volume error, 0.10 -25.2 %).
@@ -35,9 +39,8 @@ SPLIT_FRACTION = 0.10
 SLICE_RADII = 2.0
 #: Largest gap inside one connected part, in point spacings (the neighbour graph's reach on a surface).
 LINK_SPACINGS = 2.0
-#: A part as wide as this fraction of the stem's radius continues the stem: no fork (the pipe model: a stem that
-#: splits into two equal limbs carries each at 1/sqrt(2) of its radius, into more limbs at less; widths are
-#: spread radii, ``sqrt(2 lambda)`` across the stem's axis, exact over a half or full circle).
+#: A part whose circle is as wide as this fraction of the stem's radius continues the stem: no fork (the pipe
+#: model: a stem that splits into two equal limbs carries each at 1/sqrt(2) of its radius, into more limbs at less).
 LIMB_WIDTH = 1.0 / np.sqrt(2.0)
 #: A leader is at least this fraction of the stem's radius wide (the pipe model: n equal leaders carry a stem
 #: sqrt(n) times as wide; assumption: at most 9 leaders). Twigs leaving the stem, and twigs whose axis lines run
@@ -53,12 +56,14 @@ def _parts(points: np.ndarray, link: float) -> np.ndarray:
     return connected_components(adjacency, directed=False)[1]
 
 
-def _width(points: np.ndarray, direction: np.ndarray) -> float:
-    """Spread radius ``sqrt(2 lambda)`` of points (m) across ``direction``, ``lambda`` the larger eigenvalue of
-    their covariance across it, m."""
-    rel = points - points.mean(axis=0)
-    rel -= np.outer(rel @ direction, direction)
-    return float(np.sqrt(2.0 * max(np.linalg.eigvalsh(rel.T @ rel / len(points))[-1], 0.0)))
+def _limb_radius(points: np.ndarray, direction: np.ndarray) -> float:
+    """Radius of the circle (:func:`woody.circles.fit_circle`) that points (m) fit across ``direction``, m; inf
+    when they fit none (collinear)."""
+    u, v = orthonormal_frame(direction)[:2]
+    try:
+        return fit_circle(np.column_stack([points @ u, points @ v])).radius_m
+    except WoodyError:
+        return float("inf")
 
 
 def fork_position(branch: Branch, spacing: float) -> float | None:
@@ -78,10 +83,11 @@ def fork_position(branch: Branch, spacing: float) -> float | None:
         Axis position (m, along ``branch.direction`` from
         ``branch.axis_point``) of the first slice (:data:`SLICE_RADII` radii
         long, from the branch's start) whose two largest parts each hold
-        :data:`SPLIT_FRACTION` of its points (and ``min_branch_points``), the
-        largest narrower than :data:`LIMB_WIDTH` and the second at least
-        :data:`LEADER_RADIUS` of the branch's radius wide; None when no slice
-        does.
+        :data:`SPLIT_FRACTION` of its points (and ``min_branch_points``) and
+        fit circles (across the branch's axis) of :data:`LEADER_RADIUS` to
+        :data:`LIMB_WIDTH` of the branch's radius, and that the next slice
+        (if it holds ``2 min_branch_points`` points) splits too; None when
+        no slice does.
     """
     if branch.direction is None or branch.r_median <= 0:
         return None
@@ -101,8 +107,8 @@ def fork_position(branch: Branch, spacing: float) -> float | None:
         # Limbs stay apart (a twig leaving or a shadow splits one slice), unless the stem ends there.
         if len(big) < 2 or (after is not None and len(after[1]) >= 2 * least and len(after[3]) < 2):
             continue
-        if _width(xyz[labels == big[0]], branch.direction) < LIMB_WIDTH * branch.r_median and \
-                _width(xyz[labels == big[1]], branch.direction) >= LEADER_RADIUS * branch.r_median:
+        radii = [_limb_radius(xyz[labels == part], branch.direction) for part in big[:2]]
+        if all(LEADER_RADIUS * branch.r_median <= r < LIMB_WIDTH * branch.r_median for r in radii):
             return float(lo)
     return None
 
