@@ -191,6 +191,7 @@ from woody.cylfit import angle_deg
 from woody.density import thin_to_spacing
 from woody.errors import WoodyError
 from woody.footprint import facing_radius, lateral_radii
+from woody.fork import cut_forks
 from woody.gaps import fill_gaps
 from woody.geometry import cylinders_mesh, cylinders_volume, orthonormal_frame, segment_distance
 from woody.growth import grow
@@ -596,6 +597,7 @@ def _follow(points: np.ndarray, params: FollowParams, progress: bool, timings: d
     branches = merge_into_parents(branches, params)
     if params.mode == "strict":
         branches = merge_contained(branches)
+        branches = cut_forks(branches, spacing)
     passes = balance_volume(branches, points, params)
     timings["merge_s"] = time.perf_counter() - clock
 
