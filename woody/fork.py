@@ -88,7 +88,7 @@ def fork_position(branch: Branch, spacing: float) -> float | None:
     float or None
         Axis position (m, along ``branch.direction`` from
         ``branch.axis_point``) of the first slice (:data:`SLICE_RADII` radii
-        long, from the branch's start) whose two largest parts each hold
+        long, at least one spacing, from the branch's start) whose two largest parts each hold
         :data:`SPLIT_FRACTION` of its points (and ``min_branch_points``) and
         fit circles (across the branch's axis) of :data:`LEADER_RADIUS` to
         :data:`LIMB_WIDTH` of the branch's radius, and that the next slice
@@ -99,7 +99,7 @@ def fork_position(branch: Branch, spacing: float) -> float | None:
         return None
     points = branch.coords[branch.points]
     t = (points - branch.axis_point) @ branch.direction
-    step = SLICE_RADII * branch.r_median
+    step = max(SLICE_RADII * branch.r_median, spacing)  # a slice shorter than the spacing holds no part
     least = branch.params.min_branch_points
     slices = []
     for lo in np.arange(branch.t0, branch.t1, step):
@@ -146,14 +146,27 @@ def _leaders(branch: Branch) -> list[Branch]:
     return out
 
 
+def _give(leader: Branch, members: np.ndarray) -> bool:
+    """Add the points ``members`` to ``leader`` and refit it, unless its radius then moves by more than
+    :data:`JOIN_SCATTER` (the points do not continue its cylinder): then it keeps its own. Returns whether it took
+    them."""
+    own, radius = leader.points, leader.r_median
+    leader.points = own + members.tolist()
+    leader.refit()
+    if abs(leader.r_median - radius) <= JOIN_SCATTER * radius:
+        return True
+    leader.points = own
+    leader.refit()
+    return False
+
+
 def _join_leaders(branch: Branch, indices: np.ndarray) -> np.ndarray:
     """Give the points ``indices`` of ``branch`` that lie on the surface of one of its leaders (:func:`_leaders`)
     behind the leader's start (its axis line extended back towards the fork, not alongside it) to that leader;
     returns which were given.
 
-    A point goes to the leader whose surface is nearest, within :data:`JOIN_SCATTER` of its radius; a leader
-    whose radius, refitted with its new points, moves by more than that keeps its own (the points do not continue
-    its cylinder)."""
+    A point goes to the leader whose surface is nearest, within :data:`JOIN_SCATTER` of its radius, if the leader
+    takes them (:func:`_give`)."""
     leaders = _leaders(branch)
     if not leaders:
         return np.zeros(len(indices), bool)
@@ -169,22 +182,15 @@ def _join_leaders(branch: Branch, indices: np.ndarray) -> np.ndarray:
     joined = residual[best, np.arange(len(indices))] <= JOIN_SCATTER
     for k, leader in enumerate(leaders):
         mine = joined & (best == k)
-        if not mine.any():
-            continue
-        own, radius = leader.points, leader.r_median
-        leader.points = own + indices[mine].tolist()
-        leader.refit()
-        if abs(leader.r_median - radius) > JOIN_SCATTER * radius:
-            leader.points = own
-            leader.refit()
+        if mine.any() and not _give(leader, indices[mine]):
             joined[mine] = False
     return joined
 
 
 def _limbs(branches: list[Branch], stem: Branch, indices: np.ndarray, spacing: float) -> None:
     """Give each connected part of the points ``indices`` (past the fork of ``stem``) to the leader
-    (:func:`_leaders`) whose points it touches most (within :data:`LINK_SPACINGS` spacings), unless that moves
-    the leader's refitted radius by more than :data:`JOIN_SCATTER`; start a child of ``stem`` on each other part
+    (:func:`_leaders`) whose points it touches most (within :data:`LINK_SPACINGS` spacings), if it takes them
+    (:func:`_give`); start a child of ``stem`` on each other part
     of at least ``min_branch_points`` points, from its point nearest the fork; leave the rest unassigned."""
     link = LINK_SPACINGS * spacing
     labels = _parts(stem.coords[indices], link)
@@ -199,15 +205,8 @@ def _limbs(branches: list[Branch], stem: Branch, indices: np.ndarray, spacing: f
     for part in np.unique(labels):
         members = indices[labels == part]
         votes = owner[labels == part]
-        if (votes >= 0).any():
-            leader = leaders[np.bincount(votes[votes >= 0]).argmax()]
-            own, radius = leader.points, leader.r_median
-            leader.points = own + members.tolist()
-            leader.refit()
-            if abs(leader.r_median - radius) <= JOIN_SCATTER * radius:
-                continue
-            leader.points = own
-            leader.refit()
+        if (votes >= 0).any() and _give(leaders[np.bincount(votes[votes >= 0]).argmax()], members):
+            continue
         if len(members) < stem.params.min_branch_points:
             continue
         first = int(members[np.argmin((stem.coords[members] - stem.axis_point) @ stem.direction)])
