@@ -98,3 +98,15 @@ def test_the_fill_follows_the_pipe_model_and_needs_evidence_on_both_sides_of_the
         sections = list(records[1]["sections"])
         assert fill_gaps(records, seen[:0] if empty else seen, reach, 4.0) == 0
         assert records[1]["sections"] == sections
+
+
+def test_a_first_radius_fitted_near_zero_is_judged_at_once():
+    # A first section fitted at 1e-12 m (collinear points): its ray back to the stem would be sampled every
+    # 5e-13 m (6e11 samples); no point lies on a line that thin, so nothing is filled.
+    records, seen = _records(0.01, 0.3, 0.6)
+    start, end, _ = records[1]["sections"][0]
+    records[1]["sections"][0] = (start, end, 1e-12)
+    sections = list(records[1]["sections"])
+    assert fill_gaps(records, seen, 1.0, 4.0) == 0
+    assert records[1]["sections"] == sections
+

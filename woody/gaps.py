@@ -49,6 +49,9 @@ SHELL = (0.5, 1.5)
 #: Shortest hidden stretch that is filled, in radii of the branch's first section (assumption: one output
 #: section, 4 radii; shorter gaps are within the fit's own reach).
 GAP_RADII = 4.0
+#: Most samples along a ray (numerics: a first radius fitted near zero to collinear points would otherwise ask
+#: for billions; on a 1 m reach the samples stay at most 0.1 mm apart).
+RAY_SAMPLES = 10_000
 
 
 def fill_gaps(records: list[dict], points: np.ndarray, bridge_m: float, section_radii: float) -> int:
@@ -125,8 +128,8 @@ def _chord(sections: list[tuple]) -> tuple[np.ndarray, np.ndarray, float] | None
 def _first_hit(origin: np.ndarray, direction: np.ndarray, reach: float, starts: np.ndarray, ends: np.ndarray,
                radii: np.ndarray, step: float) -> tuple[float, float] | None:
     """Distance along the ray ``origin + t direction`` (``0 <= t <= reach``, m) at which it first lies inside one
-    of the cylinders ``starts -> ends`` (m) of ``radii`` (m), sampled every ``step`` m, and that cylinder's
-    radius; None when it meets none."""
+    of the cylinders ``starts -> ends`` (m) of ``radii`` (m), sampled every ``step`` m (at most
+    :data:`RAY_SAMPLES` samples), and that cylinder's radius; None when it meets none."""
     if not len(radii):
         return None
     middle = (starts + ends) / 2
@@ -135,6 +138,7 @@ def _first_hit(origin: np.ndarray, direction: np.ndarray, reach: float, starts: 
     keep = np.flatnonzero(near <= half + radii)
     if not len(keep):
         return None
+    step = max(step, reach / RAY_SAMPLES)
     t = np.arange(0.0, reach + step / 2, step)
     ray = origin[None] + t[:, None] * direction[None]
     first, width = np.inf, 0.0
