@@ -79,7 +79,7 @@ def facing_radius(points, centre, axis, u, v, circle_centre, radius_m: float, ba
     tuple or None
         ``(radius_m, centre_uv)`` at the measurement height (``centre_uv`` in ``(u, v)`` coordinates from
         ``centre``, m); None where the kept arc spans fewer than :data:`MIN_SPACINGS` spacings of its points
-        (:func:`point_spacing`), holds fewer than :data:`MIN_POINTS` points, or the fit fails.
+        (:func:`nearest_spacing`), holds fewer than :data:`MIN_POINTS` points, or the fit fails.
 
     Examples
     --------
@@ -114,7 +114,7 @@ def facing_radius(points, centre, axis, u, v, circle_centre, radius_m: float, ba
     across, depth = planar @ np.array([-view[1], view[0]]), planar @ view
     half = radius_m * np.sin(np.radians(FACING_DEG))
     keep = (np.abs(across) <= half) & (depth > 0)
-    if keep.sum() < MIN_POINTS or 2.0 * half < MIN_SPACINGS * point_spacing(points[keep]):
+    if keep.sum() < MIN_POINTS or 2.0 * half < MIN_SPACINGS * nearest_spacing(points[keep]):
         return None
     x, y, h = across[keep], depth[keep], along[keep]
     if len(x) > MAX_POINTS:
@@ -146,8 +146,11 @@ def _range_residuals(params: np.ndarray, x: np.ndarray, y: np.ndarray, h: np.nda
     return y - params[1] - params[3] * h - np.sqrt(np.maximum(radius ** 2 - across ** 2, 0.0))
 
 
-def point_spacing(points: np.ndarray, sample: int = 5000) -> float:
+def nearest_spacing(points: np.ndarray, sample: int = 5000) -> float:
     """Median distance of points to their nearest neighbour, m (on a deterministic sample of at most ``sample``).
+
+    Unlike :func:`woody.density.point_spacing` (the square root of the area per point), this is the finer of a
+    scan's row and column spacings, which is what resolves the arc across the stem.
 
     Parameters
     ----------
