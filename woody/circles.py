@@ -151,10 +151,10 @@ def fit_circle(xy, scale_m: float | None = None) -> CircleFit:
         scale_m = lmeds_scale
     params = _geometric(params, xy, loss="soft_l1", f_scale=scale_m)
     residual = _residuals(params, xy)
-    inliers = np.abs(residual) <= INLIER_SIGMAS * _robust_scale(residual)
+    inliers = np.abs(residual) <= INLIER_SIGMAS * robust_scale(residual)
     if inliers.sum() >= 3 and not inliers.all():
         params = _geometric(params, xy[inliers], loss="linear", f_scale=1.0)
-        inliers = np.abs(_residuals(params, xy)) <= INLIER_SIGMAS * _robust_scale(_residuals(params, xy[inliers]))
+        inliers = np.abs(_residuals(params, xy)) <= INLIER_SIGMAS * robust_scale(_residuals(params, xy[inliers]))
     if inliers.sum() < 3:
         inliers = np.ones(len(xy), bool)
     kept = xy[inliers]
@@ -247,7 +247,7 @@ def _geometric(params: np.ndarray, xy: np.ndarray, loss: str, f_scale: float) ->
     return result.x if np.isfinite(result.x).all() else params
 
 
-def _robust_scale(residual: np.ndarray) -> float:
+def robust_scale(residual: np.ndarray) -> float:
     """1.4826 x the median absolute deviation from zero (a Gaussian's standard deviation), floored."""
     return max(1.4826 * float(np.median(np.abs(residual))), SCALE_FLOOR_M)
 
@@ -410,11 +410,11 @@ def fit_circle_beam(xy, viewpoint, footprint_m: float, start: CircleFit | None =
 
     shift = np.array([0.0, 0.0, start.radius_m])
     residual = residuals(shift, xy, distance)
-    scale = _robust_scale(residual[residual != 0])
+    scale = robust_scale(residual[residual != 0])
     shift = least_squares(residuals, shift, args=(xy, distance), loss="soft_l1", f_scale=scale, method="trf",
                           x_scale=x_scale, max_nfev=200).x
     residual = residuals(shift, xy, distance)
-    inliers = np.abs(residual) <= INLIER_SIGMAS * _robust_scale(residual[residual != 0])
+    inliers = np.abs(residual) <= INLIER_SIGMAS * robust_scale(residual[residual != 0])
     if inliers.sum() >= 3 and not inliers.all():
         shift = least_squares(residuals, shift, args=(xy[inliers], distance[inliers]), method="trf",
                               x_scale=x_scale, max_nfev=200).x

@@ -35,6 +35,7 @@ from scipy.spatial import cKDTree
 from woody.circles import CircleFit, fit_circle, fit_circle_beam
 from woody.cloud import check_points
 from woody.errors import WoodyError
+from woody.facing import BAND_M, ONE_SIDED_ARC_DEG, facing_radius
 from woody.geometry import cylinder_arrays, orthonormal_frame
 from woody.ground import ENVELOPE_M, GROUND_RANK, ground_grid, local_ground_z
 
@@ -313,7 +314,8 @@ def _check_beam(viewpoint, footprint) -> tuple[np.ndarray, float, float] | None:
 
 def _measure_stem(points, tree, first: CircleFit, ground: float, height_m: float, slice_m: float, beam=None):
     """Axis from sub-slices, then the circle of the slice at breast height along that axis (with the beam's
-    widening modelled when ``beam``, from :func:`_check_beam`, is given)."""
+    widening modelled when ``beam``, from :func:`_check_beam`, is given); without the beam, a stem seen from one
+    side takes its radius and centre from its facing arc over a band (:func:`woody.facing.facing_radius`)."""
     reach = 1.5 * first.radius_m + 0.05
     centre = np.array([first.centre[0], first.centre[1], ground + height_m])
     near = np.asarray(tree.query_ball_point(centre, np.hypot(reach, AXIS_BAND_M + slice_m)), dtype=np.int64)
@@ -338,9 +340,15 @@ def _measure_stem(points, tree, first: CircleFit, ground: float, height_m: float
             fit = fit_circle_beam(planar, [seen @ u, seen @ v], footprint_m, start=fit)
     except WoodyError:
         return None
-    on_axis = centre + fit.centre[0] * u + fit.centre[1] * v
+    radius, centre_uv = fit.radius_m, fit.centre
+    if beam is None and fit.arc_deg <= ONE_SIDED_ARC_DEG:
+        band = np.asarray(tree.query_ball_point(centre, np.hypot(reach, BAND_M)), dtype=np.int64)
+        facing = facing_radius(points[band], centre, axis, u, v, fit.centre, fit.radius_m)
+        if facing is not None:
+            radius, centre_uv = facing
+    on_axis = centre + centre_uv[0] * u + centre_uv[1] * v
     on_axis -= (on_axis[2] - centre[2]) / axis[2] * axis  # the axis point at breast height
-    return StemDBH(dbh_m=2.0 * fit.radius_m, centre=on_axis, axis=axis,
+    return StemDBH(dbh_m=2.0 * radius, centre=on_axis, axis=axis,
                    height_m=height_m, ground_z_m=float(ground), arc_deg=fit.arc_deg, residual_m=fit.residual_m,
                    n_points=fit.n_inliers, flag=quality_flag(fit))
 
