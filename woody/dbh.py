@@ -111,7 +111,7 @@ class StemDBH:
 
 def measure_dbh(points, ground_z: float | None = None, height_m: float = BREAST_HEIGHT_M,
                 slice_m: float = 0.1, min_dbh_m: float = 0.02, max_dbh_m: float = 3.0, viewpoint=None,
-                footprint: tuple[float, float] | None = None) -> list[StemDBH]:
+                footprint: tuple[float, float] | None = None, facing: bool = True) -> list[StemDBH]:
     """DBH of every stem that crosses breast height in a point cloud.
 
     Parameters
@@ -140,6 +140,11 @@ def measure_dbh(points, ground_z: float | None = None, height_m: float = BREAST_
         half-angle); the footprint at a stem is ``footprint[0] + range x
         footprint[1]`` (e.g. the FARO LS880 preset of :mod:`tlssim.scanner`:
         0.003 m and 0.000489).
+    facing : bool
+        Without a beam, take a stem seen from one side from its facing arc
+        over a 1 m band (:func:`woody.facing.facing_radius`), which the
+        beam's widening of the silhouette does not bias; False: the slice's
+        circle alone.
 
     Returns
     -------
@@ -176,7 +181,7 @@ def measure_dbh(points, ground_z: float | None = None, height_m: float = BREAST_
         if not (min_dbh_m <= 2 * first.radius_m <= max_dbh_m) or first.n_inliers < MIN_POINTS:
             continue
         ground = ground_z if grid is None else _stem_ground(points, grid, first)
-        stem = _measure_stem(points, tree, first, ground, height_m, slice_m, beam)
+        stem = _measure_stem(points, tree, first, ground, height_m, slice_m, beam, facing)
         if stem is not None and min_dbh_m <= stem.dbh_m <= max_dbh_m:
             stems.append(stem)
     if not stems:
@@ -312,10 +317,12 @@ def _check_beam(viewpoint, footprint) -> tuple[np.ndarray, float, float] | None:
     return viewpoint, exit_m, growth
 
 
-def _measure_stem(points, tree, first: CircleFit, ground: float, height_m: float, slice_m: float, beam=None):
+def _measure_stem(points, tree, first: CircleFit, ground: float, height_m: float, slice_m: float, beam=None,
+                  facing: bool = True):
     """Axis from sub-slices, then the circle of the slice at breast height along that axis (with the beam's
-    widening modelled when ``beam``, from :func:`_check_beam`, is given); without the beam, a stem seen from one
-    side takes its radius and centre from its facing arc over a band (:func:`woody.facing.facing_radius`)."""
+    widening modelled when ``beam``, from :func:`_check_beam`, is given); without the beam and with ``facing``, a
+    stem seen from one side takes its radius and centre from its facing arc over a band
+    (:func:`woody.facing.facing_radius`)."""
     reach = 1.5 * first.radius_m + 0.05
     centre = np.array([first.centre[0], first.centre[1], ground + height_m])
     near = np.asarray(tree.query_ball_point(centre, np.hypot(reach, AXIS_BAND_M + slice_m)), dtype=np.int64)
@@ -341,7 +348,7 @@ def _measure_stem(points, tree, first: CircleFit, ground: float, height_m: float
     except WoodyError:
         return None
     radius, centre_uv = fit.radius_m, fit.centre
-    if beam is None and fit.arc_deg <= ONE_SIDED_ARC_DEG:
+    if facing and beam is None and fit.arc_deg <= ONE_SIDED_ARC_DEG:
         band = np.asarray(tree.query_ball_point(centre, np.hypot(reach, BAND_M)), dtype=np.int64)
         facing = facing_radius(points[band], centre, axis, u, v, fit.centre, fit.radius_m)
         if facing is not None:

@@ -153,10 +153,13 @@ def follow_trunk(points, ground_z: float | None = None, slab_m: float | None = N
 
 
 def _start(points: np.ndarray, ground_z: float | None):
-    """The main stem at breast height, or lower on a tree that forks below it (the best-fitted, most points)."""
+    """The main stem at breast height, or lower on a tree that forks below it (the best-fitted, most points).
+
+    The walk starts from the slice's circle, not the facing arc's (``facing=False``): with the facing arc's
+    radius, the quick suite's leafy tree (`cylinders-trunk`) went from +1.3 to +21.2 % volume (round 34)."""
     for height in START_HEIGHTS_M:
         try:
-            stems = [s for s in measure_dbh(points, ground_z=ground_z, height_m=height)
+            stems = [s for s in measure_dbh(points, ground_z=ground_z, height_m=height, facing=False)
                      if _trunk_like(s.flag, s.arc_deg, s.residual_m, s.dbh_m / 2)]
         except WoodyError:
             continue
