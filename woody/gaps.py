@@ -26,8 +26,8 @@ first cylinder to its parent's surface (Raumonen et al. 2013, Remote Sens. 5: 49
   filled over 38 cm, 0.12 dm3 beside the wood, before this condition).
 
 The stretch between is filled with cylinders along that line whose radii follow the pipe model from the
-branch's first resolved section: ``r0 sqrt((G + t) / G)`` at a distance ``t`` back from it, ``G`` the growth length
-the branch carries (its sections and its descendants'), at most the radius of the wood the line meets.
+branch's first resolved section: ``r0 sqrt((G + t) / G)`` at a distance ``t`` back from it, ``G`` the growth
+length the branch carries (its sections and its descendants'), at most the radius of the wood the line meets.
 A twig that starts on a limb, or whose line meets only thinner wood, is left alone.
 
 On the trees suite (``benchmarks/suites/trees.yaml``) the leafy pears' volume errors went from -26.2 / -18.1
@@ -112,7 +112,7 @@ def fill_gaps(records: list[dict], points: np.ndarray, bridge_m: float, section_
         added = _fill(origin, direction, gap, r0, grown, limit, section_radii)
         # The filled radii are the pipe model's from a resolved section: marked resolved, a later pass of the pipe
         # model (woody.trunk.follow_tree) does not shrink them to a thin parent's. They replace the branch's own
-        # unresolved sections before its first resolved one, which lie on the filled line.
+        # unresolved sections before its first resolved one, which run forward along the filled line.
         reliable = list(record.get("reliable", [True] * len(record["sections"])))
         record["reliable"] = [True] * len(added) + reliable[first:]
         record["sections"] = added + list(record["sections"][first:])
