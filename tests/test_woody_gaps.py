@@ -110,3 +110,32 @@ def test_a_first_radius_fitted_near_zero_is_judged_at_once():
     assert fill_gaps(records, seen, 1.0, 4.0) == 0
     assert records[1]["sections"] == sections
 
+
+
+def test_a_limbs_unresolved_pieces_before_its_first_resolved_section_are_filled_over():
+    # Leaves split a limb's base into strips: growth followed it as thin pieces the points do not resolve (2 mm
+    # here), then resolved it (1 cm). The line back from the first resolved section is filled to the stem, and
+    # the unresolved pieces on it are replaced by the fill.
+    records, seen = _records(0.01, 0.3, 0.6)
+    resolved = records[1]["sections"][2:]
+    records[1]["sections"][:2] = [(a, b, 0.002) for a, b, _ in records[1]["sections"][:2]]
+    records[1]["reliable"][:2] = [False, False]
+    assert fill_gaps(records, seen, 1.0, 4.0) == 1
+    sections = records[1]["sections"]
+    assert sections[-len(resolved):] == resolved and all(records[1]["reliable"])
+    filled = sections[:-len(resolved)]
+    assert abs(filled[0][0][0] - 0.05) <= 0.005 and abs(filled[-1][1][0] - resolved[0][0][0]) < 1e-9
+    assert all(r >= 0.01 for _, _, r in filled)  # the pipe model from the resolved section, not the 2 mm pieces
+    # A piece that runs back towards the stem is no stretch of the limb: the branch is left alone.
+    records, seen = _records(0.01, 0.3, 0.6)
+    records[1]["sections"][:2] = [(b, a, 0.002) for a, b, _ in records[1]["sections"][:2]]
+    records[1]["reliable"][:2] = [False, False]
+    sections = list(records[1]["sections"])
+    assert fill_gaps(records, seen, 1.0, 4.0) == 0
+    assert records[1]["sections"] == sections
+    # Unresolved pieces that start on the stem's surface leave no gap to fill: the branch is left alone.
+    records, seen = _records(0.01, 0.0, 0.6)
+    records[1]["reliable"][:1] = [False]
+    sections = list(records[1]["sections"])
+    assert fill_gaps(records, seen, 1.0, 4.0) == 0
+    assert records[1]["sections"] == sections
