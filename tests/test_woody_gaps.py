@@ -111,7 +111,6 @@ def test_a_first_radius_fitted_near_zero_is_judged_at_once():
     assert records[1]["sections"] == sections
 
 
-
 def test_a_limbs_unresolved_pieces_before_its_first_resolved_section_are_filled_over():
     # Leaves split a limb's base into strips: growth followed it as thin pieces the points do not resolve (2 mm
     # here), then resolved it (1 cm). The line back from the first resolved section is filled to the stem, and
