@@ -350,9 +350,9 @@ def _measure_stem(points, tree, first: CircleFit, ground: float, height_m: float
     radius, centre_uv = fit.radius_m, fit.centre
     if facing and beam is None and fit.arc_deg <= ONE_SIDED_ARC_DEG:
         band = np.asarray(tree.query_ball_point(centre, np.hypot(reach, BAND_M)), dtype=np.int64)
-        facing = facing_radius(points[band], centre, axis, u, v, fit.centre, fit.radius_m)
-        if facing is not None:
-            radius, centre_uv = facing
+        arc = facing_radius(points[band], centre, axis, u, v, fit.centre, fit.radius_m)
+        if arc is not None:
+            radius, centre_uv = arc
     on_axis = centre + centre_uv[0] * u + centre_uv[1] * v
     on_axis -= (on_axis[2] - centre[2]) / axis[2] * axis  # the axis point at breast height
     return StemDBH(dbh_m=2.0 * radius, centre=on_axis, axis=axis,
