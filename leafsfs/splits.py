@@ -51,16 +51,6 @@ MIN_ANGLE_DEG = 20.0
 #: parted measured 0.4-4.8 times the median, those whose split moved a leaf's area most 2.1-4.8; the single leaves
 #: cut in two 0.25-1.75, once 2.2.
 MIN_AREA_RATIO = 2.0
-#: A surface of at least this many times the median area, but under :data:`MIN_AREA_RATIO` times it, is tested too,
-#: and split only where the parts' cubics meet at :data:`MIN_SMALL_ANGLE_DEG` or more. Assumption: 1, a typical leaf
-#: (two leaves merged hold more than one, unless both are smaller than typical).
-MIN_SMALL_RATIO = 1.0
-#: Where the parts of a surface of :data:`MIN_SMALL_RATIO` to :data:`MIN_AREA_RATIO` times the median area touch, the
-#: two cubics' normals must lie at least this far apart, deg: more than one leaf turns over its blade, so that a single
-#: leaf of a typical size that bends or rolls is not cut. Source: the pear leaves of :mod:`scenes.leaf` bend by at most
-#: 0.6 rad (34 deg, tip against base) and roll by at most 0.5 rad (29 deg, margin against midrib); assumption: a real
-#: leaf turns no more.
-MIN_SMALL_ANGLE_DEG = 35.0
 #: Smallest share of the surface's pulses in a part.
 MIN_PART_SHARE = 0.1
 #: Half-size of the window over which the local normals of the first partition are taken, pixels.
@@ -86,9 +76,7 @@ def split_merged(surfaces: np.ndarray, candidates: np.ndarray, range_m: np.ndarr
     of the second cubic, the two cubics' normals lie at least
     :data:`MIN_ANGLE_DEG` apart where the parts touch, and each part holds
     at least ``min_pixels`` pulses and :data:`MIN_PART_SHARE` of the
-    surface. A surface of :data:`MIN_SMALL_RATIO` to :data:`MIN_AREA_RATIO`
-    times the median area is tested too, with :data:`MIN_SMALL_ANGLE_DEG`
-    for the angle.
+    surface.
 
     Parameters
     ----------
@@ -119,11 +107,8 @@ def split_merged(surfaces: np.ndarray, candidates: np.ndarray, range_m: np.ndarr
     area = surface_areas(surfaces, candidates, range_m, theta, psi, 2 * min_pixels)
     measured = np.isfinite(area)
     tested = np.zeros(len(area), dtype=bool)
-    min_angle = np.full(len(area), MIN_ANGLE_DEG)
     if measured.any():
-        median = np.median(area[measured])
-        tested[measured] = area[measured] >= MIN_SMALL_RATIO * median
-        min_angle[measured & (area < MIN_AREA_RATIO * median)] = MIN_SMALL_ANGLE_DEG
+        tested[measured] = area[measured] >= MIN_AREA_RATIO * np.median(area[measured])
     for k, box in enumerate(ndimage.find_objects(surfaces), start=1):
         if box is None or k >= len(tested) or not tested[k]:
             continue
@@ -139,7 +124,7 @@ def split_merged(surfaces: np.ndarray, candidates: np.ndarray, range_m: np.ndarr
         if sizes.min() < max(min_pixels, MIN_PART_SHARE * n):
             continue
         one, apart, _, angle = part_scores(part, range_m[box], theta[box], psi[box], noise[box])
-        if not (n * (one - apart) > price and angle >= min_angle[k]):
+        if not (n * (one - apart) > price and angle >= MIN_ANGLE_DEG):
             continue
         count += 1
         out[box][part == 1 + int(np.argmin(sizes))] = count

@@ -5,8 +5,7 @@ import numpy as np
 from scipy.spatial import ConvexHull
 
 from leafsfs.leaves import segment_scan
-from leafsfs.splits import (MIN_ANGLE_DEG, MIN_AREA_RATIO, MIN_EVIDENCE, MIN_SMALL_ANGLE_DEG, MIN_SMALL_RATIO, part_scores,
-                            split_merged, surface_areas, two_parts)
+from leafsfs.splits import MIN_ANGLE_DEG, MIN_EVIDENCE, part_scores, split_merged, surface_areas, two_parts
 from tlssim.pattern import beam_frame
 
 STEP = math.radians(0.036)
@@ -205,22 +204,3 @@ def test_a_curled_leaf_beside_a_plane_keeps_its_far_end():
     inside = np.isfinite(range_m)
     part = two_parts(inside, range_m, theta, psi, np.full(inside.shape, NOISE_M))
     assert _apart(part, front, back & ~front)
-
-
-def test_two_small_leaves_meeting_steeply_are_split_though_together_under_two_typical_leaves():
-    # two leaves smaller than typical (20 x 26 pixels half-axes) overlapping in the image, 70 deg apart (tan 35 deg and
-    # tan -35 deg), the back one 4 mm behind where they meet: together 1-2 typical leaves, so only the steeper
-    # angle of the small-surface test (MIN_SMALL_ANGLE_DEG) can part them
-    i, j = np.mgrid[:ROWS, :COLS]
-    x = j * 2.0 * STEP  # across-beam distance at 2 m, m
-    front, back = _leaf((45, 58), (20, 26)), _leaf((45, 92), (20, 26))
-    x_meet = 84 * 2.0 * STEP  # the front leaf's right end
-    slope = math.tan(math.radians(35))
-    range_m = np.where(front, 2.0 + slope * (x - x_meet), np.where(back, 2.004 - slope * (x - x_meet), np.nan))
-    range_m = range_m + NOISE_M * np.random.default_rng(4).standard_normal(range_m.shape)
-    wide, labels, (theta, psi) = _with_typical_leaves(range_m)
-    area = surface_areas(labels, np.ones(labels.max() + 1, dtype=bool), wide, theta, psi, 60)
-    assert MIN_SMALL_RATIO <= area[1] / np.median(area[1:]) < MIN_AREA_RATIO
-    assert MIN_SMALL_ANGLE_DEG > MIN_ANGLE_DEG
-    labels, parents = _split(range_m)
-    assert parents.tolist() == [1] and _apart(labels, front, back & ~front)
