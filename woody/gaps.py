@@ -30,6 +30,11 @@ branch's first resolved section: ``r0 sqrt((G + t) / G)`` at a distance ``t`` ba
 length the branch carries (its sections and its descendants'), at most the radius of the wood the line meets.
 A twig that starts on a limb, or whose line meets only thinner wood, is left alone.
 
+Where leaf shadows split a limb's stretch into strips of its surface, each followed as an unresolved piece of
+its own whose axis lies on the limb's surface, the strips are the evidence instead (:func:`extend_over_strips`,
+after :func:`fill_gaps`): the limb is extended back from its first resolved section along its line as far as
+they run, with the same pipe-model radii.
+
 On the trees suite (``benchmarks/suites/trees.yaml``) the leafy pears' volume errors went from -26.2 / -18.1
 / -28.3 % to -21.8 / -15.4 / -25.7 %. Known failure: at a four-way fork, a leader's first section fitted
 5 cm off the leader gives a fill beside the wood (the quick suite's leafy tree at 0.08 deg with the trunk
@@ -133,7 +138,7 @@ def extend_over_strips(records: list[dict], bridge_m: float, section_radii: floa
     (often a chain of fragments, each the child of the last) whose points do not resolve the limb's radius: the
     pipe model and the footprint bound hold them near the strip's width, and their axes lie on the limb's
     surface, a radius off its axis. On the scored 20-50 mm leaders of simulated leafy pears (0.036 deg, 4 m)
-    11.5 of the 14.4 dm3 of seen volume missed over nine trees lay beside such pieces, their axes 1-2 radii off
+    11.7 of the 14.4 dm3 of seen volume missed over nine trees lay beside such pieces, their axes 1-2 radii off
     the limb's (round 35). :func:`fill_gaps` fills such a stretch only where the limb's line meets wood behind
     it; here the strips themselves are the evidence. Behind a branch's first resolved section (radius ``r0``,
     line: its chord, as in :func:`fill_gaps`), the unresolved sections narrower than :data:`STRIP_WIDTH` ``r0``
