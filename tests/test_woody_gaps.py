@@ -159,12 +159,18 @@ def _strip_records(offset: float, strip_radius: float, holes: tuple = ()) -> lis
     return records
 
 
+def _surface(radius: float) -> np.ndarray:
+    """Points at ``radius`` m from the z axis, 80 deg of arc facing +x, every 5 mm of z from 0.1 to 0.98 m."""
+    z, angle = np.meshgrid(np.arange(0.1, 0.98, 0.005), np.radians(np.arange(-40, 41, 10)))
+    return np.column_stack([radius * np.cos(angle.ravel()), radius * np.sin(angle.ravel()), z.ravel()])
+
+
 def test_a_limb_is_extended_back_over_the_strips_of_its_surface():
     # The strips' axes lie on the limb's surface (one radius off its axis) and 3 mm wide: the limb is filled back
     # from its resolved part along its own axis, at the pipe model's radii from its own (it carries 0.48 m), as far
     # as the strips reach (z 0.1).
     records = _strip_records(0.02, 0.003)
-    assert extend_over_strips(records, 1.0, 4.0) == 1
+    assert extend_over_strips(records, _surface(0.02), 1.0, 4.0) == 1
     top = records[-1]
     start, end, radius = top["sections"][0]
     assert np.allclose(start, [0.0, 0.0, 0.1], atol=1e-9) and all(top["reliable"])
@@ -175,13 +181,15 @@ def test_a_limb_is_extended_back_over_the_strips_of_its_surface():
     assert np.isclose(sum(e[2] - a[2] for a, e, _ in filled), 0.4)
 
 
-def test_no_extension_over_pieces_off_the_limb_as_wide_as_it_or_across_a_break():
-    # Pieces 2 radii off the line are no strips of it, nor pieces as wide as half the limb; a break of 12 cm (over
-    # 4 radii) in the strips, from z 0.28 to 0.40, ends the stretch at it.
-    for offset, radius in ((0.04, 0.003), (0.02, 0.011)):
+def test_no_extension_over_pieces_off_the_limb_as_wide_as_it_across_a_break_or_off_the_points():
+    # Pieces 2 radii off the line are no strips of it, nor pieces as wide as half the limb; nor is a stretch whose
+    # points lie 0.7 of its radius from its line (a first section fitted too wide) or none at all; a break of 12 cm
+    # (over 4 radii) in the strips, from z 0.28 to 0.40, ends the stretch at it.
+    for offset, radius, points in ((0.04, 0.003, _surface(0.02)), (0.02, 0.011, _surface(0.02)),
+                                   (0.02, 0.003, _surface(0.014)), (0.02, 0.003, _surface(0.02)[:0])):
         records = _strip_records(offset, radius)
-        assert extend_over_strips(records, 1.0, 4.0) == 0
+        assert extend_over_strips(records, points, 1.0, 4.0) == 0
         assert records[-1]["sections"][0][0][2] == 0.5
     records = _strip_records(0.02, 0.003, holes=(10, 11, 12, 13, 14))
-    assert extend_over_strips(records, 1.0, 4.0) == 1
+    assert extend_over_strips(records, _surface(0.02), 1.0, 4.0) == 1
     assert np.isclose(records[-1]["sections"][0][0][2], 0.40)
