@@ -66,11 +66,12 @@ GAP_RADII = 4.0
 #: to pieces under half the true radius against 0-0.46 to those within it.
 STRIP_WIDTH = 0.5
 #: The points within ``SHELL[1]`` radii of a stretch extended over strips must lie at a median distance from its
-#: line within this fraction of its radius of the radius (the limb's surface; the same tolerance as
-#: :data:`woody.cylinders.RESOLVED_SCATTER`): a first section fitted too wide or beside its limb puts its line
-#: near the limb's points or off them (the quick suite's leafy tree, followed with its trunk first: a 35 mm
-#: section on a 17 mm limb, its stretch's points at a median 0.73 of its radius, 3.2 dm3 of false volume;
-#: on the pears' leaders 0.87-1.22).
+#: line of at least (1 - this fraction) of its radius: the fill must not run through the limb's points (the same
+#: tolerance as :data:`woody.cylinders.RESOLVED_SCATTER`). A first section fitted too wide or beside its limb
+#: puts its line among them (the quick suite's leafy tree, followed with its trunk first: a 35 mm section on a
+#: 17 mm limb, its stretch's points at a median 0.73 of its radius, 3.2 dm3 of false volume); a first section
+#: fitted too thin leaves them farther out (a pear's 21 mm leader under an 18 mm section: 1.26), the fill on the
+#: safe side.
 SURFACE_SCATTER = 0.25
 #: Most samples along a ray (numerics: a first radius fitted near zero to collinear points would otherwise ask
 #: for billions; on a 1 m reach the samples stay at most 0.1 mm apart).
@@ -237,10 +238,11 @@ def _strip_reach(origin: np.ndarray, direction: np.ndarray, r0: float, starts: n
 
 def _on_surface(points: np.ndarray, close: np.ndarray, far: np.ndarray, r0: float) -> bool:
     """Whether the points (m) within ``SHELL[1] r0`` (m) of the line ``close -> far`` (m), projecting inside it, lie
-    at a median distance from it within :data:`SURFACE_SCATTER` ``r0`` of ``r0`` (False when there are none)."""
+    at a median distance from it of at least ``(1 -`` :data:`SURFACE_SCATTER` ``) r0`` (False when there are
+    none)."""
     distance, t = segment_distance(points, close, far)
     near = distance[(t > 0) & (t < 1) & (distance <= SHELL[1] * r0)]
-    return bool(len(near)) and abs(float(np.median(near)) - r0) <= SURFACE_SCATTER * r0
+    return bool(len(near)) and float(np.median(near)) >= (1.0 - SURFACE_SCATTER) * r0
 
 
 def _first_resolved(record: dict) -> int | None:
