@@ -154,7 +154,8 @@ def _strip_records(offset: float, strip_radius: float, holes: tuple = ()) -> lis
     top = len(records)
     records[-1]["children"] = [top]
     records.append({"id": top, "parent": top - 1, "children": [], "start": [0.0, 0.0, 0.5],
-                    "sections": [([0.0, 0.0, z], [0.0, 0.0, z + 0.08], 0.02) for z in (0.5, 0.58, 0.66, 0.74, 0.82, 0.9)],
+                    "sections": [([0.0, 0.0, z], [0.0, 0.0, z + 0.08], 0.02)
+                                 for z in (0.5, 0.58, 0.66, 0.74, 0.82, 0.9)],
                     "reliable": [True] * 6})
     return records
 

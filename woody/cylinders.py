@@ -622,7 +622,8 @@ def _follow(points: np.ndarray, params: FollowParams, progress: bool, timings: d
         extended = extend_over_strips(records, points, params.bridge_m, params.section_radii)
     stats = {"points": len(points), "spacing_m": spacing, "precision_m": precision, "branches_grown": grown,
              "branches": len(records), "unassigned": int((labels < 0).sum()), "balance_passes": passes,
-             "gaps_filled": filled, "strips_extended": extended, "max_order": max(b["order"] for b in records), **timings}
+             "gaps_filled": filled, "strips_extended": extended, "max_order": max(b["order"] for b in records),
+             **timings}
     return FollowResult(records, labels, stats)
 
 

@@ -154,9 +154,10 @@ def extend_over_strips(records: list[dict], points: np.ndarray, bridge_m: float,
     the reach of those before it, make the stretch (at most ``bridge_m``; up to the first resolved wood at
     least ``r0`` wide the line meets, including the stretches extended before). It is filled as
     :func:`fill_gaps` fills, when it is at least :data:`GAP_RADII` ``r0`` long, at most the growth length
-    the branch carries, and the points beside it lie on the limb's surface (:func:`_on_surface`). The strips' own sections stay (their volume is a small fraction: under
-    ``STRIP_WIDTH ** 2`` of the fill's); the branch's unresolved sections before its first resolved one are
-    replaced. Runs after :func:`fill_gaps` (a branch filled there meets its filled wood at once).
+    the branch carries, and the points beside it lie on the limb's surface (:func:`_on_surface`). The strips'
+    own sections stay (their volume is a small fraction: under ``STRIP_WIDTH ** 2`` of the fill's); the branch's
+    unresolved sections before its first resolved one are replaced. Runs after :func:`fill_gaps` (a branch filled
+    there meets its filled wood at once).
 
     Parameters
     ----------
