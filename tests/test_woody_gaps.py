@@ -4,7 +4,7 @@ its line; twigs beside the gap are not joined to wood they do not grow from."""
 import numpy as np
 
 from woody import follow_cylinders
-from woody.gaps import fill_gaps
+from woody.gaps import extend_over_strips, fill_gaps
 from woody.geometry import segment_distance
 from woody.synthetic import polyline_cylinders, sample_cylinders, straight_cylinder
 
@@ -138,3 +138,59 @@ def test_a_limbs_unresolved_pieces_before_its_first_resolved_section_are_filled_
     sections = list(records[1]["sections"])
     assert fill_gaps(records, seen, 1.0, 4.0) == 0
     assert records[1]["sections"] == sections
+
+
+def _strip_records(offset: float, strip_radius: float, holes: tuple = ()) -> list[dict]:
+    """A root record far off, and a limb of 2 cm radius along +z from z = 0: its resolved part (z 0.5-0.98) a child of
+    a chain of strip records (z 0.1-0.5, 2 cm pieces of ``strip_radius``, unresolved, their axes ``offset`` m off
+    the limb's along +x, but those whose index is in ``holes``)."""
+    records = [{"id": 0, "parent": -1, "children": [1], "start": [1.0, 1.0, -1.0],
+                "sections": [([1.0, 1.0, -1.0], [1.0, 1.0, 0.0], 0.05)], "reliable": [True]}]
+    edges = [k for k in np.arange(0.1, 0.5001, 0.02) if int(round((k - 0.1) / 0.02)) not in holes]
+    chain = [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b - a < 0.03]
+    for k, (a, b) in enumerate(chain):
+        records.append({"id": k + 1, "parent": k, "children": [k + 2], "start": [offset, 0.0, a],
+                        "sections": [([offset, 0.0, a], [offset, 0.0, b], strip_radius)], "reliable": [False]})
+    top = len(records)
+    records[-1]["children"] = [top]
+    records.append({"id": top, "parent": top - 1, "children": [], "start": [0.0, 0.0, 0.5],
+                    "sections": [([0.0, 0.0, z], [0.0, 0.0, z + 0.08], 0.02)
+                                 for z in (0.5, 0.58, 0.66, 0.74, 0.82, 0.9)],
+                    "reliable": [True] * 6})
+    return records
+
+
+def _surface(radius: float) -> np.ndarray:
+    """Points at ``radius`` m from the z axis, 80 deg of arc facing +x, every 5 mm of z from 0.1 to 0.98 m."""
+    z, angle = np.meshgrid(np.arange(0.1, 0.98, 0.005), np.radians(np.arange(-40, 41, 10)))
+    return np.column_stack([radius * np.cos(angle.ravel()), radius * np.sin(angle.ravel()), z.ravel()])
+
+
+def test_a_limb_is_extended_back_over_the_strips_of_its_surface():
+    # The strips' axes lie on the limb's surface (one radius off its axis) and 3 mm wide: the limb is filled back
+    # from its resolved part along its own axis, at the pipe model's radii from its own (it carries 0.48 m), as far
+    # as the strips reach (z 0.1).
+    records = _strip_records(0.02, 0.003)
+    assert extend_over_strips(records, _surface(0.02), 1.0, 4.0) == 1
+    top = records[-1]
+    start, end, radius = top["sections"][0]
+    assert np.allclose(start, [0.0, 0.0, 0.1], atol=1e-9) and all(top["reliable"])
+    filled = [s for s in top["sections"] if s[1][2] <= 0.5 + 1e-9]
+    assert len(filled) == 5 and all(abs(a[0]) < 1e-9 and abs(e[0]) < 1e-9 for a, e, _ in filled)
+    assert np.isclose(filled[0][2], 0.02 * np.sqrt((0.48 + 0.36) / 0.48))  # r0 sqrt((G + t) / G), t mid-piece
+    assert [r for _, _, r in filled] == sorted((r for _, _, r in filled), reverse=True)
+    assert np.isclose(sum(e[2] - a[2] for a, e, _ in filled), 0.4)
+
+
+def test_no_extension_over_pieces_off_the_limb_as_wide_as_it_across_a_break_or_off_the_points():
+    # Pieces 2 radii off the line are no strips of it, nor pieces as wide as half the limb; nor is a stretch whose
+    # points lie 0.7 of its radius from its line (a first section fitted too wide) or none at all; a break of 12 cm
+    # (over 4 radii) in the strips, from z 0.28 to 0.40, ends the stretch at it.
+    for offset, radius, points in ((0.04, 0.003, _surface(0.02)), (0.02, 0.011, _surface(0.02)),
+                                   (0.02, 0.003, _surface(0.014)), (0.02, 0.003, _surface(0.02)[:0])):
+        records = _strip_records(offset, radius)
+        assert extend_over_strips(records, points, 1.0, 4.0) == 0
+        assert records[-1]["sections"][0][0][2] == 0.5
+    records = _strip_records(0.02, 0.003, holes=(10, 11, 12, 13, 14))
+    assert extend_over_strips(records, _surface(0.02), 1.0, 4.0) == 1
+    assert np.isclose(records[-1]["sections"][0][0][2], 0.40)
