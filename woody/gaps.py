@@ -101,22 +101,11 @@ def fill_gaps(records: list[dict], points: np.ndarray, bridge_m: float, section_
     """
     if bridge_m <= 0 or len(records) < 2:
         return 0
-    starts = np.array([s[0] for r in records for s in r["sections"]], float)
-    ends = np.array([s[1] for r in records for s in r["sections"]], float)
-    radii = np.array([s[2] for r in records for s in r["sections"]], float)
-    owner = np.array([i for i, r in enumerate(records) for _ in r["sections"]])
-    reliable = np.array([ok for r in records for ok in r.get("reliable", [True] * len(r["sections"]))], bool)
+    starts, ends, radii, owner, reliable = _section_arrays(records)
     index = {r["id"]: i for i, r in enumerate(records)}
     carried = _growth_lengths(records, index)
     fills = []
-    for i, record in enumerate(records):
-        first = _first_resolved(record)
-        if record["parent"] < 0 or first is None:
-            continue
-        line = _chord(record["sections"][first:])
-        if line is None:
-            continue
-        origin, direction, r0 = line
+    for i, record, first, origin, direction, r0 in _limb_lines(records):
         if not _forward(record["sections"][:first], direction):
             continue
         subtree = _subtree(records, index, i)
@@ -128,14 +117,7 @@ def fill_gaps(records: list[dict], points: np.ndarray, bridge_m: float, section_
         fills.append((i, first, origin, direction, r0, hit, carried[i]))
     for i, first, origin, direction, r0, (gap, limit), grown in fills:
         record = records[i]
-        added = _fill(origin, direction, gap, r0, grown, limit, section_radii)
-        # The filled radii are the pipe model's from a resolved section: marked resolved, a later pass of the pipe
-        # model (woody.trunk.follow_tree) does not shrink them to a thin parent's. They replace the branch's own
-        # unresolved sections before its first resolved one, which run forward along the filled line.
-        reliable = list(record.get("reliable", [True] * len(record["sections"])))
-        record["reliable"] = [True] * len(added) + reliable[first:]
-        record["sections"] = added + list(record["sections"][first:])
-        record["start"] = list(added[0][0])
+        _replace_start(record, first, _fill(origin, direction, gap, r0, grown, limit, section_radii))
     return len(fills)
 
 
@@ -178,23 +160,12 @@ def extend_over_strips(records: list[dict], points: np.ndarray, bridge_m: float,
     """
     if bridge_m <= 0 or len(records) < 2:
         return 0
-    starts = np.array([s[0] for r in records for s in r["sections"]], float)
-    ends = np.array([s[1] for r in records for s in r["sections"]], float)
-    radii = np.array([s[2] for r in records for s in r["sections"]], float)
-    owner = np.array([i for i, r in enumerate(records) for _ in r["sections"]])
-    reliable = np.array([ok for r in records for ok in r.get("reliable", [True] * len(r["sections"]))], bool)
+    starts, ends, radii, owner, reliable = _section_arrays(records)
     index = {r["id"]: i for i, r in enumerate(records)}
     carried = _growth_lengths(records, index)
     added_wood: list[tuple] = []
     count = 0
-    for i, record in enumerate(records):
-        first = _first_resolved(record)
-        if record["parent"] < 0 or first is None:
-            continue
-        line = _chord(record["sections"][first:])
-        if line is None:
-            continue
-        origin, direction, r0 = line
+    for i, record, first, origin, direction, r0 in _limb_lines(records):
         reach = _strip_reach(origin, direction, r0, starts, ends, radii, reliable, bridge_m)
         if reach < GAP_RADII * r0:
             continue
@@ -209,13 +180,41 @@ def extend_over_strips(records: list[dict], points: np.ndarray, bridge_m: float,
         if not GAP_RADII * r0 <= reach <= carried[i] or not _on_surface(points, origin, origin - reach * direction, r0):
             continue
         added = _fill(origin, direction, reach, r0, carried[i], limit, section_radii)
-        reliable_i = list(record.get("reliable", [True] * len(record["sections"])))
-        record["reliable"] = [True] * len(added) + reliable_i[first:]
-        record["sections"] = added + list(record["sections"][first:])
-        record["start"] = list(added[0][0])
+        _replace_start(record, first, added)
         added_wood += added
         count += 1
     return count
+
+
+def _limb_lines(records: list[dict]):
+    """Each branch record with a parent and a resolved section, as ``(index, record, first, origin, direction,
+    r0)``: its first resolved section's index and the line of its chord from there (:func:`_chord`), generated as
+    the loop goes (a record changed in the loop is read changed)."""
+    for i, record in enumerate(records):
+        first = _first_resolved(record)
+        line = None if record["parent"] < 0 or first is None else _chord(record["sections"][first:])
+        if line is not None:
+            yield (i, record, first, *line)
+
+
+def _section_arrays(records: list[dict]) -> tuple:
+    """Every section of the records as arrays: starts and ends (m), radii (m), owning record's index, resolved."""
+    starts = np.array([s[0] for r in records for s in r["sections"]], float)
+    ends = np.array([s[1] for r in records for s in r["sections"]], float)
+    radii = np.array([s[2] for r in records for s in r["sections"]], float)
+    owner = np.array([i for i, r in enumerate(records) for _ in r["sections"]])
+    reliable = np.array([ok for r in records for ok in r.get("reliable", [True] * len(r["sections"]))], bool)
+    return starts, ends, radii, owner, reliable
+
+
+def _replace_start(record: dict, first: int, added: list) -> None:
+    """Put the filled sections ``added`` before a branch record's first resolved one (index ``first``), in place of
+    its unresolved sections there. The filled radii are the pipe model's from a resolved section: marked
+    resolved, a later pass of the pipe model (woody.trunk.follow_tree) does not shrink them to a thin parent's."""
+    reliable = list(record.get("reliable", [True] * len(record["sections"])))
+    record["reliable"] = [True] * len(added) + reliable[first:]
+    record["sections"] = added + list(record["sections"][first:])
+    record["start"] = list(added[0][0])
 
 
 def _strip_reach(origin: np.ndarray, direction: np.ndarray, r0: float, starts: np.ndarray, ends: np.ndarray,
