@@ -19,6 +19,10 @@ leader's surface behind its start (its axis line extended back to the fork)
 go to that leader, so that the leaders start at the fork; the stem keeps the
 others. Lengths in m.
 
+Where the fork is hidden, :func:`fill_to_fork` finds it from the leaders instead: a leader resolved above it
+whose line points back to the stem's top is filled straight back to it (on the branch records, after the gap
+fill and the strip extension of :mod:`woody.gaps`).
+
 On the quick suite's leafy tree (0.08 deg) with the trunk fitted first the branch continuing the trunk ends
 26 cm past the fork instead of 48 cm: volume error +16.8 -> +1.3 %, false-positive volume 5.14 -> 3.25 dm3.
 On the trees suite (0.036 deg) no grown stem has such a fork (a pear's trunk whose surface leaf shadows cut fits
