@@ -197,7 +197,7 @@ from woody.cylfit import angle_deg
 from woody.density import thin_to_spacing
 from woody.errors import WoodyError
 from woody.footprint import facing_radius, lateral_radii
-from woody.fork import cut_forks, fill_to_fork
+from woody.fork import cut_forks
 from woody.gaps import extend_over_strips, fill_gaps
 from woody.geometry import cylinders_mesh, cylinders_volume, orthonormal_frame, segment_distance
 from woody.growth import grow
@@ -608,7 +608,7 @@ def _follow(points: np.ndarray, params: FollowParams, progress: bool, timings: d
     timings["merge_s"] = time.perf_counter() - clock
 
     records, labels = _records(branches, params, len(points), spacing)
-    filled = extended = forked = 0
+    filled = extended = 0
     if params.mode == "strict":
         # The bounds from the points near each fitted section (the pipe model's radii would reach fewer of them).
         bounds = [lateral_radii(r["sections"], points, tree, params.viewpoint, params.footprint_m, spacing)
@@ -620,11 +620,10 @@ def _follow(points: np.ndarray, params: FollowParams, progress: bool, timings: d
             refit_facing(records, points, labels, params.viewpoint, params.footprint_m)
         filled = fill_gaps(records, points, params.bridge_m, params.section_radii)
         extended = extend_over_strips(records, points, params.bridge_m, params.section_radii)
-        forked = fill_to_fork(records, points, params.bridge_m, params.section_radii)
     stats = {"points": len(points), "spacing_m": spacing, "precision_m": precision, "branches_grown": grown,
              "branches": len(records), "unassigned": int((labels < 0).sum()), "balance_passes": passes,
-             "gaps_filled": filled, "strips_extended": extended, "leaders_to_fork": forked,
-             "max_order": max(b["order"] for b in records), **timings}
+             "gaps_filled": filled, "strips_extended": extended, "max_order": max(b["order"] for b in records),
+             **timings}
     return FollowResult(records, labels, stats)
 
 

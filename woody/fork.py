@@ -19,10 +19,6 @@ leader's surface behind its start (its axis line extended back to the fork)
 go to that leader, so that the leaders start at the fork; the stem keeps the
 others. Lengths in m.
 
-Where the fork is hidden, :func:`fill_to_fork` finds it from the leaders instead: a leader resolved above it
-whose line points back to the stem's top is filled straight back to it (on the branch records, after the gap
-fill and the strip extension of :mod:`woody.gaps`).
-
 On the quick suite's leafy tree (0.08 deg) with the trunk fitted first the branch continuing the trunk ends
 26 cm past the fork instead of 48 cm: volume error +16.8 -> +1.3 %, false-positive volume 5.14 -> 3.25 dm3.
 On the trees suite (0.036 deg) no grown stem has such a fork (a pear's trunk whose surface leaf shadows cut fits
@@ -40,8 +36,6 @@ from scipy.spatial import cKDTree
 from woody.branch import Branch
 from woody.circles import fit_circle
 from woody.errors import WoodyError
-from woody.gaps import GAP_RADII, _fill, _first_hit, _growth_lengths, _limb_lines, _replace_start, _section_arrays, \
-    _seen, _subtree
 from woody.geometry import orthonormal_frame
 
 #: A slice's part counts when it holds at least this fraction of the slice's points (assumption: chosen by
@@ -252,86 +246,3 @@ def cut_forks(branches: list[Branch], spacing: float) -> list[Branch]:
         branch.refit()
         _limbs(branches, branch, indices[above[~joined]], spacing)
     return branches
-
-
-#: A leader's line, extended back from its first resolved section, passes the stem's top within this many of the
-#: stem's radii when it is filled to the stem (:func:`fill_to_fork`). Assumption: leaders bend (on simulated leafy
-#: Conference pears at 0.036 deg the lines of 17-21 mm leaders resolved 0.3-0.8 m above the stem's top pass it 1.5
-#: to 1.9 stem radii off); a limb whose line passes farther does not grow from the fork.
-NODE_RADII = 2.0
-
-
-def fill_to_fork(records: list[dict], points: np.ndarray, bridge_m: float, section_radii: float) -> int:
-    """Fill each leader of the stem from its first resolved section straight back to the stem's top, in place.
-
-    Where the stem splits into leaders at a fork that the points do not show (:func:`fork_position`: the simulated
-    leafy pears at 0.036 deg), the leaders that lean away from the scanner are hidden behind those that lean
-    towards it for their first 20-40 cm (1-40 points per 10 cm of leader against 150-450) and start as records of
-    their own higher up. :func:`woody.gaps.fill_gaps` fills a limb along its own line only, which for a bent
-    leader passes beside the stem's top (5-8 cm off a 40-46 mm stem). Here a record whose first resolved section
-    (radius ``r0``, its chord's line as in :mod:`woody.gaps`) is a leader of the stem (:data:`LEADER_RADIUS` to
-    :data:`LIMB_WIDTH` of the radius ``R`` of the root record's last section), lies above the stem's top (the end of
-    that section, at most ``bridge_m`` from it), and whose line passes the stem's top within :data:`NODE_RADII`
-    ``R`` behind it, is filled along the straight path from its first resolved section to the stem's top, up to the
-    stem's surface, provided the path meets the stem before any other resolved wood at least ``r0`` wide (nor a
-    stretch filled here before: leaders are taken lowest first), is at least ``GAP_RADII r0`` long, and the scan
-    saw a point on it (:func:`woody.gaps._seen`). Radii: the pipe model from ``r0`` (:func:`woody.gaps._fill`),
-    carrying the record's growth length, at least the path's, at most ``R``. Runs after
-    :func:`woody.gaps.extend_over_strips`.
-
-    Parameters
-    ----------
-    records : list of dict
-        Branch records (``id``, ``parent``, ``children``, ``sections`` as ``(start, end, radius)`` in m,
-        ``reliable`` per section), parents first, the stem first.
-    points : ndarray, (n, 3)
-        The fitted cloud, m.
-    bridge_m : float
-        Longest path filled, m (``FollowParams.bridge_m``).
-    section_radii : float
-        Length of a filling cylinder, in its radii (``FollowParams.section_radii``; 0: one cylinder).
-
-    Returns
-    -------
-    int
-        Number of leaders filled.
-    """
-    if bridge_m <= 0 or len(records) < 2 or records[0]["parent"] >= 0 or not records[0]["sections"]:
-        return 0
-    base, node, stem_radius = records[0]["sections"][-1]
-    node = np.asarray(node, float)
-    axis = node - np.asarray(base, float)
-    axis /= np.linalg.norm(axis)
-    candidates = []
-    for i, _, first, origin, direction, r0 in _limb_lines(records):
-        rel = origin - node
-        back = float(rel @ direction)  # how far back along the line the stem's top lies
-        if LEADER_RADIUS * stem_radius <= r0 < LIMB_WIDTH * stem_radius and rel @ axis > 0 and \
-                np.linalg.norm(rel) <= bridge_m and back > 0 and \
-                np.linalg.norm(rel - back * direction) <= NODE_RADII * stem_radius:
-            candidates.append((float(rel @ axis), i, first, origin, r0))
-    starts, ends, radii, owner, reliable = _section_arrays(records)
-    index = {r["id"]: i for i, r in enumerate(records)}
-    carried = _growth_lengths(records, index)
-    added: list[tuple] = []
-    count = 0
-    for _, i, first, origin, r0 in sorted(candidates, key=lambda c: c[0]):
-        path = node - origin
-        length = float(np.linalg.norm(path))
-        path /= length
-        stem = owner == 0
-        hit = _first_hit(origin, path, length, starts[stem], ends[stem], radii[stem], step=r0 / 2)
-        if hit is None or hit[0] < GAP_RADII * r0 or not _seen(points, origin, origin + hit[0] * path, r0):
-            continue
-        other = reliable & (radii >= r0) & ~stem & ~np.isin(owner, _subtree(records, index, i))
-        met = [(a, e, r) for a, e, r in zip(starts[other], ends[other], radii[other])] + added
-        before = _first_hit(origin, path, hit[0], np.array([m[0] for m in met], float).reshape(-1, 3),
-                            np.array([m[1] for m in met], float).reshape(-1, 3), np.array([m[2] for m in met], float),
-                            step=r0 / 2)
-        if before is not None and before[0] < hit[0]:
-            continue
-        fill = _fill(origin, -path, hit[0], r0, max(float(carried[i]), hit[0]), hit[1], section_radii)
-        _replace_start(records[i], first, fill)
-        added += fill
-        count += 1
-    return count
