@@ -9,25 +9,22 @@ them where the two outlines join along a wide front, and the crease cut
 Such a region is compared with one of its leaves, and its area is the sum of
 both.
 
-The test uses the range and the scan grid only, in units of each pulse's range
-noise (the same at any step and distance): a surface is two when one smooth
-surface per part of a partition into two connected parts (:func:`two_parts`)
-explains its pulses much better than one smooth surface for all, and the two
-meet at an angle (:func:`part_scores`, :data:`MIN_EVIDENCE`,
-:data:`MIN_ANGLE_DEG`). Only a surface at least :data:`MIN_AREA_RATIO` times
-the median area of the scan's candidate surfaces is tested
-(:func:`surface_areas`): the area of two leaves, where a merge's area error is
-large; a single leaf of typical size that folds, curls or carries its stalk
-can pass the two-surface test, and cutting it loses a part of its area. A
-surface whose outline no convex blade has (:func:`ellipse_fill` at most
-:data:`MAX_ELLIPSE_FILL`: a leaf with a branch piece or a second leaf sticking
-out of it) is tested from :data:`MIN_LOBED_RATIO` times the median area, and
-split without the angle test: its outline, not the parts' tilt, tells it from
-one leaf. Smooth surface: a cubic height field over the principal plane of the
-pulses (assumption: a leaf blade, with its bend, roll and twist, departs from
-a cubic by much less than the range noise over its extent, as the leaf model
-of :mod:`scenes.leaf` does, whose wrinkles are 0.1-0.4 mm against 1-2 mm of
-noise; a branch across a leaf's width is close to one too).
+The test uses the range and the scan grid only, in units of each pulse's
+range noise (the same at any step and distance): a surface is two when one
+smooth surface per part of a partition into two connected parts
+(:func:`two_parts`) explains its pulses much better than one smooth surface
+for all, and the two meet at an angle (:func:`part_scores`,
+:data:`MIN_EVIDENCE`, :data:`MIN_ANGLE_DEG`). Only a surface at least
+:data:`MIN_AREA_RATIO` times the median area of the scan's candidate
+surfaces is tested (:func:`surface_areas`): the area of two leaves, where a
+merge's area error is large; a single leaf of typical size that folds,
+curls or carries its stalk can pass the two-surface test, and cutting it
+loses a part of its area. Smooth surface: a cubic height field
+over the principal plane of the pulses (assumption: a leaf blade, with its
+bend, roll and twist, departs from a cubic by much less than the range noise
+over its extent, as the leaf model of :mod:`scenes.leaf` does, whose
+wrinkles are 0.1-0.4 mm against 1-2 mm of noise; a branch across a leaf's
+width is close to one too).
 """
 from __future__ import annotations
 
@@ -54,17 +51,6 @@ MIN_ANGLE_DEG = 20.0
 #: parted measured 0.4-4.8 times the median, those whose split moved a leaf's area most 2.1-4.8; the single leaves
 #: cut in two 0.25-1.75, once 2.2.
 MIN_AREA_RATIO = 2.0
-#: A surface whose outline fills at most this share of its moment ellipse (:func:`ellipse_fill`) is no convex blade.
-#: The share is 1 for an ellipse, 3 / pi = 0.955 for a rectangle, 0.894 for two equal ellipses side by side and
-#: 0.827 for a triangle, the least of any convex outline (the share is unchanged by an affine map, and the triangle
-#: minimises it); assumption: 0.75, below that by a margin for a leaf's serrate, pixelated outline. On the
-#: development canopies' truth (leafy tree, pears s7, s41; surfaces of 1-3 times the median area that `MIN_AREA_RATIO`
-#: and the angle left whole), 2 % of the 354 single-leaf surfaces fill at most 0.75 and none of them passes the
-#: evidence test; 12 of the 30 surfaces holding two leaves or a leaf and a branch piece pass both.
-MAX_ELLIPSE_FILL = 0.75
-#: A surface whose outline is no convex blade is tested from this many times the median area (assumption: one
-#: typical leaf; a leaf of half that with a branch piece beside it is no large area error).
-MIN_LOBED_RATIO = 1.0
 #: Smallest share of the surface's pulses in a part.
 MIN_PART_SHARE = 0.1
 #: Half-size of the window over which the local normals of the first partition are taken, pixels.
@@ -88,10 +74,7 @@ def split_merged(surfaces: np.ndarray, candidates: np.ndarray, range_m: np.ndarr
     variances, clipped at :data:`CLIP_SIGMA` squared) of one cubic for all
     by more than :data:`MIN_EVIDENCE` times the information criterion's price
     of the second cubic, the two cubics' normals lie at least
-    :data:`MIN_ANGLE_DEG` apart where the parts touch (or the surface's
-    outline fills at most :data:`MAX_ELLIPSE_FILL` of its moment ellipse,
-    :func:`ellipse_fill`; such a surface is tested from
-    :data:`MIN_LOBED_RATIO` times the median area), and each part holds
+    :data:`MIN_ANGLE_DEG` apart where the parts touch, and each part holds
     at least ``min_pixels`` pulses and :data:`MIN_PART_SHARE` of the
     surface.
 
@@ -124,17 +107,12 @@ def split_merged(surfaces: np.ndarray, candidates: np.ndarray, range_m: np.ndarr
     area = surface_areas(surfaces, candidates, range_m, theta, psi, 2 * min_pixels)
     measured = np.isfinite(area)
     tested = np.zeros(len(area), dtype=bool)
-    lobed = np.zeros(len(area), dtype=bool)
     if measured.any():
         tested[measured] = area[measured] >= MIN_AREA_RATIO * np.median(area[measured])
-        lobed[measured] = area[measured] >= MIN_LOBED_RATIO * np.median(area[measured])
     for k, box in enumerate(ndimage.find_objects(surfaces), start=1):
-        if box is None or k >= len(tested) or not (tested[k] or lobed[k]):
+        if box is None or k >= len(tested) or not tested[k]:
             continue
         inside = (surfaces[box] == k) & np.isfinite(range_m[box])
-        lobed[k] = lobed[k] and ellipse_fill(inside) <= MAX_ELLIPSE_FILL
-        if not (tested[k] or lobed[k]):
-            continue
         n = int(inside.sum())
         price = MIN_EVIDENCE * 10 * np.log(n)
         if n * part_scores(inside.astype(int), range_m[box], theta[box], psi[box], noise[box])[0] <= price:
@@ -146,41 +124,12 @@ def split_merged(surfaces: np.ndarray, candidates: np.ndarray, range_m: np.ndarr
         if sizes.min() < max(min_pixels, MIN_PART_SHARE * n):
             continue
         one, apart, _, angle = part_scores(part, range_m[box], theta[box], psi[box], noise[box])
-        if not (n * (one - apart) > price and (angle >= MIN_ANGLE_DEG or lobed[k])):
+        if not (n * (one - apart) > price and angle >= MIN_ANGLE_DEG):
             continue
         count += 1
         out[box][part == 1 + int(np.argmin(sizes))] = count
         parents.append(k)
     return out, np.array(parents, dtype=int)
-
-
-def ellipse_fill(inside: np.ndarray) -> float:
-    """Share of its moment ellipse that a region covers.
-
-    The ellipse of the same second moments as the region's pixels (half
-    axes twice the principal standard deviations) covers
-    ``4 pi sqrt(det C)`` pixels, ``C`` the covariance of the pixels'
-    (row, column); the share is the region's pixel count over that. Any
-    affine map leaves it unchanged, so the scan grid gives the share of the
-    region's outline on its own plane (the grid is an affine image of a
-    plane over a leaf's extent).
-
-    Parameters
-    ----------
-    inside : ndarray of bool, 2-D
-        The region's pixels.
-
-    Returns
-    -------
-    float
-        The share (1 for an ellipse, at least 0.827 for a convex region; NaN
-        under 3 pixels or on a line).
-    """
-    rows, cols = np.nonzero(inside)
-    if len(rows) < 3:
-        return np.nan
-    det = float(np.linalg.det(np.cov(np.stack([rows, cols]).astype(float), bias=True)))
-    return len(rows) / (4 * np.pi * np.sqrt(det)) if det > 0 else np.nan
 
 
 def surface_areas(surfaces: np.ndarray, candidates: np.ndarray, range_m: np.ndarray, theta: np.ndarray,

@@ -5,8 +5,7 @@ import numpy as np
 from scipy.spatial import ConvexHull
 
 from leafsfs.leaves import segment_scan
-from leafsfs.splits import (MAX_ELLIPSE_FILL, MIN_ANGLE_DEG, MIN_EVIDENCE, ellipse_fill, part_scores, split_merged,
-                            surface_areas, two_parts)
+from leafsfs.splits import MIN_ANGLE_DEG, MIN_EVIDENCE, part_scores, split_merged, surface_areas, two_parts
 from tlssim.pattern import beam_frame
 
 STEP = math.radians(0.036)
@@ -205,49 +204,3 @@ def test_a_curled_leaf_beside_a_plane_keeps_its_far_end():
     inside = np.isfinite(range_m)
     part = two_parts(inside, range_m, theta, psi, np.full(inside.shape, NOISE_M))
     assert _apart(part, front, back & ~front)
-
-
-def _leaf_on_branch(behind_m):
-    """Ranges of a planar elliptic leaf 2 m away lying along a branch that crosses the whole window under its lower
-    margin: a cylinder 5 mm in radius whose axis lies ``behind_m`` behind the leaf's plane and 10 deg off it (less
-    than MIN_ANGLE_DEG); the nearer is seen. Returns the ranges and the leaf's and the branch's visible pulses."""
-    i, j = np.mgrid[:ROWS, :COLS]
-    x = (j - 60) * 2.0 * STEP  # across-beam distance at 2 m, m
-    leaf = _leaf((40, 60), (24, 34))
-    across = (i - 66) * 2.0 * STEP  # distance from the branch's axis in the image, m
-    branch = np.abs(across) < 0.005
-    r_leaf = 2.0 + 0.2 * x
-    r_branch = 2.0 + behind_m + math.tan(math.atan(0.2) - math.radians(10)) * x \
-        - np.sqrt(np.clip(0.005 ** 2 - across ** 2, 0, None))
-    seen_branch = branch & (~leaf | (r_branch < r_leaf))
-    range_m = np.where(seen_branch, r_branch, np.where(leaf, r_leaf, np.nan))
-    range_m = range_m + NOISE_M * np.random.default_rng(4).standard_normal(range_m.shape)
-    return range_m, leaf & ~seen_branch, seen_branch
-
-
-def test_ellipse_fill_is_one_for_an_ellipse_and_least_for_a_triangle():
-    i, j = np.mgrid[:300, :300]
-    assert abs(ellipse_fill(np.hypot((i - 150) / 60, (j - 150) / 140) <= 1) - 1) < 0.01
-    assert abs(ellipse_fill((i > 50) & (i < 250) & (j > 100) & (j < 160)) - 3 / np.pi) < 0.01  # a rectangle
-    assert abs(ellipse_fill((j >= i) & (i >= 20) & (j < 280)) - 0.827) < 0.01  # a triangle: the least of a convex
-    # the same shapes under an affine map (sheared and stretched): the same share
-    sheared = np.hypot((i - 150) / 40, (j - 150 - 0.8 * (i - 150)) / 90) <= 1
-    assert abs(ellipse_fill(sheared) - 1) < 0.01
-
-
-def test_a_leaf_along_a_branch_is_split_by_its_outline_though_they_meet_at_10_deg():
-    # the leaf and the branch piece under its margin, one surface of about 1.4 typical leaves (under
-    # MIN_AREA_RATIO) whose parts meet at 10 deg (under MIN_ANGLE_DEG): only its outline, which no convex blade
-    # has, has it tested and split
-    range_m, leaf, branch = _leaf_on_branch(0.006)
-    inside = np.isfinite(range_m)
-    assert ellipse_fill(inside) <= MAX_ELLIPSE_FILL < ellipse_fill(leaf)
-    labels, parents = _split(range_m)
-    assert parents.tolist() == [1]
-    assert _apart(labels, leaf, branch)
-    # the same outline on one smooth surface (a leaf with a stalk along its margin): no evidence of two, kept whole
-    x = (np.arange(COLS) - 60) * 2.0 * STEP
-    noise = NOISE_M * np.random.default_rng(5).standard_normal(range_m.shape)
-    one = np.where(np.isfinite(range_m), 2.0 + 0.2 * x + noise, np.nan)
-    labels, parents = _split(one)
-    assert len(parents) == 0 and np.array_equal(labels, np.isfinite(one).astype(int))
