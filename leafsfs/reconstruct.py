@@ -384,6 +384,15 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
             tails &= np.abs(grids.range - plane) <= LONE_TAIL_SIGMA * regions.noise
         grids.range[tails] = plane[tails]
         grids.corrected |= tails
+        # An edge pulse within the range noise of one surface that nothing moved takes that surface's distance
+        # extrapolated to it (:attr:`_Regions.single_range`): the pulse is that surface's, and a mixed pulse's range
+        # lies off its owner's by the other surface's share of the step between them (a step within the attribution's
+        # tolerance but beyond the range noise). Measured with the truth (round 35): on the leafy tree at 0.018 deg,
+        # of such pulses' 3-sigma outliers left on the found >= 80 %-visible leaves (14 % of their ROP after), 58 %
+        # are mixed with at least a tenth of the power from another object.
+        single = np.isfinite(regions.single_range) & (grids.range == scan.range)
+        grids.range[single] = regions.single_range[single]
+        grids.corrected |= single
     # A pulse whose range proves it mixed and that no surface corrected lies between two surfaces and on neither,
     # unless its neighbours share its range within the noise (a piece of a surface too small to be one).
     removed = regions.mixed & ~grids.corrected & (params.unexplained == "remove")
@@ -434,6 +443,9 @@ class _Regions:
         (:data:`OWNER_MARGIN`, :data:`OWNER_TOLERANCE_M`).
     paired : ndarray of bool, 2-D
         Unreliable pulses of no surface paired with two surfaces (their range straddles them).
+    single_range : ndarray, 2-D
+        Distance, extrapolated to it, of the one surface within whose range noise a pulse of no surface lies
+        (:meth:`leafsfs.edges.MixedPulses.single_range`), m (NaN elsewhere).
     partial : ndarray of bool, 2-D
         Outline pulses of a leaf region with most of their footprint off it (:data:`RIM_PARTIAL_SHARE`; unreliable).
     noise : ndarray, 2-D, or float
@@ -454,6 +466,7 @@ class _Regions:
     thin: np.ndarray
     ownerless: np.ndarray
     paired: np.ndarray
+    single_range: np.ndarray
     partial: np.ndarray
     noise: np.ndarray | float
     band: "_Shares"
@@ -841,7 +854,7 @@ def _leaf_regions(scan: Scan, alpha: np.ndarray, labels: np.ndarray | None, vali
     ownerless = unreliable & no_owner(mixed, scan.range, noise)
     paired = unreliable & (mixed.surfaces == 0) & (mixed.pair[..., 1] > 0)
     return _Regions(labels, shares, background, unreliable, out_range, owner_range, proven, thin, ownerless, paired,
-                    valid & partial & (labels > 0), noise, band)
+                    np.where(valid, mixed.single_range(), np.nan), valid & partial & (labels > 0), noise, band)
 
 
 def _band(mixed, surface: int, box: tuple, intensity: np.ndarray, gain: float, calibration,
