@@ -391,9 +391,9 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
         # traits keep its measured range, which their band's shares were measured with): the pulse is that surface's,
         # and a mixed pulse's range lies off its owner's by the other surface's share of the step between them (a step
         # within the attribution's tolerance but beyond the range noise). Measured with the truth (round 35, `fused`,
-        # 0.018 deg): such pulses hold 14 % of the 3-sigma ROP left on the leafy tree's found >= 80 %-visible leaves (69
-        # % of them with a tenth or more of their power from another object); offline, mean per-leaf ROP reduction 3
-        # sigma / 1 cm, leafy tree 0.6961 / 0.8168 -> 0.7008 / 0.8183, pear seed 7 at 3 m 0.7234 / 0.8132 -> 0.7272 /
+        # 0.018 deg): such pulses hold 14 % of the 3-sigma ROP left on the leafy tree's found >= 80 %-visible leaves
+        # (69 % of them with a tenth or more of their power from another object); offline, mean per-leaf ROP reduction
+        # 3 sigma / 1 cm, leafy tree 0.6961 / 0.8168 -> 0.7008 / 0.8183, pear seed 7 at 3 m 0.7234 / 0.8132 -> 0.7272 /
         # 0.8141 (only those beyond 1 / 2 noise deviations: 0.7004 / 0.6996 and 0.7270 / 0.7265); with the traits taking
         # it too, the leafy tree's median |area error| went 5.77 -> 6.23 % (benchmarked).
         single = np.isfinite(regions.single_range) & (grids.range == scan.range)
