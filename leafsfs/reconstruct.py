@@ -385,7 +385,7 @@ def reconstruct(scan: Scan, mask=None, variant: str = "buffer", params: SfsParam
         grids.range[tails] = plane[tails]
         grids.corrected |= tails
     single = np.zeros(scan.shape, dtype=bool)
-    if inliers == "refine":
+    if params.single_surface == "move" or (params.single_surface == "auto" and inliers == "refine"):
         # An edge pulse within the range noise of one surface that nothing moved takes that surface's distance
         # extrapolated to it (:attr:`_Regions.single_range`) in the corrected scan (:func:`_assemble`; the leaves'
         # traits keep its measured range, which their band's shares were measured with): the pulse is that surface's,

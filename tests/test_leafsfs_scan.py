@@ -396,6 +396,8 @@ def test_fused_gives_the_pulses_nothing_moved_their_single_surfaces_distance_and
     assert np.allclose(result.range[changed], scan.range[changed] + 0.001)
     assert np.all(result.outlier[changed]) and not result.removed[changed].any()
     assert [leaf.traits for leaf in result.leaves] == [leaf.traits for leaf in without.leaves]
+    kept = reconstruct(scan, variant="fused", params=SfsParams(single_surface="keep"), calibration=calibration)
+    assert np.array_equal(kept.range, without.range, equal_nan=True)
 
 
 def _scan_to_edit_far_on_the_wall(leaf_scan):
