@@ -138,6 +138,15 @@ class MixedPulses:
         first = np.nan_to_num(self.share, nan=1.0) >= 0.5
         return np.where(first, self.pair_range[..., 0], self.pair_range[..., 1])
 
+    def single_range(self) -> np.ndarray:
+        """Distance of the one surface within whose range noise a pulse of no surface lies, extrapolated to it, m.
+
+        NaN on the pure pulses of a surface, on the pulses paired with two
+        surfaces or with none, and on a thin part's pulses.
+        """
+        single = (self.surfaces == 0) & (self.pair[..., 0] > 0) & (self.pair[..., 1] == 0) & ~self.thin
+        return np.where(single, self.pair_range[..., 0], np.nan)
+
 
 def attribute_mixed(range_m: np.ndarray, surfaces: np.ndarray, band_px: int, intensity: np.ndarray | None = None,
                     *, radius_px: float = 8.0, tolerance_m: float = 0.006, reach_px: int = 0) -> MixedPulses:

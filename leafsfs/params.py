@@ -137,6 +137,17 @@ class SfsParams:
         within ``OWNER_TOLERANCE_M`` of their midpoint and farther than
         ``OWNER_BAND_SIGMA`` noise deviations from both
         (:func:`leafsfs.reconstruct.no_owner`).
+    single_surface : {"auto", "move", "keep"}
+        What becomes of an edge pulse that nothing moved and whose range lies
+        within the range noise of one surface only
+        (:meth:`leafsfs.edges.MixedPulses.single_range`): ``move`` it to that
+        surface's distance extrapolated to it in the corrected scan (the
+        leaves' traits keep its measured range), or ``keep`` its measured
+        range. ``auto``: ``move`` when the pure pulses are refined
+        (``inliers`` ``refine``, the fused variant), else ``keep``. Variants
+        that run the stray-point rule on the pulses PROP-SFS moved keep them
+        (:mod:`benchmarks.registry`: moved, such pulses fed the rule and cost
+        good points at 0.08 deg).
     """
 
     n_smooth: int = 20
@@ -166,6 +177,7 @@ class SfsParams:
     sigma_range_m: float = 0.002
     gate_sigma: float = 3.0
     unexplained: str = "remove"
+    single_surface: str = "auto"
 
     def __post_init__(self):
         _choice(self, "quantization", ("shell", "percentile", "fixed"))
@@ -190,6 +202,7 @@ class SfsParams:
             _number(self, "outlier_threshold_m", 0.0, 10.0, open_low=True)
         _choice(self, "inliers", ("auto", "keep", "test", "refine", "replace"))
         _choice(self, "unexplained", ("keep", "remove"))
+        _choice(self, "single_surface", ("auto", "move", "keep"))
         _number(self, "trait_smoothing_m", 0.0, 1.0, open_low=True)
         _number(self, "sigma_alpha_deg", 0.0, 45.0, open_low=True)
         _number(self, "sigma_range_m", 0.0, 1.0, open_low=True)

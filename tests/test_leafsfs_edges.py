@@ -54,6 +54,25 @@ def test_a_pulse_within_the_noise_of_a_surface_is_its_own():
     assert mixed.owner[40, 40] == 1 and not mixed.straddling[40, 40] and mixed.share_of(1)[40, 40] == 1.0
 
 
+def test_a_mixed_pulse_within_the_noise_of_one_surface_gets_that_surfaces_distance():
+    # The plate 5 mm before a second plate (a leaf lying on a leaf): with a 3 mm tolerance the mixed pulses of the
+    # edge lie within the noise of one surface, not between two; each is that surface's, off its distance by the
+    # other's share of the 5 mm step, which the surface's extrapolated distance removes.
+    rng = np.random.default_rng(2)
+    range_m, share, surfaces, plate, _ = _edge_scene(rng)
+    behind = plate + 0.005
+    range_m = np.where(surfaces == 2, behind, share * plate + (1 - share) * behind)
+    mixed = attribute_mixed(range_m, surfaces, 12, tolerance_m=0.003)
+    single = mixed.single_range()
+    own = np.isfinite(single) & (mixed.pair[..., 0] == 1) & (share < 0.9)
+    assert own.sum() >= 40 and np.isnan(single[surfaces > 0]).all()
+    assert np.all(np.abs(single - plate)[own] < 0.0005)  # the plate's plane, not the measured range
+    assert np.all(np.abs(range_m - plate)[own] > 0.0005)
+    # a pulse paired with two surfaces has no single surface's distance
+    wide = attribute_mixed(_edge_scene(rng)[0], _edge_scene(rng)[2], 12, tolerance_m=0.003)
+    assert np.isnan(wide.single_range()[wide.pair[..., 1] > 0]).all()
+
+
 def test_a_pulse_within_the_noise_of_a_third_surface_keeps_the_pair_that_brackets_it():
     # The plate's edge before the wall, and a piece 1.6875 m away beyond the edge (a twig before the wall): the
     # mixed pulses 2 px outside the plate's last pure column (plate share 0.8125) lie at the piece's distance, but

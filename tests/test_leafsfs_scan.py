@@ -380,6 +380,26 @@ def test_mixed_pulses_of_a_leaf_weigh_the_engine_and_the_leaf_planes_distance_by
     assert np.mean(result.range[pure] != scan.range[pure]) < 1e-3 and pure.sum() > 1000
 
 
+def test_fused_gives_the_pulses_nothing_moved_their_single_surfaces_distance_and_keeps_the_traits(leaf_scan,
+                                                                                                     monkeypatch):
+    # A pulse within the range noise of one surface (here: every pulse, given a distance 1 mm beyond its measured
+    # range) takes that distance in the corrected scan unless another rule moved it; the leaf's traits are those of
+    # its measured range, and no other pulse changes.
+    _, scan, calibration = leaf_scan
+    monkeypatch.setattr(MixedPulses, "single_range", lambda self: np.full(self.surfaces.shape, np.nan))
+    without = reconstruct(scan, variant="fused", calibration=calibration)
+    monkeypatch.setattr(MixedPulses, "single_range",
+                        lambda self: scan.range + 0.001)
+    result = reconstruct(scan, variant="fused", calibration=calibration)
+    changed = ~((result.range == without.range) | (np.isnan(result.range) & np.isnan(without.range)))
+    assert np.array_equal(changed, without.range == scan.range) and changed.sum() > 1000
+    assert np.allclose(result.range[changed], scan.range[changed] + 0.001)
+    assert np.all(result.outlier[changed]) and not result.removed[changed].any()
+    assert [leaf.traits for leaf in result.leaves] == [leaf.traits for leaf in without.leaves]
+    kept = reconstruct(scan, variant="fused", params=SfsParams(single_surface="keep"), calibration=calibration)
+    assert np.array_equal(kept.range, without.range, equal_nan=True)
+
+
 def _scan_to_edit_far_on_the_wall(leaf_scan):
     """A copy of the leaf scan whose ranges may be edited, its calibration, and a wall pulse more than 12 pulses
     from anything but the wall (2.5 m)."""
