@@ -252,15 +252,16 @@ def drop_doubled(records: list[dict], labels: np.ndarray) -> int:
     radii = np.array([s[2] for r in records for s in r["sections"]], float)
     middle = (starts + ends) / 2
     reach = np.linalg.norm(ends - starts, axis=1) / 2 + radii
-    near = cKDTree(middle).query_ball_point(middle, reach + reach.max())
+    tree, widest = cKDTree(middle), float(reach.max())
     first = np.r_[True, owner[1:] != owner[:-1]]
     kept = np.ones(len(radii), bool)
     for k in range(len(radii) - 1, -1, -1):
         if (first[k] and records[owner[k]]["parent"] < 0) or radii[k] <= 0:
             continue
-        others = [j for j in near[k] if kept[j] and owner[j] != owner[k] and
-                  np.linalg.norm(middle[j] - middle[k]) <= reach[j] + reach[k]]
-        if others and _inside_share(starts[k], ends[k], radii[k], starts[others], ends[others], radii[others]) \
+        near = np.asarray(tree.query_ball_point(middle[k], reach[k] + widest), np.int64)
+        others = near[kept[near] & (owner[near] != owner[k]) &
+                      (np.linalg.norm(middle[near] - middle[k], axis=1) <= reach[near] + reach[k])]
+        if len(others) and _inside_share(starts[k], ends[k], radii[k], starts[others], ends[others], radii[others]) \
                 >= DOUBLED_SHARE:
             kept[k] = False
     if kept.all():
