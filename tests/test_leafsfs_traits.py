@@ -251,7 +251,8 @@ def test_a_leaf_below_78_deg_keeps_the_planes_area(incidence_deg, monkeypatch):
     frame, height, weight, _ = _pleated_traits(incidence_deg, 0.002)
     area = leaf_traits(frame, height, weight, 0.005)["area_m2"]
     monkeypatch.setattr("leafsfs.traits._grazing_differences",
-                        lambda elements, height, pure, planes, noise_m: (planes, np.zeros(planes.shape[:-1])))
+                        lambda elements, height, pure, planes, noise_m, min_secant=None:
+                        (planes, np.zeros(planes.shape[:-1])))
     assert area == leaf_traits(frame, height, weight, 0.005)["area_m2"]
 
 
