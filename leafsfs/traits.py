@@ -262,7 +262,7 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoot
     # The heights' noise (infinite without three pure pulses in a line: then no edge secants).
     noise = max(_noise(height, pure), MIN_HEIGHT_NOISE_M)
     slope_elements, _ = _grazing_differences(elements, height, pure, plane_elements,
-                                                     noise if math.isfinite(noise) else 0.0)
+                                             noise if math.isfinite(noise) else 0.0)
     area_elements = weight * np.linalg.norm(slope_elements, axis=-1)
     flat = np.linalg.norm(np.cross(du_row * r, du_col * r), axis=-1)
     # Beyond EDGE_MIN_SECANT a mixed pulse at the outline counts at the steepest secant of the leaf's edge beside it
