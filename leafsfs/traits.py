@@ -24,7 +24,7 @@ Beyond 78 deg a pure pulse's slope is that of the differences of its height
 to its neighbours' instead (:func:`_grazing_differences`): a wrinkled leaf
 turns edge-on on the scale of a few pulses, which a plane averages away
 (grazing leaves' pure pulses of the leafy tree: 11 % short of their true
-secants with the planes, 2.5 % with the differences). Beyond 78 deg a
+secants with the planes, 2.5 % with the differences). Beyond 70 deg (78 before round 36; :data:`EDGE_MIN_SECANT`) a
 mixed pulse at the outline counts, for its share, at the larger of the
 planes' secant and the steepest secant of the pure pulses at the edge
 beside it, less the expected excess of the steepest of that many noisy
@@ -153,6 +153,17 @@ BAND_MAX_INCIDENCE_DEG = 88.0
 #: leaves / pear seed 41 at 5 m, 0.018 deg, not tuned on before this round): 60 deg 0.81 / 6.47 %, 65 deg 0.83 /
 #: 5.46 %, 70 deg 0.88 / 5.08 %, 75 deg 0.99 / 5.10 %; planes alone 0.93 / 4.77 %.
 BAND_MIN_SECANT = 1.0 / math.cos(math.radians(70.0))
+#: Smallest secant of the local planes' incidence from which a mixed pulse at the outline counts at the steepest
+#: noise-corrected secant of the pure pulses' height differences at the edge beside it (:func:`_edge_secants`), where
+#: that exceeds the planes': :data:`BAND_MIN_SECANT`'s, where the mixed band's own decomposition starts (assumption:
+#: the same angle beyond which the planes' area of the band is no longer right to a few per cent). The pure pulses'
+#: own area keeps the planes below :data:`DIFFERENCE_MIN_SECANT`. Round 36 (per-pulse truth, found >= 80 %-visible
+#: leaves at 65-82 deg of the leafy tree and pear seed 7 at 3 m, 0.018 deg, `fused`): their mixed pulses whose planes
+#: lie at 70-78 deg were counted at secant 3.62 against a true 4.39 (tree: 311 of 363 cm2); the edges' differences
+#: give 4.00 (344 cm2). The cost: the differences' noise raises a flat leaf's band where the range noise is a pulse
+#: spacing or more (a plate at 72 deg, 3.5 m, outer 3 rings mixed, noise of 1 / 2 / 3 spacings: +10 / +25 / +40 % of
+#: the band; +0.2 to 0.8 % from 78 deg on).
+EDGE_MIN_SECANT = BAND_MIN_SECANT
 #: Largest factor by which the decomposition may raise the area that the local planes give a leaf's mixed pulses
 #: (together; assumption: a grazing leaf's mixed pulses were counted at most 26-40 % short by the planes on the
 #: standard suite's 70-80 deg leaves, truth, and a factor 2 moved none of the singles' medians; in a canopy one
@@ -250,17 +261,19 @@ def leaf_traits(frame: LocalFrame, height: np.ndarray, weight: np.ndarray, smoot
     pure = known & (weight >= 1)
     # The heights' noise (infinite without three pure pulses in a line: then no edge secants).
     noise = max(_noise(height, pure), MIN_HEIGHT_NOISE_M)
-    slope_elements, deviation = _grazing_differences(elements, height, pure, plane_elements,
-                                                     noise if math.isfinite(noise) else 0.0)
+    slope_elements, _ = _grazing_differences(elements, height, pure, plane_elements,
+                                             noise if math.isfinite(noise) else 0.0)
     area_elements = weight * np.linalg.norm(slope_elements, axis=-1)
     flat = np.linalg.norm(np.cross(du_row * r, du_col * r), axis=-1)
-    # Beyond DIFFERENCE_MIN_SECANT a mixed pulse at the outline counts at the steepest secant of the leaf's edge beside
-    # it less the noise's expected excess, where that exceeds the planes' (_edge_secants); the decomposition's pulses
-    # below keep their own rule.
+    # Beyond EDGE_MIN_SECANT a mixed pulse at the outline counts at the steepest secant of the leaf's edge beside it
+    # (its pure pulses' height differences from that angle on) less the noise's expected excess, where that exceeds
+    # the planes' (_edge_secants); the decomposition's pulses below keep their own rule.
     plane_secant = np.linalg.norm(plane_elements, axis=-1) / flat
-    edge = (weight > 0) & (weight < 1) & (plane_secant >= DIFFERENCE_MIN_SECANT) & math.isfinite(noise)
+    edge_slopes, edge_deviation = _grazing_differences(elements, height, pure, plane_elements,
+                                                       noise if math.isfinite(noise) else 0.0, EDGE_MIN_SECANT)
+    edge = (weight > 0) & (weight < 1) & (plane_secant >= EDGE_MIN_SECANT) & math.isfinite(noise)
     edge_elements = np.where(edge, weight * flat * np.maximum(plane_secant, _edge_secants(
-        np.linalg.norm(slope_elements, axis=-1) / flat, pure, deviation / flat)), area_elements)
+        np.linalg.norm(edge_slopes, axis=-1) / flat, pure, edge_deviation / flat)), area_elements)
     raised = False
     if band is not None:
         # Both secants of a mixed pulse fall short near grazing incidence: the local planes' (of the pure pulses
@@ -458,11 +471,11 @@ def _area_slope_elements(elements, height: np.ndarray, known: np.ndarray, weight
     return elements(np.where(fitted[..., None], slope, quadratic))
 
 
-def _grazing_differences(elements, height: np.ndarray, pure: np.ndarray, planes: np.ndarray,
-                         noise_m: float) -> tuple[np.ndarray, np.ndarray]:
+def _grazing_differences(elements, height: np.ndarray, pure: np.ndarray, planes: np.ndarray, noise_m: float,
+                         min_secant: float = DIFFERENCE_MIN_SECANT) -> tuple[np.ndarray, np.ndarray]:
     """Area elements of the pure pulses at grazing incidence from their own height differences, else ``planes``.
 
-    Where the planes' incidence is at least :data:`DIFFERENCE_MIN_SECANT`'s,
+    Where the planes' incidence is at least ``min_secant``'s,
     a pure pulse takes its slope from the differences of its height to its
     pure neighbours' (central where both neighbours along an axis are pure,
     one-sided where one is; the planes' element where neither is). A leaf's
@@ -491,6 +504,10 @@ def _grazing_differences(elements, height: np.ndarray, pure: np.ndarray, planes:
         The planes' area elements, m².
     noise_m : float
         Standard deviation of the heights' noise, m.
+    min_secant : float
+        Smallest secant of the planes' incidence from which the differences
+        stand (default :data:`DIFFERENCE_MIN_SECANT`, the pure pulses' area;
+        :data:`EDGE_MIN_SECANT` for the edge secants of the mixed pulses).
 
     Returns
     -------
@@ -513,7 +530,7 @@ def _grazing_differences(elements, height: np.ndarray, pure: np.ndarray, planes:
         spread[..., axis] = noise_m * np.where(np.isfinite(central), math.sqrt(0.5), math.sqrt(2.0))
     known = pure & np.all(np.isfinite(slope), axis=-1)
     flat = np.linalg.norm(elements(np.zeros(height.shape + (2,))), axis=-1)
-    grazing = known & (np.linalg.norm(planes, axis=-1) >= DIFFERENCE_MIN_SECANT * flat)
+    grazing = known & (np.linalg.norm(planes, axis=-1) >= min_secant * flat)
     slope = np.where(known[..., None], slope, 0.0)
     # the noise of the slope's component along its own direction, and the element one such deviation steeper
     norm = np.linalg.norm(slope, axis=-1, keepdims=True)

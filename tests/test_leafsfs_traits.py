@@ -251,7 +251,8 @@ def test_a_leaf_below_78_deg_keeps_the_planes_area(incidence_deg, monkeypatch):
     frame, height, weight, _ = _pleated_traits(incidence_deg, 0.002)
     area = leaf_traits(frame, height, weight, 0.005)["area_m2"]
     monkeypatch.setattr("leafsfs.traits._grazing_differences",
-                        lambda elements, height, pure, planes, noise_m: (planes, np.zeros(planes.shape[:-1])))
+                        lambda elements, height, pure, planes, noise_m, min_secant=None:
+                        (planes, np.zeros(planes.shape[:-1])))
     assert area == leaf_traits(frame, height, weight, 0.005)["area_m2"]
 
 
@@ -413,3 +414,25 @@ def test_a_bite_with_a_leaf_behind_it_is_not_completed():
     assert traits["occluded_slices"] == 0
     assert traits["area_m2"] == pytest.approx(traits["visible_area_m2"])
     assert traits["area_m2"] < 0.9 * whole
+
+
+@pytest.mark.parametrize("margin_deg", [72.0, 80.0])
+def test_a_leaf_at_72_deg_curled_edge_on_in_its_last_pure_rows_counts_its_band_at_the_margins_secant(margin_deg):
+    # A plate at 72 deg, 3.5 m away, whose last 3 pure rows and the 3 mixed rows beyond (share 0.5, heights flattened
+    # towards the middle) turn to 80 deg: the local planes at the band mix both slopes and lie below 78 deg, which
+    # counted the band 22 % short; from 70 deg (EDGE_MIN_SECANT) the band takes the steepest of its edge's
+    # differences. Unturned (72 deg throughout), the band keeps the plate's own secant.
+    theta, psi, range_m, cos_incidence = _kinked_plate(72.0, margin_deg, 55)
+    region = np.zeros(theta.shape, bool)
+    region[20:61, 5:55] = True
+    band = region & (np.arange(theta.shape[0])[:, None] >= 58)
+    weight = np.where(band, 0.5, region.astype(float))
+    frame = local_frame(theta, psi, range_m, region)
+    height = np.where(region, frame.height(range_m), np.nan)
+    centre = np.nanmedian(height[region])
+    height[band] = centre + 0.3 * (height[band] - centre)
+    h, w = height[frame.box], weight[frame.box]
+    counted = (leaf_traits(frame, h, w, 0.005)["visible_area_m2"]
+               - leaf_traits(frame, h, np.where(w < 1, 1e-9 * w, w), 0.005)["visible_area_m2"])
+    exact = np.sum(np.where(band, weight, 0.0) * range_m**2 * STEP**2 / cos_incidence)
+    assert counted == pytest.approx(exact, rel=0.06)
