@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from woody.geometry import segment_distance
+from woody.geometry import section_arrays, segment_distance
 
 #: Length of a branch's axis chord, in radii of its first section (assumption: 20 radii, 20 cm on a 1 cm limb,
 #: average the wobble of the 4-radius sections of :func:`woody.cylinders.follow_cylinders` while a limb bends
@@ -101,7 +101,7 @@ def fill_gaps(records: list[dict], points: np.ndarray, bridge_m: float, section_
     """
     if bridge_m <= 0 or len(records) < 2:
         return 0
-    starts, ends, radii, owner, reliable = _section_arrays(records)
+    starts, ends, radii, owner, reliable = section_arrays(records)
     index = {r["id"]: i for i, r in enumerate(records)}
     carried = _growth_lengths(records, index)
     fills = []
@@ -160,7 +160,7 @@ def extend_over_strips(records: list[dict], points: np.ndarray, bridge_m: float,
     """
     if bridge_m <= 0 or len(records) < 2:
         return 0
-    starts, ends, radii, owner, reliable = _section_arrays(records)
+    starts, ends, radii, owner, reliable = section_arrays(records)
     index = {r["id"]: i for i, r in enumerate(records)}
     carried = _growth_lengths(records, index)
     added_wood: list[tuple] = []
@@ -195,16 +195,6 @@ def _limb_lines(records: list[dict]):
         line = None if record["parent"] < 0 or first is None else _chord(record["sections"][first:])
         if line is not None:
             yield (i, record, first, *line)
-
-
-def _section_arrays(records: list[dict]) -> tuple:
-    """Every section of the records as arrays: starts and ends (m), radii (m), owning record's index, resolved."""
-    starts = np.array([s[0] for r in records for s in r["sections"]], float)
-    ends = np.array([s[1] for r in records for s in r["sections"]], float)
-    radii = np.array([s[2] for r in records for s in r["sections"]], float)
-    owner = np.array([i for i, r in enumerate(records) for _ in r["sections"]])
-    reliable = np.array([ok for r in records for ok in r.get("reliable", [True] * len(r["sections"]))], bool)
-    return starts, ends, radii, owner, reliable
 
 
 def _replace_start(record: dict, first: int, added: list) -> None:

@@ -1,4 +1,4 @@
-"""Geometry shared by both methods: frusta, cylinder lists, distances and tube meshes.
+"""Geometry shared by both methods: frusta, cylinder lists, branch records' sections, distances and tube meshes.
 
 Both methods report their result as a *cylinder list*, the format of a woody
 object's truth in ``docs/contracts.md``: dicts with ``id``, ``parent`` (-1
@@ -89,6 +89,17 @@ def cylinder_arrays(cylinders: list[dict]) -> dict[str, np.ndarray]:
         out[key] = np.array([default(i) if c.get(key) is None else c[key] for i, c in enumerate(cylinders)],
                             np.int64).reshape(count)
     return out
+
+
+def section_arrays(records: list[dict]) -> tuple:
+    """Every section of branch records (``sections`` as ``(start, end, radius)``, ``reliable`` per section) as
+    arrays: starts and ends (m), radii (m), the owning record's index, resolved (absent ``reliable``: all)."""
+    starts = np.array([s[0] for r in records for s in r["sections"]], float)
+    ends = np.array([s[1] for r in records for s in r["sections"]], float)
+    radii = np.array([s[2] for r in records for s in r["sections"]], float)
+    owner = np.array([i for i, r in enumerate(records) for _ in r["sections"]])
+    reliable = np.array([ok for r in records for ok in r.get("reliable", [True] * len(r["sections"]))], bool)
+    return starts, ends, radii, owner, reliable
 
 
 def cylinders_volume(cylinders: list[dict]) -> float:

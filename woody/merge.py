@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 
 from woody.branch import Branch
 from woody.cylfit import angle_deg
-from woody.geometry import orthonormal_frame, segment_distance
+from woody.geometry import orthonormal_frame, section_arrays, segment_distance
 
 #: Margin of the screening of :func:`merge_contained`, m (far above rounding, far below any radius).
 SCREEN_M = 1e-6
@@ -244,12 +244,9 @@ def drop_doubled(records: list[dict], labels: np.ndarray) -> int:
     int
         Number of sections dropped.
     """
-    owner = np.array([i for i, r in enumerate(records) for _ in r["sections"]], np.int64)
+    starts, ends, radii, owner, _ = section_arrays(records)
     if len(np.unique(owner)) < 2:
         return 0
-    starts = np.array([s[0] for r in records for s in r["sections"]], float)
-    ends = np.array([s[1] for r in records for s in r["sections"]], float)
-    radii = np.array([s[2] for r in records for s in r["sections"]], float)
     middle = (starts + ends) / 2
     reach = np.linalg.norm(ends - starts, axis=1) / 2 + radii
     tree, widest = cKDTree(middle), float(reach.max())
