@@ -352,9 +352,16 @@ def plot_height_errors(rows: list[dict]) -> Figure:
     return figure
 
 
+#: The before/after figure re-runs every variant of its case at full resolution: a case whose variants took longer
+#: than this in the run (s, summed over its variants) is not shown, so that a suite of large canopy cases (the
+#: orchard-row window alone: 30 min) does not take twice as long for one picture.
+SHOWCASE_MAX_S = 120.0
+
+
 def pick_showcase(rows: list[dict]) -> dict | None:
-    """The case shown before/after, among those scored on leaves: preferably a single leaf with visible
-    outliers (ROP >= 0.1) that every variant reconstructed, and among those the one whose variants ran fastest, since the figure re-runs them."""
+    """The case shown before/after, among those scored on leaves whose variants took at most
+    :data:`SHOWCASE_MAX_S` in the run: preferably a single leaf with visible outliers (ROP >= 0.1) that every
+    variant reconstructed, and among those the one whose variants ran fastest, since the figure re-runs them."""
     runtime: dict[str, float] = {}
     skipped: dict[str, bool] = {}
     cases: dict[str, dict] = {}
@@ -367,6 +374,7 @@ def pick_showcase(rows: list[dict]) -> dict | None:
         runtime[name] = runtime.get(name, 0.0) + (r["runtime_s"] or 0.0)
         skipped[name] = skipped.get(name, False) or any(leaf.get("skipped") for leaf in r["metrics"]["targets"])
         cases[name] = r
+    cases = {name: row for name, row in cases.items() if runtime[name] <= SHOWCASE_MAX_S}
     if not cases:
         return None
 

@@ -351,6 +351,20 @@ def test_showcase_is_a_leaf_case_and_none_without_leaves():
     assert pick_showcase([woody, leaf])["name"] == "leaf"
 
 
+def test_showcase_leaves_out_cases_too_long_to_run_again():
+    """The figure re-runs its case's variants: a case whose variants ran longer than the limit is never shown."""
+    from benchmarks.report import SHOWCASE_MAX_S, pick_showcase
+
+    def row(name, runtime_s):
+        return {"error": None, "case_name": name, "case_spec": {"name": name, "scene": {"builtin": "leaf-1.5m"}},
+                "runtime_s": runtime_s, "metrics": {"targets": [{"target": "leaf", "object_type": "leaf",
+                                                                   "rop_before": 0.2}]}}
+
+    long_case = [row("canopy", 0.6 * SHOWCASE_MAX_S), row("canopy", 0.6 * SHOWCASE_MAX_S)]  # two variants
+    assert pick_showcase(long_case) is None
+    assert pick_showcase(long_case + [row("leaf", 0.9 * SHOWCASE_MAX_S)])["name"] == "leaf"
+
+
 def test_invalid_cases_are_refused_and_failed_results_exit_non_zero(tiny_path, tmp_path, capsys, monkeypatch):
     suite = tmp_path / "bad.yaml"
     suite.write_text(yaml.safe_dump({"name": "bad", "cases": [
