@@ -69,7 +69,8 @@ def test_a_mixed_pulse_within_the_noise_of_one_surface_gets_that_surfaces_distan
     assert np.all(np.abs(single - plate)[own] < 0.0005)  # the plate's plane, not the measured range
     assert np.all(np.abs(range_m - plate)[own] > 0.0005)
     # a pulse paired with two surfaces has no single surface's distance
-    wide = attribute_mixed(_edge_scene(rng)[0], _edge_scene(rng)[2], 12, tolerance_m=0.003)
+    wall_range, _, wall_surfaces, _, _ = _edge_scene(rng)
+    wide = attribute_mixed(wall_range, wall_surfaces, 12, tolerance_m=0.003)
     assert np.isnan(wide.single_range()[wide.pair[..., 1] > 0]).all()
 
 
